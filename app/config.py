@@ -1,0 +1,367 @@
+"""Typed, validated scenario configuration (TOML file -> pydantic models).
+
+Every default reproduces the paper (Makhdoomi et al., Sections 4-5 and Table 1) or the
+UR10e data sheet. Unknown keys, non-finite numbers and impossible values are rejected
+with a message that names the field.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import tomllib
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    model_validator,
+)
+
+__all__ = [
+    "ConfigError",
+    "ContactMaterial",
+    "EmulatorConfig",
+    "HandConfig",
+    "LabConfig",
+    "LoopConfig",
+    "OrbitConfig",
+    "PulseConfig",
+    "RobotConfig",
+    "SatelliteConfig",
+    "SensorConfig",
+    "ServoConfig",
+    "VfdmConfig",
+    "WrenchProcessingConfig",
+    "load_config",
+    "parse_config",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration could not be read or is invalid; the message names the field."""
+
+
+def _finite(v: float) -> float:
+    if not math.isfinite(v):
+        raise ValueError("must be a finite number")
+    return v
+
+
+Finite = Annotated[float, AfterValidator(_finite)]
+Positive = Annotated[float, AfterValidator(_finite), Field(gt=0.0)]
+NonNegative = Annotated[float, AfterValidator(_finite), Field(ge=0.0)]
+Vec3 = tuple[Finite, Finite, Finite]
+PositiveVec3 = tuple[Positive, Positive, Positive]
+
+
+def _unit_quaternion(q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    n = math.sqrt(sum(c * c for c in q))
+    if n < 1e-9:
+        raise ValueError("quaternion must be non-zero (w, x, y, z)")
+    return tuple(c / n for c in q)  # type: ignore[return-value]
+
+
+Quaternion = Annotated[tuple[Finite, Finite, Finite, Finite], AfterValidator(_unit_quaternion)]
+IDENTITY_WXYZ = (1.0, 0.0, 0.0, 0.0)
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class OrbitConfig(_Model):
+    """Observer orbit and what the ODS does with the wrenches it receives."""
+
+    altitude_m: Positive = 800e3
+    gravity_gradient: bool = True
+    force_scale: NonNegative = 1.0
+    """Multiplies every external force before it enters the ODS (scales lab pushes)."""
+    torque_scale: NonNegative = 1.0 / 2000.0
+    """Multiplies every external torque before it enters the ODS (paper: 1/2000)."""
+
+
+class SatelliteConfig(_Model):
+    """One satellite: its mockup and its initial state (all relative to R)."""
+
+    name: Annotated[str, Field(min_length=1, max_length=64)]
+    mass_kg: Positive = 1.0
+    size_m: PositiveVec3 = (0.2, 0.2, 0.1)
+    inertia_kgm2: PositiveVec3 | None = None
+    """Principal moments [Ixx, Iyy, Izz]; default: uniform box of size_m and mass_kg."""
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    velocity_mps: Vec3 = (0.0, 0.0, 0.0)
+    attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    omega_radps: Vec3 = (0.0, 0.0, 0.0)
+    """Angular velocity relative to R, body axes (zero: at rest in the lab)."""
+    material: Literal["rigid", "sponge"] = "rigid"
+
+    @model_validator(mode="after")
+    def _inertia_is_physical(self) -> SatelliteConfig:
+        if self.inertia_kgm2 is not None:
+            a, b, c = self.inertia_kgm2
+            if a + b < c or b + c < a or a + c < b:
+                raise ValueError(
+                    "inertia_kgm2 violates the triangle inequality of principal moments"
+                )
+        return self
+
+    def principal_inertia(self) -> np.ndarray:
+        """Principal inertia; a uniform box of size_m when not given."""
+        if self.inertia_kgm2 is not None:
+            return np.array(self.inertia_kgm2, dtype=float)
+        sx, sy, sz = self.size_m
+        m = self.mass_kg
+        return m / 12.0 * np.array([sy**2 + sz**2, sx**2 + sz**2, sx**2 + sy**2])
+
+
+class PulseConfig(_Model):
+    """A scripted push: constant force (in R) and torque (body axes) over [start_s, end_s)."""
+
+    satellite: str
+    start_s: NonNegative
+    end_s: NonNegative
+    force_N: Vec3 = (0.0, 0.0, 0.0)
+    torque_Nm: Vec3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> PulseConfig:
+        if self.end_s <= self.start_s:
+            raise ValueError("end_s must be greater than start_s")
+        return self
+
+
+class LabConfig(_Model):
+    """Where the CW frame R sits in the lab frame W (z up)."""
+
+    r_origin_m: Vec3 = (0.0, 0.0, 1.0)
+    r_attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    gravity_mps2: Vec3 = (0.0, 0.0, -9.81)
+
+
+class RobotConfig(_Model):
+    """One UR10e: base pose in W, home posture, mockup mounting and safety volume."""
+
+    name: Annotated[str, Field(min_length=1, max_length=64)]
+    satellite: str
+    base_position_m: Vec3 = (0.0, 0.0, 0.0)
+    base_attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    q_home_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] = (
+        0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0,
+    )
+    mockup_offset_m: Vec3 = (0.0, 0.0, 0.07)
+    """Mockup centre of mass (= TCP) in the flange frame."""
+    mockup_attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    """Rotation from the flange frame to the mockup (satellite body) frame."""
+    safety_box_min_m: Vec3 = (-1.5, -1.5, 0.05)
+    safety_box_max_m: Vec3 = (1.5, 1.5, 2.4)
+
+    @model_validator(mode="after")
+    def _box(self) -> RobotConfig:
+        pairs = zip(self.safety_box_min_m, self.safety_box_max_m, strict=True)
+        if any(lo >= hi for lo, hi in pairs):
+            raise ValueError("safety_box_min_m must be below safety_box_max_m on every axis")
+        return self
+
+
+class VfdmConfig(_Model):
+    """VFDM Cartesian motion controller (paper Eqs. 10-13, Table 1)."""
+
+    kp_lin: NonNegative = 10.0
+    kp_rot: NonNegative = 1.0
+    kd_lin: NonNegative = 0.0
+    kd_rot: NonNegative = 0.0
+    error_scale: Positive = 1.0
+    end_mass_kg: Positive = 1.0
+    end_inertia_kgm2: Positive = 1.0
+    link_mass_kg: Positive = 0.01
+    link_inertia_ratio: Positive = 1e-6
+    iterations: Annotated[int, Field(ge=1, le=1000)] = 10
+    internal_dt_s: Positive = 0.002
+    max_error_lin_m: Positive = 1.0
+    max_error_rot_rad: Positive = 1.0
+    velocity_mode: Literal["damped", "reset"] = "damped"
+    damping: Annotated[float, AfterValidator(_finite), Field(ge=0.0, lt=1.0)] = 0.1
+    """Fraction of virtual joint velocity removed per internal step (mode 'damped')."""
+
+
+UR10E_SPEED_LIMITS_RADPS = (
+    math.radians(120), math.radians(120), math.radians(180),
+    math.radians(180), math.radians(180), math.radians(180),
+)
+
+
+class ServoConfig(_Model):
+    """Simulated UR10e position servo."""
+
+    bandwidth_hz: Positive = 25.0
+    damping_ratio: Positive = 1.0
+    delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    speed_limits_radps: tuple[Positive, Positive, Positive, Positive, Positive, Positive] = (
+        UR10E_SPEED_LIMITS_RADPS
+    )
+    accel_limit_radps2: Positive = 40.0
+    position_limit_rad: Positive = 2.0 * math.pi
+
+
+class SensorConfig(_Model):
+    """Virtual UR10e F/T sensor at the flange."""
+
+    range_force_N: Positive = 100.0
+    range_torque_Nm: Positive = 10.0
+    noise_force_N: NonNegative = 5.0 / 3.0
+    """Standard deviation; the data sheet's precision of ±5 N read as a 3-sigma bound."""
+    noise_torque_Nm: NonNegative = 0.2 / 3.0
+    bias_force_N: Vec3 = (1.5, -0.8, 2.0)
+    bias_torque_Nm: Vec3 = (0.05, -0.03, 0.02)
+    delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+
+
+class WrenchProcessingConfig(_Model):
+    """What the lab does to a raw F/T reading before the ODS sees it."""
+
+    payload_compensation: bool = True
+    inertial_compensation: bool = False
+    lowpass_hz: Positive = 10.0
+    deadband_force_N: NonNegative = 2.5
+    deadband_torque_Nm: NonNegative = 0.1
+    deadband_mode: Literal["hard", "soft"] = "hard"
+    """'hard': zero below the threshold, unchanged above (keeps the size of real pushes);
+    'soft': zero below, magnitude reduced by the threshold above (continuous)."""
+
+
+class ContactMaterial(_Model):
+    """Hunt-Crossley contact parameters of one mockup's surface."""
+
+    stiffness_Npm: Positive
+    damping_spm: NonNegative
+    """Hunt-Crossley damping (s/m): F = k d (1 + c d_dot), no pull."""
+
+
+DEFAULT_MATERIALS = {
+    "rigid": ContactMaterial(stiffness_Npm=2.0e4, damping_spm=0.5),
+    "sponge": ContactMaterial(stiffness_Npm=2.0e3, damping_spm=8.0),
+}
+
+
+class HandConfig(_Model):
+    """The operator's virtual hand: spring-coupled to the mockup while it pushes."""
+
+    stiffness_Npm: Positive = 200.0
+    max_force_N: Positive = 60.0
+
+
+class LoopConfig(_Model):
+    """The emulation loop."""
+
+    rate_hz: Annotated[float, AfterValidator(_finite), Field(ge=10.0, le=5000.0)] = 500.0
+    duration_s: Positive = 30.0
+    mode: Literal["hil", "ideal"] = "hil"
+    seed: Annotated[int, Field(ge=0)] = 0
+    telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 200_000
+    approach_timeout_s: Positive = 20.0
+
+
+class EmulatorConfig(_Model):
+    """A whole scenario: orbit, satellites, pulses and, for the emulation, the lab."""
+
+    name: str = "custom"
+    description: str = ""
+    orbit: OrbitConfig = OrbitConfig()
+    satellites: Annotated[list[SatelliteConfig], Field(min_length=1)] = [
+        SatelliteConfig(name="sat1")
+    ]
+    pulses: list[PulseConfig] = []
+    lab: LabConfig = LabConfig()
+    robots: list[RobotConfig] = []
+    vfdm: VfdmConfig = VfdmConfig()
+    servo: ServoConfig = ServoConfig()
+    sensor: SensorConfig = SensorConfig()
+    wrench: WrenchProcessingConfig = WrenchProcessingConfig()
+    materials: dict[str, ContactMaterial] = DEFAULT_MATERIALS
+    hand: HandConfig = HandConfig()
+    loop: LoopConfig = LoopConfig()
+
+    @model_validator(mode="after")
+    def _references(self) -> EmulatorConfig:
+        names = [s.name for s in self.satellites]
+        if len(set(names)) != len(names):
+            raise ValueError(f"satellites: names must be unique, got {names}")
+        for i, p in enumerate(self.pulses):
+            if p.satellite not in names:
+                raise ValueError(
+                    f"pulses.{i}.satellite: {p.satellite!r} names no satellite (have {names})"
+                )
+        for i, r in enumerate(self.robots):
+            if r.satellite not in names:
+                raise ValueError(
+                    f"robots.{i}.satellite: {r.satellite!r} names no satellite (have {names})"
+                )
+        carried = [r.satellite for r in self.robots]
+        if len(set(carried)) != len(carried):
+            raise ValueError("robots: each satellite can be carried by one robot only")
+        for i, s in enumerate(self.satellites):
+            if s.material not in self.materials:
+                raise ValueError(f"satellites.{i}.material: {s.material!r} is not in materials")
+        return self
+
+    def satellite_index(self, name: str) -> int:
+        return [s.name for s in self.satellites].index(name)
+
+
+def _format_error(err: ValidationError) -> str:
+    lines = []
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        msg = e["msg"].removeprefix("Value error, ")
+        lines.append(f"{loc}: {msg}")
+    return "invalid configuration: " + "; ".join(lines)
+
+
+def parse_config(data: dict) -> EmulatorConfig:
+    """Validate a plain dict (from TOML or JSON) into an EmulatorConfig."""
+    try:
+        return EmulatorConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(_format_error(err)) from None
+
+
+def load_config(path: str | Path) -> EmulatorConfig:
+    """Read and validate a TOML scenario file."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    return parse_config(data)
+
+
+def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:
+    """Deep-merge a dict of overrides into a config and validate the result.
+
+    Lists (satellites, robots, pulses) given as a list of dicts are merged item by item,
+    so ``{"satellites": [{"velocity_mps": [0.01, 0, 0]}]}`` changes only that field.
+    """
+    return parse_config(_deep_merge(base.model_dump(), overrides))
+
+
+def _deep_merge(base, override):
+    if isinstance(base, dict) and isinstance(override, dict):
+        out = dict(base)
+        for k, v in override.items():
+            out[k] = _deep_merge(base[k], v) if k in base else v
+        return out
+    if isinstance(base, list) and isinstance(override, list) and all(
+        isinstance(x, dict) for x in override
+    ):
+        out = list(base)
+        for i, v in enumerate(override):
+            out[i] = _deep_merge(base[i], v) if i < len(base) else v
+        return out
+    return override

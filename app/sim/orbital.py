@@ -1,0 +1,255 @@
+"""Orbital Dynamics Simulator (ODS): Clohessy-Wiltshire translation + attitude dynamics.
+
+Paper, Section 2. Every satellite is described relative to the rotating observer frame R
+(x radial away from Earth, y along-track, z orbit normal) of an observer on a circular
+orbit of rate Omega.
+
+State of N satellites, one row each, ``y`` of shape (N, 13)::
+
+    y[:, 0:3]   position in R (m)
+    y[:, 3:6]   velocity relative to R, in R (m/s)
+    y[:, 6:10]  attitude of the body relative to R, unit quaternion wxyz (q_R_B)
+    y[:, 10:13] angular velocity of the body relative to *inertial* space, body axes (rad/s)
+
+The paper's Eqs. 4-7 use the inertial angular velocity. What the lab sees is motion
+relative to R, which itself turns at Omega about z: ``omega_rel = omega - R_R_B^T Omega z``.
+The configuration and the telemetry speak of omega_rel; convert with
+:func:`omega_inertial_from_relative` and :func:`omega_relative_from_inertial`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+MU_EARTH_M3PS2 = 3.986004418e14
+R_EARTH_M = 6378.137e3
+
+POS, VEL, QUAT, OMEGA = slice(0, 3), slice(3, 6), slice(6, 10), slice(10, 13)
+
+
+def orbit_rate(altitude_m: float) -> float:
+    """Mean motion Omega = sqrt(mu / a^3) of a circular orbit of radius a = R_E + h."""
+    a = R_EARTH_M + altitude_m
+    return float(np.sqrt(MU_EARTH_M3PS2 / a**3))
+
+
+def box_inertia(mass_kg: float, size_m) -> np.ndarray:
+    """Principal moments of a uniform box: I_x = m (b^2 + c^2) / 12 and so on."""
+    sx, sy, sz = size_m
+    return mass_kg / 12.0 * np.array([sy**2 + sz**2, sx**2 + sz**2, sx**2 + sy**2])
+
+
+@dataclass(frozen=True)
+class OdsParams:
+    """Physical parameters of the ODS for N satellites."""
+
+    orbit_rate_radps: float
+    mass_kg: np.ndarray  # (N,)
+    inertia_kgm2: np.ndarray  # (N, 3) principal moments
+    gravity_gradient: bool = True
+    force_scale: float = 1.0
+    torque_scale: float = 1.0 / 2000.0
+
+    @property
+    def count(self) -> int:
+        return len(self.mass_kg)
+
+
+@njit(cache=True)
+def _direction_cosines(q: np.ndarray) -> tuple:
+    """R's x (radial) and z (orbit normal) axes in body axes: rows 0 and 2 of R_R_B."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    c = (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y))
+    n = (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+    return c, n
+
+
+def omega_inertial_from_relative(
+    attitude_wxyz: np.ndarray, omega_rel_radps: np.ndarray, orbit_rate_radps: float
+) -> np.ndarray:
+    """Body-axes inertial angular velocity from the one relative to R (both (N, 3))."""
+    q = np.atleast_2d(np.asarray(attitude_wxyz, dtype=float))
+    n = np.array([_direction_cosines(qi)[1] for qi in q])
+    return np.atleast_2d(omega_rel_radps) + orbit_rate_radps * n
+
+
+def omega_relative_from_inertial(
+    attitude_wxyz: np.ndarray, omega_radps: np.ndarray, orbit_rate_radps: float
+) -> np.ndarray:
+    """Body-axes angular velocity relative to R from the inertial one (both (N, 3))."""
+    q = np.atleast_2d(np.asarray(attitude_wxyz, dtype=float))
+    n = np.array([_direction_cosines(qi)[1] for qi in q])
+    return np.atleast_2d(omega_radps) - orbit_rate_radps * n
+
+
+@njit(cache=True)
+def _derivative(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dy):
+    """Kernel of :func:`derivative`, one satellite row at a time (writes dy)."""
+    gg = 3.0 * W * W if gg_on else 0.0
+    for i in range(y.shape[0]):
+        x, z, vx, vy, vz = y[i, 0], y[i, 2], y[i, 3], y[i, 4], y[i, 5]
+        # Eqs. 1-3: Clohessy-Wiltshire with external force F / m
+        dy[i, 0], dy[i, 1], dy[i, 2] = vx, vy, vz
+        dy[i, 3] = 3.0 * W * W * x + 2.0 * W * vy + f_scale * force[i, 0] / mass[i]
+        dy[i, 4] = -2.0 * W * vx + f_scale * force[i, 1] / mass[i]
+        dy[i, 5] = -W * W * z + f_scale * force[i, 2] / mass[i]
+        # Eqs. 4-6: Euler's equations with gravity-gradient torque (inertial omega)
+        q = y[i, 6:10]
+        w1, w2, w3 = y[i, 10], y[i, 11], y[i, 12]
+        I1, I2, I3 = inertia[i, 0], inertia[i, 1], inertia[i, 2]
+        c, n = _direction_cosines(q)
+        dy[i, 10] = (I3 - I2) / I1 * (gg * c[1] * c[2] - w2 * w3) + t_scale * torque[i, 0] / I1
+        dy[i, 11] = (I1 - I3) / I2 * (gg * c[0] * c[2] - w1 * w3) + t_scale * torque[i, 1] / I2
+        dy[i, 12] = (I2 - I1) / I3 * (gg * c[0] * c[1] - w1 * w2) + t_scale * torque[i, 2] / I3
+        # Eq. 7 for the attitude relative to R: body rate relative to R is omega - W n
+        r1, r2, r3 = w1 - W * n[0], w2 - W * n[1], w3 - W * n[2]
+        qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+        dy[i, 6] = 0.5 * (-qx * r1 - qy * r2 - qz * r3)
+        dy[i, 7] = 0.5 * (qw * r1 + qy * r3 - qz * r2)
+        dy[i, 8] = 0.5 * (qw * r2 + qz * r1 - qx * r3)
+        dy[i, 9] = 0.5 * (qw * r3 + qx * r2 - qy * r1)
+
+
+@njit(cache=True)
+def _rk4(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt):
+    """Classical RK4 with the wrench held constant; quaternion renormalised, w >= 0."""
+    k1, k2, k3, k4 = np.empty_like(y), np.empty_like(y), np.empty_like(y), np.empty_like(y)
+    p = (W, mass, inertia, gg_on, f_scale, t_scale)
+    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y, force, torque, k1)
+    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y + 0.5 * dt * k1, force, torque, k2)
+    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y + 0.5 * dt * k2, force, torque, k3)
+    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y + dt * k3, force, torque, k4)
+    out = y + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    for i in range(out.shape[0]):
+        norm = np.sqrt(np.sum(out[i, 6:10] ** 2))
+        sign = -1.0 if out[i, 6] < 0.0 else 1.0
+        out[i, 6:10] *= sign / norm
+    return out
+
+
+def _kernel_args(params: OdsParams) -> tuple:
+    return (
+        params.orbit_rate_radps,
+        params.mass_kg,
+        params.inertia_kgm2,
+        params.gravity_gradient,
+        params.force_scale,
+        params.torque_scale,
+    )
+
+
+def derivative(
+    params: OdsParams, y: np.ndarray, force_R_N: np.ndarray, torque_B_Nm: np.ndarray
+) -> np.ndarray:
+    """Time derivative of the state (N, 13) under constant external wrenches.
+
+    Translation, Eqs. 1-3 (Clohessy-Wiltshire with external force F/m)::
+
+        x'' = 3 W^2 x + 2 W y' + F1/m,   y'' = -2 W x' + F2/m,   z'' = -W^2 z + F3/m
+
+    Attitude, Eqs. 4-6 (Euler's equations with the gravity-gradient torque, where
+    C1j are the direction cosines of R's radial axis in body axes) and Eq. 7 (quaternion
+    kinematics, written for the attitude relative to R, so with omega - W z_B).
+    Forces and torques are multiplied by the configured force and torque scales.
+    """
+    dy = np.empty_like(y)
+    _derivative(*_kernel_args(params), y, _f64(force_R_N), _f64(torque_B_Nm), dy)
+    return dy
+
+
+def rk4_step(
+    params: OdsParams,
+    y: np.ndarray,
+    force_R_N: np.ndarray,
+    torque_B_Nm: np.ndarray,
+    dt_s: float,
+) -> np.ndarray:
+    """One classical Runge-Kutta step (wrench held constant), quaternion renormalised."""
+    return _rk4(*_kernel_args(params), y, _f64(force_R_N), _f64(torque_B_Nm), float(dt_s))
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
+
+
+def cw_state_transition(orbit_rate_radps: float, t_s: float) -> np.ndarray:
+    """Closed-form CW solution: Phi(t) with [p; v](t) = Phi(t) [p; v](0), force-free."""
+    W, c, s = orbit_rate_radps, np.cos(orbit_rate_radps * t_s), np.sin(orbit_rate_radps * t_s)
+    return np.array(
+        [
+            [4 - 3 * c, 0, 0, s / W, 2 * (1 - c) / W, 0],
+            [6 * (s - W * t_s), 1, 0, -2 * (1 - c) / W, (4 * s - 3 * W * t_s) / W, 0],
+            [0, 0, c, 0, 0, s / W],
+            [3 * W * s, 0, 0, c, 2 * s, 0],
+            [-6 * W * (1 - c), 0, 0, -2 * s, 4 * c - 3, 0],
+            [0, 0, -W * s, 0, 0, c],
+        ]
+    )
+
+
+def along_track_drift_rate(orbit_rate_radps: float, x0_m: float, vy0_mps: float) -> float:
+    """Secular along-track drift of a CW orbit, -3 (2 W x0 + y'0); zero when drift-free."""
+    return -3.0 * (2.0 * orbit_rate_radps * x0_m + vy0_mps)
+
+
+@dataclass
+class OrbitalSimulator:
+    """The ODS for N satellites: parameters, state and time, advanced by :meth:`step`."""
+
+    params: OdsParams
+    y: np.ndarray
+    t_s: float = 0.0
+    names: list[str] = field(default_factory=list)
+
+    @classmethod
+    def from_config(cls, config) -> OrbitalSimulator:
+        """Build from an :class:`app.config.EmulatorConfig` (initial state relative to R)."""
+        W = orbit_rate(config.orbit.altitude_m)
+        sats = config.satellites
+        params = OdsParams(
+            orbit_rate_radps=W,
+            mass_kg=np.array([s.mass_kg for s in sats], dtype=float),
+            inertia_kgm2=np.array([s.principal_inertia() for s in sats], dtype=float),
+            gravity_gradient=config.orbit.gravity_gradient,
+            force_scale=config.orbit.force_scale,
+            torque_scale=config.orbit.torque_scale,
+        )
+        y = np.zeros((len(sats), 13))
+        y[:, POS] = [s.position_m for s in sats]
+        y[:, VEL] = [s.velocity_mps for s in sats]
+        q = np.array([s.attitude_wxyz for s in sats], dtype=float)
+        q *= np.where(q[:, :1] < 0.0, -1.0, 1.0)
+        y[:, QUAT] = q
+        y[:, OMEGA] = omega_inertial_from_relative(q, [s.omega_radps for s in sats], W)
+        return cls(params=params, y=y, names=[s.name for s in sats])
+
+    def step(self, force_R_N: np.ndarray, torque_B_Nm: np.ndarray, dt_s: float) -> None:
+        """Advance all satellites by dt_s under wrenches held constant over the step."""
+        self.y = rk4_step(self.params, self.y, force_R_N, torque_B_Nm, dt_s)
+        self.t_s += dt_s
+
+    @property
+    def position_m(self) -> np.ndarray:
+        return self.y[:, POS]
+
+    @property
+    def velocity_mps(self) -> np.ndarray:
+        return self.y[:, VEL]
+
+    @property
+    def attitude_wxyz(self) -> np.ndarray:
+        return self.y[:, QUAT]
+
+    @property
+    def omega_inertial_radps(self) -> np.ndarray:
+        return self.y[:, OMEGA]
+
+    @property
+    def omega_rel_radps(self) -> np.ndarray:
+        """Angular velocity relative to R, body axes (what the lab sees)."""
+        return omega_relative_from_inertial(
+            self.y[:, QUAT], self.y[:, OMEGA], self.params.orbit_rate_radps
+        )

@@ -1,0 +1,114 @@
+"""Configuration models: paper defaults and bad input rejected with the field's name."""
+
+import math
+
+import numpy as np
+import pytest
+
+from app.config import (
+    ConfigError,
+    EmulatorConfig,
+    load_config,
+    merge_overrides,
+    parse_config,
+)
+
+
+def test_defaults_reproduce_the_paper():
+    cfg = EmulatorConfig()
+    assert cfg.orbit.altitude_m == 800e3
+    assert cfg.orbit.gravity_gradient is True
+    assert cfg.orbit.torque_scale == pytest.approx(1 / 2000)
+    sat = cfg.satellites[0]
+    assert sat.mass_kg == 1.0 and sat.size_m == (0.2, 0.2, 0.1)
+    np.testing.assert_allclose(sat.principal_inertia(), [0.05 / 12, 0.05 / 12, 0.08 / 12])
+    v = cfg.vfdm
+    assert (v.kp_lin, v.kp_rot, v.kd_lin, v.kd_rot) == (10.0, 1.0, 0.0, 0.0)
+    assert (v.end_mass_kg, v.link_mass_kg, v.end_inertia_kgm2) == (1.0, 0.01, 1.0)
+    assert v.link_inertia_ratio == 1e-6 and v.iterations == 10
+    assert cfg.loop.rate_hz == 500.0
+
+
+def test_toml_file_round_trip(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        """
+[orbit]
+altitude_m = 500e3
+gravity_gradient = false
+
+[[satellites]]
+name = "a"
+position_m = [0.1, 0.0, 0.0]
+attitude_wxyz = [2.0, 0.0, 0.0, 0.0]
+
+[[pulses]]
+satellite = "a"
+start_s = 1.0
+end_s = 1.5
+force_N = [1.0, 0.0, 0.0]
+"""
+    )
+    cfg = load_config(path)
+    assert cfg.orbit.altitude_m == 500e3 and not cfg.orbit.gravity_gradient
+    assert cfg.satellites[0].attitude_wxyz == (1.0, 0.0, 0.0, 0.0)  # normalised
+    assert cfg.pulses[0].force_N == (1.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"orbit": {"altitude_km": 800}}, "orbit.altitude_km: Extra inputs are not permitted"),
+        ({"satellites": [{"name": "a", "mass_kg": -1.0}]}, "satellites.0.mass_kg"),
+        ({"satellites": [{"name": "a", "mass_kg": math.nan}]}, "satellites.0.mass_kg"),
+        (
+            {"satellites": [{"name": "a", "velocity_mps": [0.0, math.inf, 0.0]}]},
+            "satellites.0.velocity_mps.1: must be a finite number",
+        ),
+        (
+            {"satellites": [{"name": "a", "attitude_wxyz": [0, 0, 0, 0]}]},
+            "satellites.0.attitude_wxyz: quaternion must be non-zero",
+        ),
+        (
+            {
+                "satellites": [{"name": "a"}],
+                "pulses": [{"satellite": "b", "start_s": 0, "end_s": 1}],
+            },
+            "pulses.0.satellite: 'b' names no satellite",
+        ),
+        (
+            {"pulses": [{"satellite": "sat1", "start_s": 2, "end_s": 1}]},
+            "pulses.0: end_s must be greater than start_s",
+        ),
+        (
+            {"satellites": [{"name": "a", "inertia_kgm2": [1.0, 1.0, 5.0]}]},
+            "satellites.0: inertia_kgm2 violates the triangle inequality",
+        ),
+        ({"satellites": [{"name": "a"}, {"name": "a"}]}, "names must be unique"),
+        ({"satellites": []}, "satellites: List should have at least 1 item"),
+        ({"vfdm": {"iterations": 0}}, "vfdm.iterations"),
+        ({"loop": {"mode": "fast"}}, "loop.mode"),
+    ],
+)
+def test_bad_input_names_the_field(data, message):
+    with pytest.raises(ConfigError) as err:
+        parse_config(data)
+    assert message in str(err.value)
+
+
+def test_unreadable_files_fail_clearly(tmp_path):
+    with pytest.raises(ConfigError, match="config file not found"):
+        load_config(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[orbit\naltitude_m = 1")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(bad)
+
+
+def test_overrides_merge_item_by_item_and_validate():
+    base = parse_config({"satellites": [{"name": "a"}, {"name": "b", "mass_kg": 2.0}]})
+    cfg = merge_overrides(base, {"satellites": [{}, {"velocity_mps": [0.01, 0, 0]}]})
+    assert cfg.satellites[1].velocity_mps == (0.01, 0.0, 0.0)
+    assert cfg.satellites[1].mass_kg == 2.0 and cfg.satellites[0].name == "a"
+    with pytest.raises(ConfigError, match="orbit.altitude_m"):
+        merge_overrides(base, {"orbit": {"altitude_m": -1}})
