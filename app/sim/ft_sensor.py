@@ -1,0 +1,332 @@
+"""Virtual UR10e flange force/torque sensor and the lab's wrench-processing chain.
+
+Implements DESIGN.md, "The simulated UR10e" (built-in F/T sensor: range 100 N / 10 N·m,
+noise, bias, delay, the mockup's weight and inertial load m·(g − a)) and "The loop"
+(payload compensation, filter, deadband, torque scaling, shift to the satellite COM,
+rotation into R).
+
+Conventions
+-----------
+* A *wrench* is a (6,) array ``[force (N), torque (N·m)]``.
+* An external wrench on a mockup, ``wrench_ext_W``, is given in lab axes W with its moment
+  taken **about the mockup COM C**. Contributions (contact, operator's hand, …) add up as
+  plain arrays; :func:`point_force_wrench_W` turns a force at a point into that form.
+* The sensor frame S is the flange frame F (the UR10e sensor sits in the tool flange).
+* The raw reading is the wrench the mockup exerts **on the sensor**, in S, moments about the
+  origin of S: ``F_ext + m (g − a)`` and its moment. Processing removes ``m (g − a)`` and so
+  returns ``F_ext``, the push acting on the satellite, which is what the ODS needs.
+* Rotational inertial loads of the mockup (I·α + ω × I·ω) are not modelled.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.config import SensorConfig, WrenchProcessingConfig
+from app.sim.rotations import skew
+
+__all__ = [
+    "Calibration",
+    "ProcessedWrench",
+    "VirtualFTSensor",
+    "WrenchProcessor",
+    "apply_deadband",
+    "lowpass_alpha",
+    "point_force_wrench_W",
+    "sensor_load_S",
+]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """3-vector cross product without np.cross's overhead on tiny arrays."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
+def point_force_wrench_W(
+    force_W_N: np.ndarray, point_W_m: np.ndarray, com_W_m: np.ndarray
+) -> np.ndarray:
+    """Wrench (W axes, moment about the COM) of a force applied at a point: [F, r × F]."""
+    force_W_N = np.asarray(force_W_N, dtype=float)
+    r_W = np.asarray(point_W_m, dtype=float) - np.asarray(com_W_m, dtype=float)
+    return np.concatenate([force_W_N, _cross(r_W, force_W_N)])
+
+
+def sensor_load_S(
+    wrench_ext_W: np.ndarray,
+    T_W_C: np.ndarray,
+    T_W_F: np.ndarray,
+    mass_kg: float,
+    gravity_W_mps2: np.ndarray,
+    accel_W_mps2: np.ndarray | None = None,
+) -> np.ndarray:
+    """Noise-free wrench that a rigidly mounted mockup exerts on the flange sensor, in S.
+
+    Newton on the mockup, m a = F_ext + m g + F_sensor→mockup, gives the load on the sensor
+    f = F_ext + m (g − a); its moment about the sensor origin is τ_ext,C + r_FC × f
+    (all terms of f act through C or are already reduced to C).
+    """
+    g_eff = np.asarray(gravity_W_mps2, dtype=float)
+    if accel_W_mps2 is not None:
+        g_eff = g_eff - np.asarray(accel_W_mps2, dtype=float)
+    force_W = wrench_ext_W[:3] + mass_kg * g_eff
+    r_FC_W = T_W_C[:3, 3] - T_W_F[:3, 3]
+    torque_F_W = wrench_ext_W[3:] + _cross(r_FC_W, force_W)
+    R_F_W = T_W_F[:3, :3].T
+    return np.concatenate([R_F_W @ force_W, R_F_W @ torque_F_W])
+
+
+class VirtualFTSensor:
+    """The UR10e built-in F/T sensor: true load + bias + Gaussian noise, saturated, delayed.
+
+    Per component, in this order: reading = clip(load + bias + noise, ±range), then the
+    reading handed out is the one taken ``delay_cycles`` calls ago. Until that many calls
+    have been made, the first reading is repeated (the ring starts full of it).
+    """
+
+    def __init__(
+        self,
+        config: SensorConfig,
+        mass_kg: float,
+        gravity_W_mps2: np.ndarray,
+        rng: np.random.Generator,
+    ) -> None:
+        self.config = config
+        self.mass_kg = float(mass_kg)
+        self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
+        self.rng = rng
+        self.bias_S = np.array([*config.bias_force_N, *config.bias_torque_Nm], dtype=float)
+        self.noise_std_S = np.array(
+            [config.noise_force_N] * 3 + [config.noise_torque_Nm] * 3, dtype=float
+        )
+        self.range_S = np.array(
+            [config.range_force_N] * 3 + [config.range_torque_Nm] * 3, dtype=float
+        )
+        self._ring = np.zeros((config.delay_cycles + 1, 6))
+        self._head = -1  # index of the newest reading; -1: ring not yet filled
+
+    def reset(self) -> None:
+        """Forget past readings (the next call refills the delay ring)."""
+        self._head = -1
+
+    def read_now(self, load_S: np.ndarray) -> np.ndarray:
+        """One undelayed reading of a true load: bias, noise, saturation."""
+        noisy = load_S + self.bias_S + self.noise_std_S * self.rng.standard_normal(6)
+        return np.clip(noisy, -self.range_S, self.range_S)
+
+    def delay(self, reading_S: np.ndarray) -> np.ndarray:
+        """Push a reading into the delay ring; return the one from delay_cycles calls ago."""
+        n = self._ring.shape[0]
+        if self._head < 0:
+            self._ring[:] = reading_S
+            self._head = 0
+        else:
+            self._head = (self._head + 1) % n
+            self._ring[self._head] = reading_S
+        return self._ring[(self._head + 1) % n].copy()
+
+    def measure(
+        self,
+        wrench_ext_W: np.ndarray,
+        T_W_C: np.ndarray,
+        T_W_F: np.ndarray,
+        accel_W_mps2: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """One cycle: the delayed raw reading (6,) in S [N, N·m], moments about S's origin.
+
+        wrench_ext_W: sum of external wrenches on the mockup (W axes, moment about C);
+        T_W_C, T_W_F: mockup COM and flange poses; accel_W_mps2: the mockup COM's linear
+        acceleration in W (None: at rest).
+        """
+        load = sensor_load_S(
+            np.asarray(wrench_ext_W, dtype=float),
+            T_W_C,
+            T_W_F,
+            self.mass_kg,
+            self.gravity_W_mps2,
+            accel_W_mps2,
+        )
+        return self.delay(self.read_now(load))
+
+
+def lowpass_alpha(cutoff_hz: float, rate_hz: float) -> float:
+    """Smoothing factor of the discrete first-order low-pass y += α (x − y).
+
+    Exact discretisation (zero-order hold) of 1/(1 + s/ω_c): α = 1 − exp(−ω_c / rate).
+    """
+    return 1.0 - math.exp(-2.0 * math.pi * cutoff_hz / rate_hz)
+
+
+def apply_deadband(v: np.ndarray, threshold: float, mode: str = "hard") -> np.ndarray:
+    """Deadband on the magnitude of a 3-vector (direction kept).
+
+    'hard': v if |v| > threshold else 0 (a step of size `threshold` at the edge, but real
+    pushes come through unchanged); 'soft': (|v| − threshold)·v/|v| above, 0 below
+    (continuous, every output shrunk by `threshold`).
+    """
+    n = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
+    if n <= threshold:
+        return np.zeros(3)
+    if mode == "soft":
+        return v * ((n - threshold) / n)
+    return v.copy()
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Result of a calibration: sensor bias (in S) and the payload's mass and COM."""
+
+    bias_S: np.ndarray
+    """(6,) [N, N·m] subtracted from every reading."""
+    mass_kg: float
+    com_F_m: np.ndarray
+    """(3,) payload COM in the flange frame."""
+
+
+@dataclass(frozen=True)
+class ProcessedWrench:
+    """Output of one processing cycle."""
+
+    force_R_N: np.ndarray
+    """(3,) external force on the satellite in R: ODS input (the ODS applies its scales)."""
+    torque_B_Nm: np.ndarray
+    """(3,) external torque about the COM in body axes: ODS input."""
+    wrench_S: np.ndarray
+    """(6,) compensated, filtered, deadbanded wrench in S (moment about S), unscaled."""
+
+
+class WrenchProcessor:
+    """The lab's processing chain from a raw reading in S to the ODS's (F in R, τ in B).
+
+    Stages: bias removal (calibration) → payload (gravity) compensation → optional inertial
+    compensation → first-order low-pass at the loop rate → deadband (force and torque
+    magnitudes, in S, where the sensor noise lives) → shift of the moment from S to the COM
+    → rotation (force into R, torque into the body axes C). The force and torque scales
+    of the configuration ([orbit]) are applied by the ODS, the one place that owns them.
+    """
+
+    def __init__(
+        self,
+        config: WrenchProcessingConfig,
+        rate_hz: float,
+        gravity_W_mps2: np.ndarray,
+    ) -> None:
+        self.config = config
+        self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
+        self.alpha = lowpass_alpha(config.lowpass_hz, rate_hz)
+        self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
+        self._state_S = np.zeros(6)
+
+    def reset(self) -> None:
+        """Reset the filter state to zero (the expected compensated wrench at rest)."""
+        self._state_S = np.zeros(6)
+
+    def calibrate(
+        self,
+        readings_S: np.ndarray,
+        R_W_F: np.ndarray,
+        mass_kg: float | None = None,
+        com_F_m: np.ndarray | None = None,
+    ) -> Calibration:
+        """Estimate bias (and, if not given, payload mass and COM) from readings at rest.
+
+        readings_S (N, 6) taken with the arm still and nothing touching the mockup; R_W_F
+        the flange orientation of each reading (N, 3, 3) or one (3, 3) for all. Model:
+        f = R_W_Fᵀ m g + b_f and τ = c × (R_W_Fᵀ m g) + b_τ, solved by least squares. A
+        known mass/COM (from the mockup's data) needs one pose; estimating them needs at
+        least two (mass) or three (COM) poses with different gravity directions in F.
+        mass_kg=0 gives a plain tare (zeroes the weight at that pose only).
+        """
+        readings_S = np.atleast_2d(np.asarray(readings_S, dtype=float))
+        R = np.asarray(R_W_F, dtype=float)
+        R = np.broadcast_to(R, (len(readings_S), 3, 3))
+        g_F = np.einsum("nji,j->ni", R, self.gravity_W_mps2)  # R_W_Fᵀ g per sample
+        mass, bias_f = self._fit_force(readings_S[:, :3], g_F, mass_kg)
+        com, bias_t = self._fit_torque(readings_S[:, 3:], mass * g_F, com_F_m)
+        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com)
+        self.reset()
+        return self.calibration
+
+    @staticmethod
+    def _fit_force(
+        f: np.ndarray, g_F: np.ndarray, mass_kg: float | None
+    ) -> tuple[float, np.ndarray]:
+        if mass_kg is not None:
+            return float(mass_kg), (f - mass_kg * g_F).mean(axis=0)
+        A = np.zeros((3 * len(f), 4))
+        A[:, 0] = g_F.ravel()
+        A[:, 1:] = np.tile(np.eye(3), (len(f), 1))
+        x, _, rank, _ = np.linalg.lstsq(A, f.ravel(), rcond=None)
+        if rank < 4:
+            raise ValueError("calibration: mass needs readings in two or more orientations")
+        return float(x[0]), x[1:]
+
+    @staticmethod
+    def _fit_torque(
+        t: np.ndarray, w_F: np.ndarray, com_F_m: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if com_F_m is not None:
+            com = np.asarray(com_F_m, dtype=float)
+            return com, (t - np.cross(com, w_F)).mean(axis=0)
+        A = np.zeros((3 * len(t), 6))
+        for k, w in enumerate(w_F):
+            A[3 * k : 3 * k + 3, :3] = -skew(w)  # c × w = −w × c
+            A[3 * k : 3 * k + 3, 3:] = np.eye(3)
+        x, _, rank, _ = np.linalg.lstsq(A, t.ravel(), rcond=None)
+        if rank < 6:
+            raise ValueError("calibration: COM needs readings in three or more orientations")
+        return x[:3], x[3:]
+
+    def compensate(
+        self, wrench_S: np.ndarray, R_W_F: np.ndarray, accel_W_mps2: np.ndarray | None
+    ) -> np.ndarray:
+        """Remove bias, payload weight and (optionally) the inertial load m·a, in S."""
+        cfg, cal = self.config, self.calibration
+        w = np.asarray(wrench_S, dtype=float) - cal.bias_S
+        g_eff = self.gravity_W_mps2 if cfg.payload_compensation else np.zeros(3)
+        if cfg.inertial_compensation:
+            if accel_W_mps2 is None:
+                raise ValueError("inertial_compensation needs the mockup's acceleration")
+            g_eff = g_eff - np.asarray(accel_W_mps2, dtype=float)
+        load_F = R_W_F.T @ (cal.mass_kg * g_eff)
+        w[:3] -= load_F
+        w[3:] -= _cross(cal.com_F_m, load_F)
+        return w
+
+    def filter(self, wrench_S: np.ndarray) -> np.ndarray:
+        """First-order low-pass, one step at the loop rate."""
+        self._state_S += self.alpha * (wrench_S - self._state_S)
+        return self._state_S.copy()
+
+    def process(
+        self,
+        wrench_S: np.ndarray,
+        T_W_F: np.ndarray,
+        T_W_C: np.ndarray,
+        R_W_R: np.ndarray,
+        accel_W_mps2: np.ndarray | None = None,
+    ) -> ProcessedWrench:
+        """One cycle: raw reading in S → ODS input (force in R, torque about COM in B).
+
+        T_W_F: flange (= sensor) pose; T_W_C: mockup COM pose (its axes are the body axes
+        B); R_W_R: orientation of the CW frame R in W; accel_W_mps2: mockup acceleration in W
+        (used only with inertial_compensation).
+        """
+        cfg = self.config
+        R_W_F = T_W_F[:3, :3]
+        w = self.filter(self.compensate(wrench_S, R_W_F, accel_W_mps2))
+        f_S = apply_deadband(w[:3], cfg.deadband_force_N, cfg.deadband_mode)
+        t_S = apply_deadband(w[3:], cfg.deadband_torque_Nm, cfg.deadband_mode)
+        r_FC_S = R_W_F.T @ (T_W_C[:3, 3] - T_W_F[:3, 3])
+        t_C_S = t_S - _cross(r_FC_S, f_S)  # moment about C = moment about S − r_SC × f
+        force_R = R_W_R.T @ (R_W_F @ f_S)
+        torque_B = T_W_C[:3, :3].T @ (R_W_F @ t_C_S)
+        return ProcessedWrench(
+            force_R_N=force_R,
+            torque_B_Nm=torque_B,
+            wrench_S=np.concatenate([f_S, t_S]),
+        )

@@ -1,0 +1,142 @@
+"""Box-box contact between mockups (DESIGN.md: contact between mockups, fidelity)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.config import DEFAULT_MATERIALS, ContactMaterial, SatelliteConfig
+from app.sim.contact import BoxContactModel, combine_materials, hunt_crossley_force
+from app.sim.rotations import make_transform, rotvec_to_matrix
+
+SIZE = (0.2, 0.2, 0.1)
+RIGID, SPONGE = DEFAULT_MATERIALS["rigid"], DEFAULT_MATERIALS["sponge"]
+LOSSLESS = ContactMaterial(stiffness_Npm=2.0e4, damping_spm=0.0)
+
+
+def _pose(p, rotvec=(0.0, 0.0, 0.0)):
+    return make_transform(rotvec_to_matrix(rotvec), np.asarray(p, dtype=float))
+
+
+def _pair(mat_a=RIGID, mat_b=SPONGE) -> BoxContactModel:
+    return BoxContactModel([SIZE, SIZE], [mat_a, mat_b])
+
+
+def _net_moment_about_origin(model, poses, wrench):
+    return sum(wrench[i, 3:] + np.cross(poses[i][:3, 3], wrench[i, :3]) for i in range(model.n))
+
+
+def test_series_stiffness_and_compliance_weighted_damping():
+    k, c = combine_materials(RIGID, SPONGE)
+    assert k == pytest.approx(2.0e4 * 2.0e3 / 2.2e4)
+    assert c == pytest.approx((0.5 / 2.0e4 + 8.0 / 2.0e3) / (1 / 2.0e4 + 1 / 2.0e3))
+    assert combine_materials(SPONGE, SPONGE) == pytest.approx((1.0e3, 8.0))
+
+
+def test_boxes_apart_exert_nothing():
+    model = _pair()
+    for x in (0.21, 0.5):  # inside the bounding spheres' reach (coal runs), and beyond
+        res = model.compute([_pose([0, 0, 0]), _pose([x, 0.0, 0.0])])
+        assert not res.wrench_W.any() and res.contacts == ()
+
+
+def test_axis_aligned_overlap_depth_normal_point_and_force():
+    model = _pair()
+    poses = [_pose([0.0, 0.0, 0.0]), _pose([0.19, 0.05, 0.02])]
+    res = model.compute(poses)
+    (c,) = res.contacts
+    assert c.geometry.depth_m == pytest.approx(0.01, rel=1e-6)
+    np.testing.assert_allclose(c.geometry.normal_W, [1.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(c.geometry.point_W_m, [0.095, 0.025, 0.01], atol=1e-6)
+    k_eff, _ = combine_materials(RIGID, SPONGE)
+    np.testing.assert_allclose(res.wrench_W[1, :3], [k_eff * 0.01, 0, 0], rtol=1e-6, atol=1e-9)
+    np.testing.assert_array_equal(res.wrench_W[0, :3], -res.wrench_W[1, :3])
+    # moments about each COM of the same contact force; net moment vanishes
+    r_a = c.geometry.point_W_m - poses[0][:3, 3]
+    np.testing.assert_allclose(res.wrench_W[0, 3:], np.cross(r_a, res.wrench_W[0, :3]))
+    # contact 25 mm off the x-axis: a real moment about z
+    assert res.wrench_W[0, 5] == pytest.approx(0.025 * k_eff * 0.01, rel=1e-6)
+    np.testing.assert_allclose(_net_moment_about_origin(model, poses, res.wrench_W), 0, atol=1e-12)
+
+
+def test_approach_speed_adds_damping_and_separation_never_pulls():
+    model = _pair()
+    poses = [_pose([0.0, 0.0, 0.0]), _pose([0.195, 0.0, 0.0])]  # 5 mm deep
+    k, c = model.law(0, 1)
+    approaching = model.compute(poses, v_W_mps=[[0.1, 0, 0], [-0.1, 0, 0]])
+    assert approaching.contacts[0].depth_rate_mps == pytest.approx(0.2)
+    assert approaching.wrench_W[1, 0] == pytest.approx(k * 0.005 * (1 + c * 0.2), rel=1e-6)
+    separating = model.compute(poses, v_W_mps=[[0.0, 0, 0], [1.0, 0, 0]])  # 1 + c ḋ < 0
+    assert separating.contacts[0].normal_force_N == 0.0
+    assert not separating.wrench_W.any()
+    assert hunt_crossley_force(0.005, -1.0, k, c) == 0.0
+    assert hunt_crossley_force(-0.001, 1.0, k, c) == 0.0
+
+
+def test_spin_contributes_to_depth_rate_at_the_contact_point():
+    model = _pair()
+    poses = [_pose([0.0, 0.0, 0.0]), _pose([0.195, 0.06, 0.0])]
+    res = model.compute(poses, omega_W_radps=[[0, 0, -2.0], [0, 0, 0]])
+    p = res.contacts[0].geometry.point_W_m
+    assert res.contacts[0].depth_rate_mps == pytest.approx(np.cross([0, 0, -2.0], p)[0])
+
+
+def test_rotated_box_gives_face_normal_and_corner_depth():
+    model = _pair()
+    poses = [_pose([0.0, 0.0, 0.0]), _pose([0.2, 0.0, 0.0], [0.0, 0.0, np.pi / 4])]
+    (c,) = model.compute(poses).contacts
+    assert c.geometry.depth_m == pytest.approx(0.1 + 0.1 * np.sqrt(2) - 0.2, rel=1e-6)
+    np.testing.assert_allclose(c.geometry.normal_W, [1.0, 0.0, 0.0], atol=1e-6)
+    assert 0.05 < c.geometry.point_W_m[0] < 0.1 and abs(c.geometry.point_W_m[1]) < 1e-6
+    # the same boxes the other way round: the normal flips (still from a towards b)
+    swapped = model.compute([poses[1], poses[0]]).contacts[0]
+    np.testing.assert_allclose(swapped.geometry.normal_W, [-1.0, 0.0, 0.0], atol=1e-6)
+
+
+def test_three_bodies_all_pairs():
+    sats = [SatelliteConfig(name=f"s{i}", material=m) for i, m in enumerate(["rigid"] * 3)]
+    model = BoxContactModel.from_satellites(sats)
+    poses = [_pose([0.0, 0, 0]), _pose([0.19, 0, 0]), _pose([0.38, 0, 0])]
+    res = model.compute(poses)
+    assert sorted((c.a, c.b) for c in res.contacts) == [(0, 1), (1, 2)]
+    np.testing.assert_allclose(res.wrench_W[1, :3], 0.0, atol=1e-6)  # squeezed both ways
+    np.testing.assert_allclose(res.wrench_W.sum(axis=0)[:3], 0.0, atol=1e-12)
+
+
+def _collide_1d(mat_a: ContactMaterial, mat_b: ContactMaterial, dt=1.0 / 500.0, steps=750):
+    """Head-on collision along x, integrated with semi-implicit Euler and no delay."""
+    model = _pair(mat_a, mat_b)
+    m = np.array([1.0, 1.5])
+    x = np.array([0.0, 0.25])
+    v = np.array([0.1, -0.1])
+    impulse = np.zeros((2, 3))
+    peak_depth = 0.0
+    for _ in range(steps):
+        poses = [_pose([x[0], 0, 0]), _pose([x[1], 0, 0])]
+        vel = np.array([[v[0], 0, 0], [v[1], 0, 0]])
+        res = model.compute(poses, v_W_mps=vel)
+        for c in res.contacts:
+            peak_depth = max(peak_depth, c.geometry.depth_m)
+        impulse += res.wrench_W[:, :3] * dt
+        v = v + res.wrench_W[:, 0] / m * dt
+        x = x + v * dt
+    return m, np.array([0.1, -0.1]), v, impulse, peak_depth
+
+
+@pytest.mark.parametrize(
+    ("mat_a", "mat_b", "e_lo", "e_hi"),
+    [
+        (RIGID, SPONGE, 0.0, 0.7),  # the paper's scenario: soft, lossy -> inelastic
+        (LOSSLESS, LOSSLESS, 0.97, 1.03),  # undamped springs: (nearly) elastic
+    ],
+)
+def test_two_body_collision_momentum_impulse_and_restitution(mat_a, mat_b, e_lo, e_hi):
+    m, v0, v1, impulse, peak_depth = _collide_1d(mat_a, mat_b)
+    assert peak_depth > 0.0 and v1[0] < v1[1]  # they touched and now separate
+    p0, p1 = m @ v0, m @ v1
+    assert abs(p1 - p0) <= 1e-12 * np.abs(m * v0).sum()
+    np.testing.assert_array_equal(impulse[0], -impulse[1])
+    assert impulse[1, 0] > 0.0
+    np.testing.assert_allclose(m * (v1 - v0), impulse[:, 0], rtol=1e-9)
+    e = (v1[1] - v1[0]) / (v0[0] - v0[1])
+    assert e_lo < e < e_hi
