@@ -27,7 +27,8 @@ DEFAULT_SENSOR = SensorConfig()
 NOISELESS = SensorConfig(noise_force_N=0.0, noise_torque_Nm=0.0)
 # Defaults except a 10 Hz filter: at the default 20 Hz the filtered noise (σ ≈ 0.6 N per
 # axis) crosses the 2.5 N deadband about once a second; at 10 Hz it is a 6-sigma event.
-QUIET = WrenchProcessingConfig()  # defaults: 10 Hz low-pass
+# the arm holds still in these tests: nothing inertial to compensate
+QUIET = WrenchProcessingConfig(inertial_compensation=False)
 
 
 def _sensor(config: SensorConfig = DEFAULT_SENSOR, seed: int = 0) -> VirtualFTSensor:
@@ -178,3 +179,22 @@ def test_deadband_hard_and_soft():
     np.testing.assert_array_equal(apply_deadband(v, 4.9, "hard"), v)
     np.testing.assert_allclose(apply_deadband(v, 4.0, "soft"), v / 5.0)
     assert not apply_deadband(v, 6.0, "soft").any()
+
+
+def test_inertial_compensation_removes_the_load_of_an_accelerating_mockup():
+    """The arm accelerates the mockup at a_W while a 15 N push acts: F_ext is recovered."""
+    sensor = _sensor(NOISELESS)
+    proc = _calibrated(sensor, WrenchProcessingConfig(inertial_compensation=True, lowpass_hz=1e3))
+    plain = _calibrated(sensor, WrenchProcessingConfig(inertial_compensation=False, lowpass_hz=1e3))
+    accel_W = np.array([3.0, -2.0, 1.0])
+    push_W = np.array([0.0, 15.0, 0.0])
+    wrench = point_force_wrench_W(push_W, T_W_C[:3, 3], T_W_C[:3, 3])
+    for _ in range(50):
+        raw = sensor.measure(wrench, T_W_C, T_W_F, accel_W)
+        out = proc.process(raw, T_W_F, T_W_C, R_W_R, accel_W)
+        out_plain = plain.process(raw, T_W_F, T_W_C, R_W_R, accel_W)
+    np.testing.assert_allclose(out.force_R_N, R_W_R.T @ push_W, atol=1e-6)
+    # without the stage, the m a load stays in the reading
+    np.testing.assert_allclose(
+        out_plain.force_R_N, R_W_R.T @ (push_W - MASS_KG * accel_W), atol=1e-6
+    )

@@ -15,7 +15,7 @@ SAT_FIELDS = (
     "fx_N", "fy_N", "fz_N", "tx_Nm", "ty_Nm", "tz_Nm",
 )
 ROBOT_FIELDS = (
-    "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz",
+    "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz", "vx_mps", "vy_mps", "vz_mps",
     *(f"q{j}_rad" for j in range(1, 7)),
     "ft_fx_N", "ft_fy_N", "ft_fz_N", "ft_tx_Nm", "ft_ty_Nm", "ft_tz_Nm",
 )
@@ -27,7 +27,7 @@ def satellite_columns(count: int) -> list[str]:
 
 
 def robot_columns(count: int) -> list[str]:
-    """Columns of `count` arms: actual mockup pose in R, joints, raw F/T reading."""
+    """Columns of `count` arms: actual mockup pose and velocity in R, joints, raw F/T."""
     return [f"rob{i}_{f}" for i in range(1, count + 1) for f in ROBOT_FIELDS]
 
 

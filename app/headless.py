@@ -1,0 +1,66 @@
+"""Headless runs: a scenario end to end, writing telemetry.csv, metrics.json and plots."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from app.config import EmulatorConfig, merge_overrides
+from app.metrics import collision_metrics, compute_metrics
+from app.plots import plot_run
+from app.report import write_json, write_telemetry_csv
+from app.sim.loop import Emulator
+
+
+@dataclass
+class RunResult:
+    emulator: Emulator
+    metrics: dict
+    files: list[Path]
+
+
+def ideal_restitution(config: EmulatorConfig, duration_s: float) -> float | None:
+    """Restitution of the same scenario run in ideal mode (the reference)."""
+    em = Emulator(config, mode="ideal")
+    em.run(duration_s)
+    coll = collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s)
+    return None if coll is None else coll["restitution"]
+
+
+def run_scenario(
+    config: EmulatorConfig,
+    mode: str | None = None,
+    duration_s: float | None = None,
+    out_dir: str | Path | None = None,
+    progress=None,
+) -> RunResult:
+    """Run a scenario headless; with out_dir, write its telemetry, metrics and plots.
+
+    The telemetry buffer is sized to hold the whole run, so nothing recorded is dropped;
+    on a safety stop the run ends there and everything up to it is written.
+    """
+    duration_s = duration_s or config.loop.duration_s
+    cycles = int(round(duration_s * config.loop.rate_hz)) + 2
+    if cycles > config.loop.telemetry_capacity:
+        config = merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
+    em = Emulator(config, mode=mode)
+    t0 = time.perf_counter()
+    try:
+        em.run(duration_s, progress=progress)
+    finally:
+        wall_s = time.perf_counter() - t0
+        e_ideal = None
+        if em.mode == "hil" and len(config.satellites) >= 2:
+            e_ideal = ideal_restitution(config, duration_s)
+        metrics = compute_metrics(em, wall_s, restitution_ideal=e_ideal)
+        files = []
+        if out_dir is not None:
+            out = Path(out_dir)
+            write_telemetry_csv(out / "telemetry.csv", em.columns, em.telemetry.rows())
+            write_json(out / "metrics.json", metrics)
+            files = [out / "telemetry.csv", out / "metrics.json"]
+            files += plot_run(
+                em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms)
+            )
+    return RunResult(em, metrics, files)

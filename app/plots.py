@@ -1,0 +1,111 @@
+"""PNG plots of a run, like the paper's Fig. 6 (free-floating) and Figs. 8-11 (collision)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+AXES = ("x", "y", "z")
+
+
+def _series(rows, index, prefix, fields):
+    return rows[:, [index[f"{prefix}_{f}"] for f in fields]]
+
+
+def _three(ax, t, data, label, unit, style="-"):
+    for k, a in enumerate(AXES):
+        ax.plot(t, data[:, k], style, color=f"C{k}", lw=1.0, label=f"{label} {a}")
+    ax.set_ylabel(unit)
+    ax.grid(alpha=0.3)
+
+
+def plot_free_floating(rows, index, out_dir: Path, sat: int = 1) -> list[Path]:
+    """Fig. 6: force on the satellite (measured, in R), its velocity and position."""
+    t = rows[:, 0]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    force = _series(rows, index, f"sat{sat}", ("fx_N", "fy_N", "fz_N"))
+    _three(axes[0], t, force, "F", "force [N]")
+    _three(axes[1], t, _series(rows, index, f"sat{sat}", ("vx_mps", "vy_mps", "vz_mps")), "v",
+           "velocity [m/s]")
+    _three(axes[2], t, _series(rows, index, f"sat{sat}", ("x_m", "y_m", "z_m")), "p",
+           "position [m]")
+    axes[0].set_title(f"Satellite {sat}: force from the F/T sensor (in R) and ODS response")
+    axes[2].set_xlabel("time [s]")
+    for ax in axes:
+        ax.legend(loc="upper right", fontsize=7, ncol=3)
+    fig.tight_layout()
+    path = out_dir / "fig6_free_floating.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return [path]
+
+
+def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int) -> list[Path]:
+    """Figs. 8-11: forces in R, desired vs actual velocity and position, position error."""
+    t = rows[:, 0]
+    sats = list(range(1, n_sat + 1))
+    paths = []
+
+    fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True, squeeze=False)
+    for ax, s in zip(axes[:, 0], sats, strict=True):
+        _three(ax, t, _series(rows, index, f"sat{s}", ("fx_N", "fy_N", "fz_N")), "F", "force [N]")
+        _three(ax, t, _series(rows, index, f"sat{s}", ("true_fx_N", "true_fy_N", "true_fz_N")),
+               "true", "force [N]", ":")
+        ax.set_title(f"Satellite {s}: force received by the ODS (solid) and true contact (dotted)")
+        ax.legend(loc="upper right", fontsize=7, ncol=2)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.tight_layout()
+    paths.append(out_dir / "fig8_forces.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    for name, fields, rfields, unit in (
+        ("fig9_velocity.png", ("vx_mps", "vy_mps", "vz_mps"), ("vx_mps", "vy_mps", "vz_mps"),
+         "velocity [m/s]"),
+        ("fig10_position.png", ("x_m", "y_m", "z_m"), ("x_m", "y_m", "z_m"), "position [m]"),
+    ):
+        fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True, squeeze=False)
+        for ax, s in zip(axes[:, 0], sats, strict=True):
+            _three(ax, t, _series(rows, index, f"sat{s}", fields), "ODS", unit)
+            if s <= n_rob:
+                _three(ax, t, _series(rows, index, f"rob{s}", rfields), "robot", unit, "--")
+            ax.set_title(f"Satellite {s}: desired (ODS, solid) vs actual (robot, dashed)")
+            ax.legend(loc="upper right", fontsize=7, ncol=2)
+        axes[-1, 0].set_xlabel("time [s]")
+        fig.tight_layout()
+        paths.append(out_dir / name)
+        fig.savefig(paths[-1], dpi=100)
+        plt.close(fig)
+
+    if n_rob:
+        fig, ax = plt.subplots(figsize=(9, 4))
+        for s in range(1, min(n_sat, n_rob) + 1):
+            d = _series(rows, index, f"rob{s}", ("x_m", "y_m", "z_m")) - _series(
+                rows, index, f"sat{s}", ("x_m", "y_m", "z_m")
+            )
+            ax.plot(t, 1e3 * np.linalg.norm(d, axis=1), label=f"satellite {s}")
+        ax.set_ylabel("position error [mm]")
+        ax.set_xlabel("time [s]")
+        ax.set_title("Isochronous position error, actual (robot) vs desired (ODS)")
+        ax.grid(alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        paths.append(out_dir / "fig11_position_error.png")
+        fig.savefig(paths[-1], dpi=100)
+        plt.close(fig)
+    return paths
+
+
+def plot_run(rows: np.ndarray, index: dict, out_dir: Path, n_sat: int, n_rob: int) -> list[Path]:
+    """The paper's figures for a run: Fig. 6 style with one satellite, Figs. 8-11 with more."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if len(rows) == 0:
+        return []
+    if n_sat == 1:
+        return plot_free_floating(rows, index, out_dir)
+    return plot_collision(rows, index, out_dir, n_sat, n_rob)

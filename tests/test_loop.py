@@ -1,0 +1,190 @@
+"""The emulation loop and the two scenarios, end to end through the loop's API and the CLI."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from app.config import merge_overrides
+from app.headless import run_scenario
+from app.scenarios import load_scenario, scenario_descriptions
+from app.sim.loop import Emulator, Push
+
+EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
+
+
+@pytest.fixture(scope="module")
+def free_floating_hil():
+    return run_scenario(load_scenario("free-floating"), mode="hil")
+
+
+@pytest.fixture(scope="module")
+def collision_runs():
+    cfg = load_scenario("collision")
+    return {
+        mode: run_scenario(cfg, mode=mode, duration_s=7.0) for mode in ("ideal", "hil")
+    }
+
+
+def test_free_floating_each_push_gives_impulse_over_mass(free_floating_hil):
+    em = free_floating_hil.emulator
+    cfg = em.config
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    t = rows[:, 0]
+    v = rows[:, [col["sat1_vx_mps"], col["sat1_vy_mps"], col["sat1_vz_mps"]]]
+    scale, mass = cfg.orbit.force_scale, cfg.satellites[0].mass_kg
+    pushes = [p for p in cfg.pulses if any(p.force_N)]
+    assert len(pushes) == 8
+    for p in pushes:
+        before = v[np.searchsorted(t, p.start_s) - 1]
+        after = v[np.searchsorted(t, p.end_s + 0.3)]
+        expected = scale * np.array(p.force_N) * (p.end_s - p.start_s) / mass
+        # the data sheet's accuracy (5.5 N) over the push, times the force scale
+        allowed = scale * 5.5 * (p.end_s - p.start_s) / mass
+        assert np.linalg.norm((after - before) - expected) < allowed, p
+    sat = free_floating_hil.metrics["satellites"][0]
+    assert sat["position_error_max_m"] < 0.005
+    assert free_floating_hil.metrics["safety_stop"] is None
+
+
+def test_free_floating_torque_pulse_turns_the_satellite(free_floating_hil):
+    em = free_floating_hil.emulator
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    k = np.searchsorted(rows[:, 0], 22.0)
+    cfg = em.config
+    inertia_z = cfg.satellites[0].principal_inertia()[2]
+    expected = cfg.orbit.torque_scale * 2.0 * 0.5 / inertia_z
+    assert rows[k, col["sat1_wz_radps"]] == pytest.approx(expected, rel=0.3)
+
+
+def test_collision_ideal_is_a_clean_inelastic_impact(collision_runs):
+    m = collision_runs["ideal"].metrics
+    coll = m["collision"]
+    assert coll is not None, "no impact"
+    assert coll["impulse_balance"] < 0.05
+    assert 0.0 < coll["restitution"] < 1.0
+    ja, jb = coll["impulse_Ns"]["sat1"], coll["impulse_Ns"]["sat2"]
+    assert ja[0] < 0 < jb[0]  # the cubesat is pushed back along -x, the sponge along +x
+    em = collision_runs["ideal"].emulator
+    v = em.ods.velocity_mps
+    assert v[0, 0] < 0 < v[1, 0]  # they separate
+
+
+def test_collision_hil_impact_happens_and_is_measured(collision_runs):
+    m = collision_runs["hil"].metrics
+    coll = m["collision"]
+    assert coll is not None, "no impact in the HIL run"
+    ja, jb = np.array(coll["impulse_Ns"]["sat1"]), np.array(coll["impulse_Ns"]["sat2"])
+    assert ja[0] < 0 < jb[0]
+    assert coll["restitution_ideal"] == pytest.approx(
+        collision_runs["ideal"].metrics["collision"]["restitution"]
+    )
+    assert coll["restitution"] is not None and coll["restitution"] > 0  # separated
+    assert coll["impulse_balance"] is not None
+    # tracking before the impact
+    em = collision_runs["hil"].emulator
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    before = rows[:, 0] < coll["contact_start_s"]
+    for i in (1, 2):
+        d = np.linalg.norm(
+            rows[before][:, [col[f"rob{i}_{a}_m"] for a in "xyz"]]
+            - rows[before][:, [col[f"sat{i}_{a}_m"] for a in "xyz"]],
+            axis=1,
+        )
+        assert d.max() < 0.005
+
+
+def test_hil_loop_runs_at_least_real_time(collision_runs):
+    assert collision_runs["hil"].metrics["realtime_factor"] >= 1.0
+
+
+def test_same_seed_gives_identical_telemetry(tmp_path):
+    cfg = load_scenario("free-floating")
+    a = run_scenario(cfg, duration_s=1.5, out_dir=tmp_path / "a")
+    b = run_scenario(cfg, duration_s=1.5, out_dir=tmp_path / "b")
+    run_scenario(merge_overrides(cfg, {"loop": {"seed": 7}}), duration_s=1.5,
+                     out_dir=tmp_path / "c")
+    ta = (tmp_path / "a" / "telemetry.csv").read_bytes()
+    assert ta == (tmp_path / "b" / "telemetry.csv").read_bytes()
+    assert ta != (tmp_path / "c" / "telemetry.csv").read_bytes()
+    assert len(a.emulator.telemetry.rows()) == len(b.emulator.telemetry.rows()) == 751
+
+
+def test_driven_out_of_the_safety_volume_stops_and_keeps_telemetry(tmp_path):
+    cfg = merge_overrides(
+        load_scenario("free-floating"),
+        {"robots": [{"safety_box_max_m": [1.5, 1.5, 1.5]}],  # TCP starts at z = 1.0 m
+         "satellites": [{"velocity_mps": [0.0, 0.0, 0.2]}],  # rises 0.2 m/s in R (z up)
+         "pulses": []},
+    )
+    result = run_scenario(cfg, duration_s=6.0, out_dir=tmp_path)
+    stop = result.metrics["safety_stop"]
+    assert stop is not None and stop["reason"] == "TCP left safety volume"
+    assert stop["robot"] == 1 and 2.0 < stop["t_s"] < 3.0
+    lines = (tmp_path / "telemetry.csv").read_text().splitlines()
+    assert len(lines) - 1 == result.emulator.cycles + 1  # every cycle, and the final state
+    last_t = float(lines[-1].split(",")[0])
+    assert last_t == pytest.approx(stop["t_s"], abs=0.003)
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert saved["safety_stop"]["reason"] == "TCP left safety volume"
+
+
+def test_rest_push_command_and_bad_satellite():
+    em = Emulator(load_scenario("free-floating"))
+    em.prepare()
+    with pytest.raises(ValueError, match="satellite must be between 1 and 1, got 2"):
+        em.post(Push(satellite=1, force_R_N=(1.0, 0, 0), duration_s=0.1))
+    em.post(Push(satellite=0, force_R_N=(0.0, 0.0, 30.0), duration_s=0.2))
+    for _ in range(300):
+        em.step()
+    expected = em.config.orbit.force_scale * 30.0 * 0.2
+    assert em.ods.velocity_mps[0, 2] == pytest.approx(expected, rel=0.25)
+
+
+def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):
+    out = tmp_path / "run"
+    result = subprocess.run(
+        [EXE, "run", "collision", "--mode", "ideal", "--duration", "5", "--out", str(out),
+         "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "restitution" in result.stdout and "impulse balance" in result.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("scenario", "mode", "duration_s", "cycles", "realtime_factor", "cycle_time_us",
+                "satellites", "collision", "safety_stop"):
+        assert key in metrics
+    assert metrics["mode"] == "ideal" and metrics["cycles"] == 2500
+    header = (out / "telemetry.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "t_s" and "sat2_fx_N" in header
+    for fig in ("fig8_forces", "fig9_velocity", "fig10_position"):
+        png = (out / f"{fig}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_cli_hil_telemetry_has_robot_columns(tmp_path):
+    result = subprocess.run(
+        [EXE, "run", "free-floating", "--duration", "0.5", "--out", str(tmp_path), "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    header = (tmp_path / "telemetry.csv").read_text().splitlines()[0].split(",")
+    for name in ("rob1_x_m", "rob1_qw", "rob1_q1_rad", "rob1_q6_rad", "rob1_ft_fx_N",
+                 "rob1_ft_tz_Nm", "sat1_wz_radps"):
+        assert name in header
+    assert (tmp_path / "fig6_free_floating.png").exists()
+
+
+def test_cli_scenarios_and_bad_input(tmp_path):
+    listing = subprocess.run([EXE, "scenarios"], capture_output=True, text=True, timeout=60)
+    assert listing.returncode == 0
+    for name, desc in scenario_descriptions().items():
+        assert f"{name}" in listing.stdout and desc in listing.stdout
+    bad = subprocess.run([EXE, "run", "docking"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "invalid choice: 'docking'" in bad.stderr
+    bad = subprocess.run([EXE, "run", "collision", "--duration", "-1"], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 2 and "must be a positive finite number" in bad.stderr
