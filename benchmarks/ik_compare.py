@@ -1,0 +1,226 @@
+"""VFDM vs differential IK (pseudo-inverse, DLS, Jacobian transpose, Pink) on one UR10e.
+
+    .venv/bin/python -m benchmarks.ik_compare            # full
+    .venv/bin/python -m benchmarks.ik_compare --quick    # short trajectories (smoke test)
+
+Every method drives the same simulated UR10e (UR10eServo, default ServoConfig, 500 Hz,
+1-cycle delay, a safety box too large to matter) with one solve per cycle. Tracking errors
+are of the ACTUAL (servo) TCP against the target, so they include the servo's lag. A
+protective stop ends that run (the errors are then over the cycles before the stop).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from app.config import ServoConfig
+from app.headless import run_scenario
+from app.scenarios import load_scenario
+from app.sim.ik import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
+from app.sim.loop import Emulator
+from app.sim.rotations import invert_transform, make_transform, quat_to_matrix
+from app.sim.servo import SafetyBox, UR10eServo
+from app.sim.ur10e import SPEED_LIMITS_RADPS, UR10e, build_model
+from app.sim.vfdm import Vfdm, pose_error
+
+RATE_HZ = 500.0
+DT_S = 1.0 / RATE_HZ
+
+
+# --- Pink (optional) --------------------------------------------------------------------
+
+
+def pink_factory():
+    """A factory for a Pink solver with the Vfdm interface, or (None, reason)."""
+    try:
+        import pink
+        import pinocchio as pin
+        import qpsolvers
+        from pink.tasks import FrameTask
+    except Exception as exc:  # noqa: BLE001
+        return None, f"import failed: {exc!r}"
+    solver = next((s for s in ("daqp", "quadprog", "proxqp") if s in qpsolvers.available_solvers),
+                  None)
+    if solver is None:
+        return None, "no QP backend (daqp/quadprog/proxsuite) installed"
+
+    class PinkIK:
+        """One Pink ``solve_ik`` per cycle (frame task on the TCP, velocity + position limits)."""
+
+        def __init__(self, T_F_C, q0_rad):
+            self.model = build_model(T_F_C=np.asarray(T_F_C, dtype=float))
+            self.data = self.model.createData()
+            self.task = FrameTask("tcp", position_cost=1.0, orientation_cost=1.0)
+            self.reset(q0_rad)
+
+        def reset(self, q_rad):
+            self.q_rad = np.array(q_rad, dtype=float)
+
+        def solve(self, T_B_C_target):
+            conf = pink.Configuration(self.model, self.data, self.q_rad)
+            self.task.set_target(pin.SE3(T_B_C_target[:3, :3].copy(), T_B_C_target[:3, 3].copy()))
+            v = pink.solve_ik(conf, [self.task], DT_S, solver=solver, safety_break=False)
+            self.q_rad = pin.integrate(self.model, self.q_rad, v * DT_S)
+            return self.q_rad.copy()
+
+    return PinkIK, f"Pink {pink.__version__} + {solver}"
+
+
+# --- trajectories -----------------------------------------------------------------------
+
+
+def scenario_targets(name: str, duration_s: float | None) -> list[tuple[str, np.ndarray, object]]:
+    """(label, targets (N,4,4) in B, robot config) per arm, from an ideal run's telemetry."""
+    cfg = load_scenario(name)
+    res = run_scenario(cfg, mode="ideal", duration_s=duration_s)
+    ideal = res.emulator
+    rows, idx = ideal.telemetry.rows(), ideal.telemetry.index
+    hil = Emulator(cfg, mode="hil")  # only for its transforms
+    out = []
+    for arm, robot in zip(hil.arms, cfg.robots, strict=True):
+        s = arm.satellite + 1
+        p = rows[:, [idx[f"sat{s}_{a}_m"] for a in "xyz"]]
+        q = rows[:, [idx[f"sat{s}_{c}"] for c in ("qw", "qx", "qy", "qz")]]
+        T_B_W = invert_transform(arm.T_W_B)
+        T = np.array([T_B_W @ hil.T_W_R @ make_transform(quat_to_matrix(qi), pi)
+                      for pi, qi in zip(p, q, strict=True)])
+        out.append((f"{name}/{robot.name}", T, robot))
+        if name == "free-floating":
+            break  # all its arms carry the same satellite: one is enough
+    return out
+
+
+def hold(T: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Targets sampled at rate_hz and held in between (zero-order hold)."""
+    every = int(round(RATE_HZ / rate_hz))
+    k = (np.arange(len(T)) // every) * every
+    return T[k]
+
+
+def fk_path(ur: UR10e, T_F_C, qa, qb, n: int, back: bool = False) -> np.ndarray:
+    """TCP poses along a cosine-profiled joint path qa -> qb (-> qa if back)."""
+    s = 0.5 * (1 - np.cos(np.pi * np.linspace(0, 1, n)))
+    if back:
+        s = np.concatenate([s, s[::-1]])
+    return np.array([ur.tcp_pose(qa + si * (qb - qa), T_F_C) for si in s])
+
+
+def singular_paths(ur: UR10e, T_F_C, n: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(label, targets, start q): wrist (q5 through 0), elbow stretched, over the base axis."""
+    paths = []
+    qa = np.array([0.0, -1.6, 1.6, -1.57, -0.4, 0.0])
+    qb = np.array([0.3, -1.5, 1.5, -1.3, 0.4, 0.5])
+    paths.append(("singular/wrist q5=0", fk_path(ur, T_F_C, qa, qb, n), qa))
+    qa = np.array([0.0, -1.2, 0.8, -1.2, -1.57, 0.0])
+    qb = np.array([0.0, -0.8, 0.0, -0.8, -1.57, 0.0])  # q3 = 0: elbow fully stretched
+    paths.append(("singular/elbow stretched", fk_path(ur, T_F_C, qa, qb, n // 2, back=True), qa))
+    # TCP along a line in B passing straight over the base z axis, tool pointing down
+    s = 0.5 * (1 - np.cos(np.pi * np.linspace(0, 1, n)))
+    R = np.diag([1.0, -1.0, -1.0])
+    T = np.array([make_transform(R, np.array([-0.35 + 0.7 * si, -0.174, 0.9])) for si in s])
+    v = Vfdm(load_scenario("collision").vfdm, T_F_C, np.array([2.5, -1.2, 1.4, -1.8, -1.57, 0.0]))
+    for _ in range(5000):
+        v.solve(T[0])
+    paths.append(("singular/shoulder (over base)", T, v.q_rad.copy()))
+    return paths
+
+
+def start_q(T0: np.ndarray, T_F_C, q_guess) -> np.ndarray:
+    """A joint start posture at T0 (the VFDM run to convergence, as Emulator.prepare does)."""
+    v = Vfdm(load_scenario("collision").vfdm, T_F_C, q_guess)
+    for _ in range(5000):
+        v.solve(T0)
+        e = v.last_error
+        if np.linalg.norm(e[:3]) < 1e-6 and np.linalg.norm(e[3:]) < 1e-5:
+            break
+    return v.q_rad.copy()
+
+
+# --- one run ----------------------------------------------------------------------------
+
+
+def run_method(solver, T_F_C, q0, targets: np.ndarray) -> dict:
+    ur = UR10e()
+    solver.reset(q0)
+    big = 1e3 * np.ones(3)
+    servo = UR10eServo(ServoConfig(), DT_S, q0, SafetyBox(-big, big, lambda q: np.zeros(3)))
+    pos_err, rot_err, qd_frac, qdd, t_ns = [], [], [], [], []
+    stop = ""
+    for T in targets:
+        t0 = time.perf_counter_ns()
+        q_sp = solver.solve(T)
+        t_ns.append(time.perf_counter_ns() - t0)
+        st = servo.step(q_sp)
+        if servo.stopped:
+            stop = servo.reason
+            break
+        e = pose_error(T, ur.tcp_pose(st.q_rad, T_F_C))
+        pos_err.append(np.linalg.norm(e[:3]))
+        rot_err.append(np.linalg.norm(e[3:]))
+        qd_frac.append(np.max(np.abs(st.qd_radps) / SPEED_LIMITS_RADPS))
+        qdd.append(st.qdd_radps2.copy())
+    pos, rot = np.array(pos_err or [np.nan]), np.array(rot_err or [np.nan])
+    jerk = np.diff(np.array(qdd), axis=0) / DT_S if len(qdd) > 2 else np.zeros((1, 6))
+    return {
+        "pos_max_mm": 1e3 * pos.max(), "pos_rms_mm": 1e3 * np.sqrt(np.mean(pos**2)),
+        "rot_max_deg": np.degrees(rot.max()), "rot_rms_deg": np.degrees(np.sqrt(np.mean(rot**2))),
+        "qd_peak": max(qd_frac) if qd_frac else np.nan,
+        "jerk_rms": float(np.sqrt(np.mean(jerk**2))),
+        "stop": stop, "cycles": len(pos_err), "of": len(targets),
+        "us": float(np.mean(t_ns)) / 1e3,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="short trajectories (smoke test)")
+    args = ap.parse_args(argv)
+    duration = 1.0 if args.quick else None
+    n_sing = 1000 if args.quick else 2000  # cycles per singular path (2 s quick, 4 s full)
+
+    vcfg = load_scenario("collision").vfdm
+    PinkIK, pink_note = pink_factory()  # noqa: N806
+    methods = {
+        "VFDM": lambda T_F_C, q0: Vfdm(vcfg, T_F_C, q0),
+        "pseudo-inverse": lambda T_F_C, q0: PseudoInverseIK(T_F_C, q0),
+        "DLS (λ=0.05)": lambda T_F_C, q0: DampedLeastSquaresIK(T_F_C, q0),
+        "J transpose (α=0.2)": lambda T_F_C, q0: JacobianTransposeIK(T_F_C, q0),
+    }
+    if PinkIK is not None:
+        methods["Pink"] = PinkIK
+        print(f"Pink: {pink_note}")
+    else:
+        print(f"Pink unavailable: {pink_note}")
+
+    cases = []  # (label, targets, T_F_C, q0)
+    from app.sim.ur10e import T_F_C_from_config
+    for name in ("collision", "free-floating"):
+        for label, T, robot in scenario_targets(name, duration):
+            T_F_C = T_F_C_from_config(robot)
+            q0 = start_q(T[0], T_F_C, np.array(robot.q_home_rad))
+            cases.append((label + " 500 Hz", T, T_F_C, q0))
+            for f in (10.0, 2.0):
+                cases.append((f"{label} held {f:g} Hz", hold(T, f), T_F_C, q0))
+    robot = load_scenario("collision").robots[1]
+    T_F_C = T_F_C_from_config(robot)
+    for label, T, q0 in singular_paths(UR10e(), T_F_C, n_sing):
+        cases.append((label, T, T_F_C, q0))
+
+    print("\n| trajectory | method | pos err max / RMS [mm] | rot err max / RMS [deg] "
+          "| peak qd / limit | RMS jerk [rad/s³] | protective stop | µs / cycle |")
+    print("|---|---|---:|---:|---:|---:|---|---:|")
+    for label, T, T_F_C, q0 in cases:
+        for mname, make in methods.items():
+            r = run_method(make(T_F_C, q0), T_F_C, q0, T)
+            stop = f"at {r['cycles']}/{r['of']}: {r['stop']}" if r["stop"] else "none"
+            print(f"| {label} | {mname} | {r['pos_max_mm']:.2f} / {r['pos_rms_mm']:.2f} "
+                  f"| {r['rot_max_deg']:.2f} / {r['rot_rms_deg']:.2f} | {r['qd_peak']:.2f} "
+                  f"| {r['jerk_rms']:.3g} | {stop} | {r['us']:.0f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
