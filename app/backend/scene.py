@@ -1,0 +1,486 @@
+"""The viser 3D scene and GUI of the emulator.
+
+The scene never touches the emulator: a thread of its own reads the runner's snapshots
+at ~30 Hz and sends only what changed (joint angles, mockup / ODS poses, gizmos), the
+traces and plots at a lower rate. GUI buttons and the transform gizmos go through the
+:class:`~app.backend.service.EmulatorService`, which queues commands for the loop.
+
+Frames: the viser world is the lab frame W (z up). Each arm is drawn at its base pose
+T_W_B; frame R (the CW frame, where the ODS lives) is drawn as axes at T_W_R.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import viser
+
+from app.backend.service import EmulatorService, InvalidRequest, RunnerBusy, UnknownScenario
+from app.scenarios import load_scenario, scenario_names
+from app.sim.rotations import matrix_to_quat
+
+log = logging.getLogger("orbit_emulator.scene")
+
+RIGID_COLOR = (150, 165, 190)
+SPONGE_COLOR = (245, 205, 50)
+GHOST_COLOR = (90, 220, 255)
+TRACE_COLORS = ((255, 120, 40), (60, 200, 120), (200, 90, 220), (90, 160, 255))
+AXIS_COLORS = ("#e03131", "#2f9e44", "#1971c2")
+PLOT_WINDOW_S = 10.0
+
+
+def _load_urdf():
+    import yourdfpy
+
+    from app.sim.ur10e import urdf_text
+
+    return yourdfpy.URDF.load(
+        io.StringIO(urdf_text()), build_scene_graph=True, load_meshes=True,
+        build_collision_scene_graph=False, load_collision_meshes=False,
+    )
+
+
+@dataclass
+class _ArmView:
+    root: Any  # frame handle at T_W_B
+    urdf: Any  # ViserUrdf
+    q: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
+    joints: list = field(default_factory=list)  # (frame handle, R_origin, axis, q index)
+
+    def bind_joints(self) -> None:
+        """The frames of the revolute joints: only their orientation ever changes.
+
+        ViserUrdf.update_cfg recomputes and resends every joint frame (fixed ones too)
+        through yourdfpy: ~4 ms per arm. Setting the six revolute frames' orientation
+        directly costs a tenth of that.
+        """
+        urdf = self.urdf._urdf
+        names = list(urdf.actuated_joint_names)
+        joints = []
+        for joint, frame in zip(self.urdf._joint_map_values, self.urdf._joint_frames,
+                                strict=False):
+            if joint.type in ("revolute", "continuous") and joint.name in names:
+                origin = np.eye(4) if joint.origin is None else np.asarray(joint.origin)
+                axis = np.asarray(joint.axis, dtype=float)
+                joints.append((frame, origin[:3, :3].copy(), axis / np.linalg.norm(axis),
+                               names.index(joint.name)))
+        self.joints = joints if len(joints) == len(names) else []
+
+    def set_q(self, q: np.ndarray) -> None:
+        if not self.joints:
+            self.urdf.update_cfg(q)
+            return
+        for frame, R0, axis, i in self.joints:
+            frame.wxyz = matrix_to_quat(R0 @ _axis_angle(axis, float(q[i])))
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation matrix of `angle` about the unit vector `axis` (Rodrigues)."""
+    x, y, z = axis
+    c, s = np.cos(angle), np.sin(angle)
+    C = 1.0 - c
+    return np.array([
+        [c + x * x * C, x * y * C - z * s, x * z * C + y * s],
+        [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
+        [z * x * C - y * s, z * y * C + x * s, c + z * z * C],
+    ])
+
+
+@dataclass
+class _SatView:
+    index: int
+    mockup: Any
+    ghost: Any
+    gizmo: Any
+    trace_points: deque = field(default_factory=lambda: deque(maxlen=600))
+    trace: Any = None
+    trace_version: int = 0
+    trace_sent: int = 0
+    dragging: bool = False
+    last_mockup: tuple = ()
+    last_ghost: tuple = ()
+    last_gizmo: tuple = ()
+
+
+class EmulatorScene:
+    """Builds the viser scene and keeps it in step with the runner's snapshots."""
+
+    def __init__(self, server: viser.ViserServer, service: EmulatorService,
+                 rate_hz: float = 30.0) -> None:
+        self.server = server
+        self.service = service
+        self.rate_hz = rate_hz
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._urdf_model = None
+        self._arms: dict[tuple, _ArmView] = {}
+        self._active_arms: list[_ArmView] = []
+        self._sats: list[_SatView] = []
+        self._layout_key: tuple | None = None
+        self._generation: int | None = None
+        self._built_generation: int | None = None
+        self._history: deque = deque(maxlen=int(PLOT_WINDOW_S * rate_hz) + 1)
+        self._frame_R = None
+        self.update_cost_s: deque = deque(maxlen=300)  # wall time of each scene update
+        self._last_slow = 0.0
+        self._build_static()
+        self._build_gui()
+
+    # --- construction ---------------------------------------------------------------
+
+    def _build_static(self) -> None:
+        scene = self.server.scene
+        scene.configure_environment_map(hdri=None)
+        scene.add_light_ambient("/lights/ambient", intensity=0.6)
+        scene.add_light_directional(
+            "/lights/key", intensity=2.0, position=(2.0, -3.0, 4.0), cast_shadow=False
+        )
+        scene.add_light_hemisphere("/lights/hemi", intensity=0.5)
+        scene.set_up_direction("+z")
+        scene.add_grid("/floor", width=4.0, height=4.0, cell_size=0.25, position=(0, 0, 0))
+        self.server.initial_camera.position = (1.9, -2.3, 1.7)
+        self.server.initial_camera.look_at = (0.0, 0.0, 0.95)
+
+    def _build_gui(self) -> None:
+        gui = self.server.gui
+        svc = self.service
+        self.gui_status = gui.add_markdown("**status** idle")
+        with gui.add_folder("Scenario"):
+            names = scenario_names()
+            self.gui_scenario = gui.add_dropdown(
+                "Scenario", names, initial_value=svc.default_scenario
+            )
+            self.gui_mode = gui.add_dropdown("Mode", ("hil", "ideal"), initial_value="hil")
+            self.gui_altitude = gui.add_number("Altitude (km)", 800.0, min=100.0, max=40000.0,
+                                               step=10.0)
+            self.gui_velocity = gui.add_vector3("Sat 1 v0 (m/s)", (0.0, 0.0, 0.0), step=0.001)
+            self.gui_kp_lin = gui.add_number("VFDM kp_lin", 10.0, min=0.0, max=1000.0, step=0.5)
+            self.gui_kp_rot = gui.add_number("VFDM kp_rot", 1.0, min=0.0, max=1000.0, step=0.1)
+            self.gui_duration = gui.add_number("Duration (s)", 30.0, min=1.0, max=3600.0, step=1.0)
+            self.gui_start = gui.add_button("Start", color="green")
+            self.gui_stop = gui.add_button("Stop", color="red")
+            self.gui_reset = gui.add_button("Reset")
+            self.gui_message = gui.add_markdown("")
+        self._fill_gui_from(svc.default_scenario)
+
+        @self.gui_scenario.on_update
+        def _(_event) -> None:
+            self._fill_gui_from(self.gui_scenario.value)
+            if svc.runner.status not in ("running", "starting"):
+                self._guarded(lambda: svc.reset(self.gui_scenario.value))
+
+        @self.gui_start.on_click
+        def _(_event) -> None:
+            self._guarded(lambda: svc.start(
+                self.gui_scenario.value, self._gui_overrides(), mode=self.gui_mode.value
+            ))
+
+        @self.gui_stop.on_click
+        def _(_event) -> None:
+            self._guarded(svc.stop)
+
+        @self.gui_reset.on_click
+        def _(_event) -> None:
+            self._guarded(lambda: svc.reset(self.gui_scenario.value))
+
+        with gui.add_folder("Plots"):
+            self.plots = {
+                key: self._add_plot(title)
+                for key, title in (
+                    ("force", "Force on the ODS (N, R)"),
+                    ("velocity", "Velocity (m/s, R)"),
+                    ("position", "Position (m, R)"),
+                    ("tracking", "Tracking error |actual - ODS| (mm)"),
+                )
+            }
+        self._plot_series: tuple | None = None
+
+    def _add_plot(self, title: str):
+        return self.server.gui.add_uplot(
+            data=(np.zeros(2), np.zeros(2)),
+            series=({"label": "t (s)"}, {"label": "-", "stroke": "#888"}),
+            title=title,
+            scales={"x": {"time": False}},
+            aspect=1.6,
+        )
+
+    def _fill_gui_from(self, name: str) -> None:
+        try:
+            cfg = load_scenario(name)
+        except Exception:  # pragma: no cover - names come from scenario_names()
+            return
+        self.gui_altitude.value = cfg.orbit.altitude_m / 1e3
+        self.gui_velocity.value = tuple(cfg.satellites[0].velocity_mps)
+        self.gui_kp_lin.value = cfg.vfdm.kp_lin
+        self.gui_kp_rot.value = cfg.vfdm.kp_rot
+        self.gui_duration.value = cfg.loop.duration_s
+
+    def _gui_overrides(self) -> dict:
+        return {
+            "orbit": {"altitude_m": float(self.gui_altitude.value) * 1e3},
+            "satellites": [{"velocity_mps": [float(v) for v in self.gui_velocity.value]}],
+            "vfdm": {"kp_lin": float(self.gui_kp_lin.value),
+                     "kp_rot": float(self.gui_kp_rot.value)},
+            "loop": {"duration_s": float(self.gui_duration.value)},
+        }
+
+    def _guarded(self, fn) -> None:
+        try:
+            fn()
+            self.gui_message.content = ""
+        except (RunnerBusy, InvalidRequest, UnknownScenario) as err:
+            self.gui_message.content = f"**{type(err).__name__}**: {err}"
+        except Exception as err:  # pragma: no cover
+            log.exception("GUI action failed")
+            self.gui_message.content = f"**error**: {err}"
+
+    def _arm_view(self, name: str, T_W_B: np.ndarray) -> _ArmView:
+        key = (name, tuple(np.round(T_W_B, 6).ravel()))
+        view = self._arms.get(key)
+        if view is None:
+            from viser.extras import ViserUrdf
+
+            if self._urdf_model is None:
+                self._urdf_model = _load_urdf()
+            root_name = f"/arms/{name}_{len(self._arms)}"
+            root = self.server.scene.add_frame(
+                root_name, show_axes=False, wxyz=matrix_to_quat(T_W_B[:3, :3]),
+                position=T_W_B[:3, 3],
+            )
+            urdf = ViserUrdf(self.server, self._urdf_model, root_node_name=root_name)
+            view = _ArmView(root=root, urdf=urdf)
+            view.bind_joints()
+            self._arms[key] = view
+        view.root.visible = True
+        return view
+
+    def _rebuild(self, snap: dict) -> None:
+        """(Re)build the nodes that depend on the scenario: arms, mockups, gizmos."""
+        layout = snap["layout"]
+        info = {
+            "T_W_R": np.array(layout["T_W_R"]),
+            "arms": [(name, np.array(T)) for name, T in layout["arms"]],
+            "sats": [(n, tuple(size), mat) for n, size, mat in layout["satellites"]],
+        }
+        key = (
+            tuple(np.round(info["T_W_R"], 6).ravel()),
+            tuple((n, tuple(np.round(T, 6).ravel())) for n, T in info["arms"]),
+            tuple(info["sats"]),
+        )
+        self._history.clear()
+        self._plot_series = None
+        if key == self._layout_key:
+            for sv in self._sats:
+                sv.trace_points.clear()
+                sv.trace_version += 1
+            return
+        self._layout_key = key
+        scene = self.server.scene
+        T_W_R = info["T_W_R"]
+        if self._frame_R is None:
+            self._frame_R = scene.add_frame(
+                "/frame_R", axes_length=0.25, axes_radius=0.008,
+                wxyz=matrix_to_quat(T_W_R[:3, :3]), position=T_W_R[:3, 3],
+            )
+            scene.add_label("/frame_R/label", "R", position=(0.0, 0.0, 0.05))
+        else:
+            self._frame_R.wxyz = matrix_to_quat(T_W_R[:3, :3])
+            self._frame_R.position = T_W_R[:3, 3]
+        for view in self._arms.values():
+            view.root.visible = False
+        self._active_arms = [self._arm_view(n, T) for n, T in info["arms"]]
+        for sv in self._sats:
+            for h in (sv.mockup, sv.ghost, sv.gizmo, sv.trace):
+                if h is not None:
+                    h.remove()
+        self._sats = []
+        for i, (name, size, material) in enumerate(info["sats"]):
+            color = SPONGE_COLOR if material == "sponge" else RIGID_COLOR
+            mockup = scene.add_box(f"/mockups/{i}_{name}", color=color, dimensions=size,
+                                   material="toon5" if material == "sponge" else "standard")
+            ghost = scene.add_box(f"/ods/{i}_{name}", color=GHOST_COLOR, dimensions=size,
+                                  wireframe=True)
+            gizmo = scene.add_transform_controls(
+                f"/gizmo/sat{i + 1}", scale=0.35, disable_rotations=True, depth_test=False,
+                line_width=3.0,
+            )
+            sv = _SatView(index=i, mockup=mockup, ghost=ghost, gizmo=gizmo)
+            self._attach_gizmo(sv)
+            self._sats.append(sv)
+
+    def _attach_gizmo(self, sv: _SatView) -> None:
+        svc = self.service
+
+        @sv.gizmo.on_update
+        async def _(event) -> None:  # async: runs on viser's loop, keeps phase order
+            if event.phase == "start":
+                sv.dragging = True
+                svc.hand(sv.index, tuple(event.target.position))
+            elif event.phase == "update":
+                sv.dragging = True
+                svc.hand(sv.index, tuple(event.target.position))
+            else:
+                svc.hand(sv.index, None)
+                sv.dragging = False
+
+    @property
+    def generation(self) -> int | None:
+        """Generation of the run the scene has been built for (None before the first)."""
+        return self._built_generation
+
+    # --- the update thread ----------------------------------------------------------
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="viser-scene", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        period = 1.0 / self.rate_hz
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                t0 = time.perf_counter()
+                self.update(self.service.runner.snapshot())
+                self.update_cost_s.append(time.perf_counter() - t0)
+            except Exception:
+                log.exception("scene update failed")
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < 0:
+                next_t = time.monotonic()
+                delay = 0.0
+            self._stop.wait(delay)
+
+    def update(self, snap: dict | None) -> None:
+        if not snap:
+            return
+        if snap["generation"] != self._generation:
+            self._generation = snap["generation"]
+            self._rebuild(snap)
+            self._built_generation = snap["generation"]
+        if not self._history or self._history[-1]["t_s"] != snap["t_s"]:
+            self._history.append(snap)
+        now = time.monotonic()
+        with self.server.atomic():
+            for view, rob in zip(self._active_arms, snap["robots"], strict=False):
+                q = np.asarray(rob["q_rad"])
+                if np.max(np.abs(q - view.q), initial=np.inf) > 2e-4 or np.isnan(view.q[0]):
+                    view.set_q(q)
+                    view.q = q
+            by_sat = {r["satellite"] - 1: r for r in snap["robots"]}
+            for sv, sat in zip(self._sats, snap["satellites"], strict=False):
+                ghost = (tuple(np.round(sat["position_W_m"], 4)),
+                         tuple(np.round(sat["attitude_W_wxyz"], 4)))
+                rob = by_sat.get(sv.index)
+                mock = ghost if rob is None else (
+                    tuple(np.round(rob["mockup_position_W_m"], 4)),
+                    tuple(np.round(rob["mockup_attitude_W_wxyz"], 4)),
+                )
+                if ghost != sv.last_ghost:
+                    sv.ghost.position, sv.ghost.wxyz = ghost[0], ghost[1]
+                    sv.last_ghost = ghost
+                if mock != sv.last_mockup:
+                    sv.mockup.position, sv.mockup.wxyz = mock[0], mock[1]
+                    sv.last_mockup = mock
+                if not sv.dragging and mock[0] != sv.last_gizmo:
+                    sv.gizmo.position = mock[0]
+                    sv.last_gizmo = mock[0]
+                p = np.asarray(sat["position_W_m"])
+                if not sv.trace_points or np.linalg.norm(p - sv.trace_points[-1]) > 0.002:
+                    sv.trace_points.append(p)
+                    sv.trace_version += 1
+        if now - self._last_slow > 0.25:  # traces, plots, status: 4 Hz
+            self._last_slow = now
+            self._update_traces()
+            self._update_plots()
+            self._update_status(snap)
+
+    def _update_traces(self) -> None:
+        for sv in self._sats:
+            if sv.trace_version == sv.trace_sent or len(sv.trace_points) < 2:
+                continue
+            pts = np.asarray(sv.trace_points, dtype=np.float32)
+            segs = np.ascontiguousarray(np.stack([pts[:-1], pts[1:]], axis=1))
+            color = TRACE_COLORS[sv.index % len(TRACE_COLORS)]
+            colors = np.broadcast_to(np.array(color, np.uint8), segs.shape).copy()
+            if sv.trace is None:
+                sv.trace = self.server.scene.add_line_segments(
+                    f"/traces/sat{sv.index + 1}", points=segs, colors=colors,
+                    thickness=2.0, thickness_units="screen",
+                )
+            else:
+                sv.trace.points = segs
+                sv.trace.colors = colors
+            sv.trace_sent = sv.trace_version
+
+    def _update_plots(self) -> None:
+        hist = list(self._history)
+        if len(hist) < 2:
+            return
+        t = np.array([h["t_s"] for h in hist])
+        n_sat = len(hist[-1]["satellites"])
+        n_rob = len(hist[-1]["robots"])
+        shape = (n_sat, n_rob)
+        new_series = self._plot_series != shape
+        if new_series:
+            self._plot_series = shape
+            self._series = {}
+            for key in ("force", "velocity", "position"):
+                ser = [{"label": "t (s)"}]
+                for i in range(n_sat):
+                    for a, axis in enumerate("xyz"):
+                        s = {"label": f"s{i + 1} {axis}", "stroke": AXIS_COLORS[a], "width": 1.5}
+                        if i:
+                            s["dash"] = (6.0, 4.0)
+                        ser.append(s)
+                self._series[key] = tuple(ser)
+            self._series["tracking"] = tuple(
+                [{"label": "t (s)"}] + [
+                    {"label": f"robot {r + 1}", "stroke": AXIS_COLORS[r % 3], "width": 1.5}
+                    for r in range(max(n_rob, 1))
+                ]
+            )
+        data_key = {"force": "applied_force_N", "velocity": "velocity_mps",
+                    "position": "position_m"}
+        for key, field_name in data_key.items():
+            arr = np.array([[s[field_name] for s in h["satellites"]] for h in hist])  # T,N,3
+            cols = [t] + [arr[:, i, a] for i in range(n_sat) for a in range(3)]
+            plot = self.plots[key]
+            if new_series:
+                plot.series = self._series[key]
+            plot.data = tuple(np.ascontiguousarray(c, dtype=np.float64) for c in cols)
+        if n_rob:
+            err = np.array([[r["tracking_error_m"] * 1e3 for r in h["robots"]] for h in hist])
+            cols = [t] + [err[:, r] for r in range(n_rob)]
+        else:
+            cols = [t, np.zeros_like(t)]
+        if new_series:
+            self.plots["tracking"].series = self._series["tracking"]
+        self.plots["tracking"].data = tuple(np.ascontiguousarray(c) for c in cols)
+
+    def _update_status(self, snap: dict) -> None:
+        loop = snap["loop"]
+        text = (
+            f"**{snap['scenario']}** ({snap['mode']}) — **{snap['status']}**  \n"
+            f"t = {snap['t_s']:.2f} s · cycles {loop['cycles']} · "
+            f"p50 {loop['cycle_time_us']['p50']:.0f} µs · p99 "
+            f"{loop['cycle_time_us']['p99']:.0f} µs · misses {loop['deadline_misses']}"
+        )
+        if snap.get("reason"):
+            text += f"  \n{snap['reason']}"
+        if text != getattr(self, "_last_status", None):
+            self.gui_status.content = text
+            self._last_status = text

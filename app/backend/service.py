@@ -1,0 +1,171 @@
+"""What the REST API and the viser GUI can ask of the emulator (one place, both use it).
+
+Every request is validated completely before anything is handed to the runner, so a bad
+request changes nothing.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any
+
+from app.backend.runner import Runner, RunnerBusy
+from app.config import ConfigError, EmulatorConfig, merge_overrides
+from app.scenarios import load_scenario, scenario_descriptions, scenario_names
+from app.sim.loop import HandAnchor, Push
+
+__all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
+
+MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's range
+MAX_PUSH_DURATION_S = 5.0
+
+
+class UnknownScenario(LookupError):
+    pass
+
+
+class InvalidRequest(ValueError):
+    """A request that is well-formed JSON but invalid; the message names the field."""
+
+
+class EmulatorService:
+    """Builds emulators from scenarios + overrides and drives one :class:`Runner`."""
+
+    def __init__(self, default_scenario: str | None = None, **runner_kwargs: Any) -> None:
+        names = scenario_names()
+        self.default_scenario = default_scenario or (
+            "collision" if "collision" in names else names[0]
+        )
+        self._build_lock = threading.Lock()
+        config = load_scenario(self.default_scenario)
+        self.last_config: EmulatorConfig = config
+        self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
+
+    # --- lifecycle ----------------------------------------------------------------------
+
+    def start_thread(self) -> None:
+        self.runner.start_thread()
+
+    def shutdown(self) -> None:
+        self.runner.shutdown()
+
+    # --- queries --------------------------------------------------------------------------
+
+    @staticmethod
+    def scenarios() -> list[dict[str, str]]:
+        return [{"name": n, "description": d} for n, d in scenario_descriptions().items()]
+
+    def state(self) -> dict[str, Any]:
+        return self.runner.snapshot()
+
+    def config_for(self, name: str, overrides: dict | None = None) -> EmulatorConfig:
+        """Scenario `name` with `overrides` merged and validated (UnknownScenario /
+        InvalidRequest)."""
+        if name not in scenario_names():
+            raise UnknownScenario(
+                f"unknown scenario {name!r}; choose one of {scenario_names()}"
+            )
+        config = load_scenario(name)
+        if overrides:
+            if not isinstance(overrides, dict):
+                raise InvalidRequest("body: config overrides must be a JSON object")
+            try:
+                config = merge_overrides(config, overrides)
+            except ConfigError as err:
+                raise InvalidRequest(str(err)) from None
+            except (KeyError, IndexError, TypeError, AttributeError) as err:
+                raise InvalidRequest(f"invalid configuration override: {err}") from None
+        return config
+
+    def build(self, name: str, overrides: dict | None = None, mode: str | None = None):
+        """The validated config and mode of a run (what Emulator() would refuse, too)."""
+        config = self.config_for(name, overrides)
+        if mode is not None and mode not in ("hil", "ideal"):
+            raise InvalidRequest(f"mode: must be 'hil' or 'ideal', got {mode!r}")
+        if (mode or config.loop.mode) == "hil" and not config.robots:
+            raise InvalidRequest("robots: hil mode needs at least one [[robots]] entry")
+        return config, mode
+
+    # --- commands ---------------------------------------------------------------------
+
+    def start(
+        self, name: str, overrides: dict | None = None, mode: str | None = None,
+        wait_s: float = 60.0,
+    ) -> dict[str, Any]:
+        """Start scenario `name`; returns the state once running (or failed to start)."""
+        with self._build_lock:
+            config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
+            gen = self.runner.request_start(name, config, mode)
+            self.last_config = config
+        # the loop publishes the new generation first as "starting", then running /
+        # error / safety_stop
+        self.runner.wait_until(
+            lambda s: s["generation"] >= gen and s["status"] != "starting", wait_s
+        )
+        return self.state()
+
+    def stop(self) -> dict[str, Any]:
+        self.runner.request_stop()
+        self.runner.wait_until(lambda s: s["status"] not in ("running", "starting"), 10.0)
+        return self.state()
+
+    def reset(self, name: str | None = None) -> dict[str, Any]:
+        name = name or self.runner.scenario
+        if name not in scenario_names():
+            name = self.default_scenario
+        with self._build_lock:
+            config, mode = self.build(name)
+            gen = self.runner.request_reset(name, config, mode)
+            self.last_config = config
+        self.runner.wait_until(lambda s: s["generation"] >= gen, 10.0)
+        return self.state()
+
+    def push(self, satellite: int, force_N, duration_s: float) -> dict[str, Any]:
+        """A push on satellite `satellite` (1-based), force in R; validated here."""
+        force = validate_push(satellite, force_N, duration_s, self.state()["n_satellites"])
+        self.runner.post(Push(satellite=satellite - 1, force_R_N=force, duration_s=duration_s))
+        return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
+                "t_s": self.state()["t_s"]}
+
+    def hand(self, satellite0: int, anchor_W_m) -> bool:
+        """Gizmo: move the virtual hand of satellite `satellite0` (0-based); None lets go."""
+        anchor = None if anchor_W_m is None else tuple(float(v) for v in anchor_W_m)
+        if anchor is not None and not all(math.isfinite(v) for v in anchor):
+            return False
+        return self.runner.post_nowait(HandAnchor(satellite=satellite0, anchor_W_m=anchor))
+
+    # --- heavier reads --------------------------------------------------------------------
+
+    def telemetry_csv(self) -> str:
+        from app.report import telemetry_csv_text
+
+        columns, rows = self.runner.read("telemetry")
+        return telemetry_csv_text(columns, rows)
+
+    def metrics(self) -> dict[str, Any]:
+        return self.runner.read("metrics")
+
+
+def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:
+    if isinstance(satellite, bool) or not isinstance(satellite, int):
+        raise InvalidRequest("satellite: must be an integer (1-based)")
+    if not 1 <= satellite <= n_satellites:
+        raise InvalidRequest(
+            f"satellite: must be between 1 and {n_satellites}, got {satellite}"
+        )
+    if len(force_N) != 3:
+        raise InvalidRequest("force_N: must have 3 components")
+    force = tuple(float(v) for v in force_N)
+    if not all(math.isfinite(v) for v in force):
+        raise InvalidRequest("force_N: must be finite numbers")
+    norm = math.sqrt(sum(v * v for v in force))
+    if norm > MAX_PUSH_FORCE_N:
+        raise InvalidRequest(
+            f"force_N: magnitude {norm:.1f} N exceeds the sensor range {MAX_PUSH_FORCE_N:g} N"
+        )
+    if not (math.isfinite(duration_s) and 0.0 < duration_s <= MAX_PUSH_DURATION_S):
+        raise InvalidRequest(
+            f"duration_s: must be in (0, {MAX_PUSH_DURATION_S:g}] s, got {duration_s}"
+        )
+    return force

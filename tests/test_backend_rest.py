@@ -1,0 +1,182 @@
+"""End-to-end REST tests against the real app (uvicorn + viser + the loop process)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from app.backend.testing import LiveServer
+
+
+@pytest.fixture(scope="module")
+def live():
+    with LiveServer() as server:
+        yield server
+
+
+def _post_raw(live, path: str, raw: str):
+    return live.client.post(path, content=raw, headers={"Content-Type": "application/json"})
+
+
+def test_health_scenarios_and_page(live):
+    health = live.client.get("/api/health").json()
+    assert health["status"] == "ok" and health["loop_alive"]
+    assert health["viser_port"] == live.viser_port > 0
+    names = [s["name"] for s in live.client.get("/api/scenarios").json()]
+    assert {"free-floating", "collision"} <= set(names)
+    page = live.client.get("/")
+    assert page.status_code == 200 and 'id="start-button"' in page.text
+    assert "/docs" in page.text
+    assert live.client.get("/openapi.json").json()["paths"]["/api/push"]
+    state = live.state()
+    assert state["status"] == "idle"
+    for key in ("t_s", "status", "reason", "satellites", "robots", "loop"):
+        assert key in state
+    assert set(state["loop"]) >= {"cycles", "cycle_time_us", "deadline_misses"}
+
+
+def test_push_changes_velocity_by_impulse(live):
+    s = live.client.post("/api/scenarios/free-floating/start", json={}).json()
+    assert s["status"] == "running", s
+    assert s["scenario"] == "free-floating"
+    # the scripted +x pulse ends at 1.3 s (low-passed at 10 Hz): push after it settles
+    s0 = live.wait_for(lambda s: s["t_s"] >= 1.7)
+    v0 = np.array(s0["satellites"][0]["velocity_mps"])
+    r = live.client.post("/api/push", json={"satellite": 1, "force_N": [0.0, 20.0, 0.0],
+                                             "duration_s": 0.3})
+    assert r.status_code == 200, r.text
+    t_push = r.json()["t_s"]
+    s1 = live.wait_for(lambda s: s["t_s"] >= t_push + 0.9)
+    assert s1["t_s"] < 4.0  # before the next scripted pulse
+    v1 = np.array(s1["satellites"][0]["velocity_mps"])
+    dv = v1 - v0
+    expected = 0.005 * 20.0 * 0.3 / 1.0  # force_scale * impulse / mass = 0.03 m/s
+    assert dv[1] == pytest.approx(expected, rel=0.27), dv
+    assert abs(dv[0]) < 0.27 * expected and abs(dv[2]) < 0.27 * expected, dv
+    # the mockup (robot FK) follows the satellite
+    rob = s1["robots"][0]
+    err = np.linalg.norm(np.array(rob["mockup_position_m"])
+                         - np.array(s1["satellites"][0]["position_m"]))
+    assert err < 0.01
+
+
+BAD_PUSHES = [
+    ('{"satellite": 1, "force_N": [NaN, 0, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [0, Infinity, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [0, 1e999, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": NaN}', "duration_s"),
+    ('{"satellite": 1, "force_N": [0, 120, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [80, 80, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": 0}', "duration_s"),
+    ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": -1}', "duration_s"),
+    ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": 5.5}', "duration_s"),
+    ('{"satellite": 0, "force_N": [0, 20, 0], "duration_s": 0.3}', "satellite"),
+    ('{"satellite": 2, "force_N": [0, 20, 0], "duration_s": 0.3}', "satellite"),
+    ('{"satellite": "1", "force_N": [0, 20, 0], "duration_s": 0.3}', "satellite"),
+    ('{"satellite": 1.5, "force_N": [0, 20, 0], "duration_s": 0.3}', "satellite"),
+    ('{"satellite": true, "force_N": [0, 20, 0], "duration_s": 0.3}', "satellite"),
+    ('{"satellite": 1, "force_N": [0, 20], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": ["0", 20, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": 20, "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [0, 20, 0]}', "duration_s"),
+    ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": 0.3, "extra": 1}', "extra"),
+    ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": "0.3"}', "duration_s"),
+    ("not json", "body"),
+]
+
+
+def test_bad_input_is_rejected_and_changes_nothing(live):
+    live.client.post("/api/stop")
+    # no scripted pulses in the next 1000 s: the velocity must stay put
+    quiet = {"pulses": [{"start_s": 1000.0 + i, "end_s": 1000.5 + i} for i in range(10)]}
+    s = live.client.post("/api/scenarios/free-floating/start", json=quiet).json()
+    assert s["status"] == "running", s
+    s0 = live.wait_for(lambda s: s["t_s"] >= 0.3)
+    gen = s0["generation"]
+    for raw, field in BAD_PUSHES:
+        r = _post_raw(live, "/api/push", raw)
+        assert r.status_code == 422, (raw, r.status_code, r.text)
+        assert field in r.json()["detail"], (raw, r.json())
+    bad_starts = [
+        ("free-floating", "{}", 409, "already running"),
+        ("nope", "{}", 404, "unknown scenario"),
+    ]
+    for name, raw, code, text in bad_starts:
+        r = _post_raw(live, f"/api/scenarios/{name}/start", raw)
+        assert r.status_code == code, (name, raw, r.text)
+        assert text in r.json()["detail"]
+    s1 = live.state()
+    assert s1["status"] == "running" and s1["generation"] == gen
+    dv = np.subtract(s1["satellites"][0]["velocity_mps"], s0["satellites"][0]["velocity_mps"])
+    assert s1["t_s"] - s0["t_s"] < 1.0
+    assert np.linalg.norm(dv) < 0.003, dv  # no push got through (a push gives >= 1e-3)
+
+
+BAD_OVERRIDES = [
+    ('{"vfdm": {"kp_lin": -1}}', "vfdm.kp_lin"),
+    ('{"vfdm": {"kp_lin": NaN}}', "vfdm.kp_lin"),
+    ('{"satellites": [{"velocity_mps": [0.01, Infinity, 0]}]}', "satellites.0.velocity_mps"),
+    ('{"satellites": [{"mass_kg": "heavy"}]}', "satellites.0.mass_kg"),
+    ('{"orbit": {"altitude_m": 0}}', "orbit.altitude_m"),
+    ('{"bogus": 1}', "bogus"),
+    ('{"mode": "sideways"}', "mode"),
+    ('{"loop": {"rate_hz": 1e9}}', "loop.rate_hz"),
+    ('[1, 2]', "body"),
+]
+
+
+def test_collision_stop_reset_and_bad_starts(live):
+    live.client.post("/api/stop")
+    s = live.state()
+    assert s["status"] in ("idle", "stopped", "finished", "safety_stop")
+    # pushing while not running: 409, nothing queued
+    r = live.client.post("/api/push", json={"satellite": 1, "force_N": [0, 20, 0],
+                                             "duration_s": 0.3})
+    assert r.status_code == 409 and "no scenario is running" in r.json()["detail"]
+    gen = s["generation"]
+    for raw, field in BAD_OVERRIDES:
+        r = _post_raw(live, "/api/scenarios/collision/start", raw)
+        assert r.status_code == 422, (raw, r.status_code, r.text)
+        assert field in r.json()["detail"], (raw, r.json())
+    s = live.state()
+    assert s["generation"] == gen and s["status"] not in ("running", "starting")
+
+    body = {"satellites": [{"velocity_mps": [0.05, 0, 0]}], "vfdm": {"kp_lin": 20},
+            "mode": "hil"}
+    s = live.client.post("/api/scenarios/collision/start", json=body).json()
+    assert s["status"] == "running" and s["scenario"] == "collision"
+    assert len(s["satellites"]) == 2 and len(s["robots"]) == 2
+    assert s["satellites"][0]["velocity_mps"][0] == pytest.approx(0.05, abs=1e-3)
+    s = live.wait_for(lambda s: s["t_s"] > 0.5)
+    x1, x2 = (sat["position_m"][0] for sat in s["satellites"])
+    assert x1 > -0.35 + 0.01 and x2 < 0.35 - 0.01  # moving toward each other
+    s = live.client.post("/api/stop").json()
+    assert s["status"] == "stopped"
+    t_stop = s["t_s"]
+    time.sleep(0.3)
+    assert live.state()["t_s"] == t_stop
+    csv = live.client.get("/api/telemetry", params={"format": "csv"})
+    assert csv.status_code == 200 and csv.headers["content-type"].startswith("text/csv")
+    lines = csv.text.splitlines()
+    assert lines[0].startswith("t_s,sat1_x_m") and len(lines) > 200
+    assert live.client.get("/api/telemetry", params={"format": "xml"}).status_code == 422
+    metrics = live.client.get("/api/metrics")
+    assert metrics.status_code == 200, metrics.text
+    s = live.client.post("/api/reset").json()
+    assert s["status"] == "idle" and s["t_s"] == 0.0 and s["scenario"] == "collision"
+
+
+def test_a_failing_start_reports_error_and_the_loop_lives_on(live):
+    live.client.post("/api/stop")
+    unreachable = {"satellites": [{"position_m": [3.0, 0.0, 0.0]}],
+                   "loop": {"approach_timeout_s": 0.2}}
+    r = live.client.post("/api/scenarios/free-floating/start", json=unreachable)
+    assert r.status_code == 422 and "could not start" in r.json()["detail"], r.text
+    s = live.state()
+    assert s["status"] == "error" and "not reached" in s["reason"]
+    assert live.client.get("/api/health").json()["loop_alive"]
+    r = live.client.post("/api/scenarios/free-floating/start")
+    assert r.status_code == 200 and r.json()["status"] == "running", r.text
+    live.client.post("/api/stop")
