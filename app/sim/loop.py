@@ -75,16 +75,26 @@ class Arm:
     v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
     last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
     last_processed: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    _state_key: tuple | None = field(default=None, repr=False)
+    _state: tuple = field(default=(), repr=False)
 
     def mockup_state_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Actual flange pose, mockup pose, and mockup COM velocity / angular velocity in W."""
-        q, qd = self.servo.state.q_rad, self.servo.state.qd_radps
-        T_B_F = self.kin.fk(q)
-        T_W_F = self.T_W_B @ T_B_F
-        T_W_C = T_W_F @ self.T_F_C
-        twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
-        R_W_B = self.T_W_B[:3, :3]
-        return T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:]
+        """Actual flange pose, mockup pose, and mockup COM velocity / angular velocity in W.
+
+        Computed from the servo's joint state; kept until that state changes, so the
+        cycle's interaction and its telemetry row share one forward kinematics.
+        """
+        state = self.servo.state
+        key = (id(state), state.q_rad.tobytes(), state.qd_radps.tobytes())
+        if self._state_key != key:
+            q, qd = state.q_rad, state.qd_radps
+            T_W_F = self.T_W_B @ self.kin.fk(q)
+            T_W_C = T_W_F @ self.T_F_C
+            twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
+            R_W_B = self.T_W_B[:3, :3]
+            self._state = (T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:])
+            self._state_key = key
+        return self._state
 
 
 # --- the emulator -----------------------------------------------------------------------
@@ -361,13 +371,12 @@ class Emulator:
 
     def mockup_pose_R(self, arm: Arm) -> tuple[np.ndarray, np.ndarray]:
         """Actual mockup COM position and attitude (wxyz) in R, from the robot's FK."""
-        T_R_C = self.T_R_W @ arm.T_W_B @ arm.kin.fk(arm.servo.state.q_rad) @ arm.T_F_C
+        T_R_C = self.T_R_W @ arm.mockup_state_W()[1]
         return T_R_C[:3, 3], matrix_to_quat(T_R_C[:3, :3])
 
     def mockup_velocity_R(self, arm: Arm) -> np.ndarray:
         """Actual mockup COM velocity in R (from the joint velocities)."""
-        twist_B = arm.kin.tcp_jacobian(arm.servo.state.q_rad, arm.T_F_C) @ arm.servo.state.qd_radps
-        return self.T_R_W[:3, :3] @ arm.T_W_B[:3, :3] @ twist_B[:3]
+        return self.T_R_W[:3, :3] @ arm.mockup_state_W()[2]
 
     def _record(self) -> None:
         ods = self.ods
