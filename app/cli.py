@@ -45,17 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out", help="output directory")
     p.set_defaults(func=_cmd_propagate)
 
-    _add_later_commands(sub)
-    return parser
+    from app import commands  # run, scenarios, serve
 
-
-def _add_later_commands(sub) -> None:
-    """Commands implemented in their own modules (run, scenarios, serve)."""
-    try:
-        from app import commands
-    except ImportError:  # pragma: no cover - during bootstrap only
-        return
     commands.register(sub)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -104,10 +104,8 @@ def register(sub) -> None:
     p = sub.add_parser("scenarios", help="list the built-in scenarios")
     p.set_defaults(func=_cmd_scenarios)
 
-    try:
-        from app.backend.cli import register_serve
-    except ImportError:
-        return
+    from app.backend.cli import register_serve
+
     register_serve(sub)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -12,16 +13,11 @@ def write_telemetry_csv(path: str | Path, columns: list[str], rows: np.ndarray) 
     """CSV with a header line; floats in %.12g so equal runs give equal bytes."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w") as fh:
-        fh.write(",".join(columns) + "\n")
-        if len(rows):
-            np.savetxt(fh, rows, delimiter=",", fmt="%.12g")
+    path.write_text(telemetry_csv_text(columns, rows))
 
 
 def telemetry_csv_text(columns: list[str], rows: np.ndarray) -> str:
-    """The same CSV as :func:`write_telemetry_csv`, as a string."""
-    import io
-
+    """The telemetry CSV as a string (what :func:`write_telemetry_csv` writes)."""
     buf = io.StringIO()
     buf.write(",".join(columns) + "\n")
     if len(rows):
