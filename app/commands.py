@@ -53,6 +53,10 @@ def _summary(metrics: dict) -> str:
             f"{coll['impulse_balance']:.3f}, restitution "
             f"{'-' if e is None else f'{e:.3f}'} (ideal {'-' if ei is None else f'{ei:.3f}'})",
         ]
+    pc = metrics.get("passivity")
+    if pc:
+        removed = sum(d["force"] + d["torque"] for d in pc["dissipated_J"].values())
+        lines.append(f"passivity controller removed {removed * 1e3:.2f} mJ")
     stop = metrics.get("safety_stop")
     if stop:
         lines.append(

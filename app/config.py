@@ -237,6 +237,21 @@ class WrenchProcessingConfig(_Model):
     'soft': zero below, magnitude reduced by the threshold above (continuous)."""
 
 
+class PassivityConfig(_Model):
+    """Passivity observer + energy-bounding controller on each arm's emulation port.
+
+    Off by default (the paper has none). Loop lag makes an emulated contact gain energy;
+    with this on, a virtual satellite never receives more energy than its mockup's
+    contact delivered (app/sim/passivity.py). It treats the environment as passive, so
+    an operator's push through an enabled port is throttled: scenarios with pushes keep
+    it off.
+    """
+
+    enabled: bool = False
+    idle_reset_s: NonNegative = 0.1
+    """The balance is forgotten once the measured wrench has been zero this long."""
+
+
 class ContactMaterial(_Model):
     """Hunt-Crossley contact parameters of one mockup's surface."""
 
@@ -285,6 +300,7 @@ class EmulatorConfig(_Model):
     servo: ServoConfig = ServoConfig()
     sensor: SensorConfig = SensorConfig()
     wrench: WrenchProcessingConfig = WrenchProcessingConfig()
+    passivity: PassivityConfig = PassivityConfig()
     materials: dict[str, ContactMaterial] = DEFAULT_MATERIALS
     hand: HandConfig = HandConfig()
     loop: LoopConfig = LoopConfig()

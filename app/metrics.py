@@ -90,6 +90,21 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     }
 
 
+def passivity_metrics(em: Emulator) -> dict | None:
+    """Energy each arm's passivity controller removed (None when it is off)."""
+    if not em.config.passivity.enabled or not em.arms:
+        return None
+    return {
+        "dissipated_J": {
+            f"sat{arm.satellite + 1}": {
+                "force": arm.passivity[0].dissipated_J,
+                "torque": arm.passivity[1].dissipated_J,
+            }
+            for arm in em.arms
+        }
+    }
+
+
 def compute_metrics(em: Emulator, wall_s: float, restitution_ideal: float | None = None) -> dict:
     """The metrics.json of a run (the emulator after it ran; wall_s its wall-clock time)."""
     rows = em.telemetry.rows()
@@ -129,6 +144,7 @@ def compute_metrics(em: Emulator, wall_s: float, restitution_ideal: float | None
         "satellites": sats,
         "collision": None,
         "safety_stop": em.safety_stop,
+        "passivity": passivity_metrics(em),
     }
     if em.n_sat >= 2 and len(rows):
         coll = collision_metrics(rows, index, em.dt_s)

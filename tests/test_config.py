@@ -59,6 +59,8 @@ force_N = [1.0, 0.0, 0.0]
     "data, message",
     [
         ({"orbit": {"altitude_km": 800}}, "orbit.altitude_km: Extra inputs are not permitted"),
+        ({"passivity": {"idle_reset_s": -0.1}}, "passivity.idle_reset_s: Input should be greater"),
+        ({"passivity": {"gain": 1.0}}, "passivity.gain: Extra inputs are not permitted"),
         ({"satellites": [{"name": "a", "mass_kg": -1.0}]}, "satellites.0.mass_kg"),
         ({"satellites": [{"name": "a", "mass_kg": math.nan}]}, "satellites.0.mass_kg"),
         (

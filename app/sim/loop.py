@@ -26,6 +26,7 @@ from app.propagate import pulse_wrenches
 from app.sim.contact import BoxContactModel
 from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor
 from app.sim.orbital import OrbitalSimulator
+from app.sim.passivity import PassivityController
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.telemetry import TelemetryBuffer, robot_columns, satellite_columns
@@ -71,6 +72,7 @@ class Arm:
     servo: UR10eServo
     sensor: VirtualFTSensor
     processor: WrenchProcessor
+    passivity: tuple[PassivityController, PassivityController] | None = None
     q_start_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
     v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
     last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -160,6 +162,16 @@ class Emulator:
             servo=UR10eServo(cfg.servo, self.dt_s, q_home, safety_box_for_robot(robot, kin)),
             sensor=VirtualFTSensor(cfg.sensor, mass, self.gravity_W, rng),
             processor=WrenchProcessor(cfg.wrench, cfg.loop.rate_hz, self.gravity_W),
+            passivity=self._build_passivity(),
+        )
+
+    def _build_passivity(self) -> tuple[PassivityController, PassivityController] | None:
+        pc = self.config.passivity
+        if not pc.enabled:
+            return None
+        return (
+            PassivityController(self.dt_s, pc.idle_reset_s),
+            PassivityController(self.dt_s, pc.idle_reset_s),
         )
 
     def _columns(self) -> list[str]:
@@ -345,7 +357,17 @@ class Emulator:
             arm.last_raw_S = raw
             arm.last_processed = np.concatenate([out.force_R_N, out.torque_B_Nm])
             force_R[s], torque_B[s] = out.force_R_N, out.torque_B_Nm
+            if arm.passivity is not None:
+                force_R[s], torque_B[s] = self._passivate(arm, out, v_W[s], w_W[s], R_W_C[s])
         return force_R, torque_B
+
+    def _passivate(self, arm: Arm, out, v_W, w_W, R_W_C) -> tuple[np.ndarray, np.ndarray]:
+        """The ODS input of an arm's satellite through its passivity controllers."""
+        s = arm.satellite
+        pc_f, pc_t = arm.passivity
+        force = pc_f.step(out.force_R_N, self.ods.velocity_mps[s], self.R_W_R.T @ v_W)
+        torque = pc_t.step(out.torque_B_Nm, self.ods.omega_rel_radps[s], R_W_C.T @ w_W)
+        return force, torque
 
     def _interact_ideal(self) -> tuple[np.ndarray, np.ndarray]:
         """Contact between the ODS poses and the hand, applied exactly (no sensor)."""

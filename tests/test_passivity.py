@@ -1,0 +1,103 @@
+"""Passivity observer/controller: energy bookkeeping and a delayed-contact bounce."""
+
+import numpy as np
+import pytest
+
+from app.sim.passivity import PassivityController
+
+DT = 0.002
+
+
+def bounce(delay_cycles: int, controller: PassivityController | None) -> float:
+    """1-D mass hitting a spring wall whose force is measured on a lagging copy.
+
+    The virtual body (1 kg, 0.1 m/s towards the wall) moves under the force; the
+    "physical" body follows it `delay_cycles` late, and the wall (k = 500 N/m, no pull)
+    pushes on the physical body. Returns the coefficient of restitution.
+    """
+    k, m = 500.0, 1.0
+    x, v = -0.01, 0.1
+    history = [(x, v)] * (delay_cycles + 1)
+    for _ in range(2000):
+        x_p, v_p = history[0]
+        f = np.array([-k * x_p if x_p > 0 else 0.0, 0.0, 0.0])
+        if controller is not None:
+            f = controller.step(f, np.array([v, 0.0, 0.0]), np.array([v_p, 0.0, 0.0]))
+        v += f[0] / m * DT
+        x += v * DT
+        history = history[1:] + [(x, v)]
+    return -v / 0.1
+
+
+def test_a_lagging_contact_gains_energy_and_the_controller_removes_it():
+    assert bounce(0, None) == pytest.approx(1.0, abs=0.03)  # no lag: elastic
+    lagging = bounce(8, None)
+    assert lagging > 1.2  # 16 ms of lag on a ~140 ms contact creates energy
+    pc = PassivityController(DT, idle_reset_s=0.1)
+    e = bounce(8, pc)
+    assert e <= 1.0
+    assert pc.dissipated_J > 0.0
+    # it removed (about) the energy the lag created, no more: a passive, not a dead, bounce
+    assert e > 0.8
+
+
+def test_no_lag_means_no_action():
+    pc = PassivityController(DT, idle_reset_s=0.1)
+    rng = np.random.default_rng(1)
+    for _ in range(500):
+        f, v = rng.normal(size=3), rng.normal(size=3)
+        out = pc.step(f, v, v)
+        np.testing.assert_array_equal(out, f)
+    assert pc.energy_J == 0.0 and pc.dissipated_J == 0.0
+
+
+def test_controller_only_trims_the_accelerating_push():
+    pc = PassivityController(DT, idle_reset_s=0.1)
+    rng = np.random.default_rng(2)
+    acted = 0
+    for _ in range(2000):
+        f, v_v, v_p = rng.normal(size=3), rng.normal(size=3), 0.3 * rng.normal(size=3)
+        out = pc.step(f, v_v, v_p)
+        if not np.array_equal(out, f):
+            acted += 1
+            assert f @ v_v > 0  # only a force that accelerates the satellite is touched
+            assert out @ v_v >= -1e-12  # never reversed into a brake
+            assert np.linalg.norm(out) <= np.linalg.norm(f) + 1e-12
+            # the removed part is a damper along the satellite's velocity
+            np.testing.assert_allclose(np.cross(f - out, v_v), 0.0, atol=1e-12)
+        assert np.isfinite(pc.energy_J)
+    assert acted > 20
+
+
+def test_energy_balance_books_what_was_removed():
+    pc = PassivityController(DT, idle_reset_s=0.1)
+    f = np.array([2.0, 0.0, 0.0])
+    v_virtual, v_physical = np.array([0.5, 0.0, 0.0]), np.array([0.1, 0.0, 0.0])
+    out = pc.step(f, v_virtual, v_physical)
+    # observer: 2 N * (0.1 - 0.5) m/s * 2 ms = -1.6 mJ, all removed (cap 2 N * 0.5 m/s)
+    assert pc.dissipated_J == pytest.approx(1.6e-3)
+    assert pc.energy_J == pytest.approx(0.0, abs=1e-15)
+    beta = 1.6e-3 / (0.25 * DT)  # -E / (|v|^2 dt) = 3.2 N s/m, under the cap F.v/|v|^2 = 4
+    np.testing.assert_allclose(out, [2.0 - beta * 0.5, 0.0, 0.0])
+
+
+def test_debt_is_forgotten_after_the_port_is_idle():
+    pc = PassivityController(DT, idle_reset_s=0.01)  # 5 cycles
+    pc.step(np.array([-3.0, 0, 0]), np.array([0.1, 0, 0]), np.array([0.3, 0, 0]))
+    assert pc.energy_J < 0  # braking force, physical side faster: debt, nothing trimmed
+    zero = np.zeros(3)
+    for _ in range(4):
+        pc.step(zero, np.array([0.1, 0, 0]), np.array([0.1, 0, 0]))
+    assert pc.energy_J < 0
+    pc.step(zero, np.array([0.1, 0, 0]), np.array([0.1, 0, 0]))
+    assert pc.energy_J == 0.0
+
+
+@pytest.mark.parametrize(
+    ("dt", "idle", "message"),
+    [(0.0, 0.1, "dt_s must be > 0, got 0.0"), (DT, -1.0, "idle_reset_s must be >= 0, got -1.0"),
+     (float("nan"), 0.1, "dt_s must be > 0, got nan")],
+)
+def test_bad_parameters(dt, idle, message):
+    with pytest.raises(ValueError, match=message):
+        PassivityController(dt, idle)
