@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.config import load_config, merge_overrides
+from app.config import assignment_override, load_config, merge_overrides
 from app.scenarios import scenario_descriptions, scenario_names
 
 
@@ -76,6 +76,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides["loop"]["seed"] = args.seed
     config = merge_overrides(config, overrides)
+    for assignment in args.set:
+        config = merge_overrides(config, assignment_override(assignment))
     duration = args.duration or config.loop.duration_s
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
                disable=args.quiet, file=sys.stderr)
@@ -101,6 +103,9 @@ def register(sub) -> None:
     p.add_argument("--duration", type=_positive, default=None, help="seconds of scenario time")
     p.add_argument("--config", help="TOML file replacing the scenario's configuration")
     p.add_argument("--seed", type=int, default=None, help="seed of the sensor noise")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one setting, e.g. --set passivity.enabled=false "
+                        "or --set robots.1.q_home_rad=[0,-2,1.6,0.4,-1.57,0] (repeatable)")
     p.add_argument("--out", default=None, help="output directory (default: runs/SCENARIO)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)

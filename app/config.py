@@ -370,6 +370,27 @@ def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:
     return parse_config(_deep_merge(base.model_dump(), overrides))
 
 
+def assignment_override(text: str) -> dict:
+    """``"passivity.enabled=false"`` → ``{"passivity": {"enabled": False}}`` for merge_overrides.
+
+    The value is read as TOML (``0.5``, ``true``, ``[0.1, 0, 0]``, ``"rigid"``), a bare
+    word as a string; a numeric key picks an item of a list (``robots.1.q_home_rad=...``).
+    """
+    key, sep, value = text.partition("=")
+    path = [part.strip() for part in key.split(".")]
+    if not sep or not all(path):
+        raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text!r}")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()
+    for part in reversed(path):
+        parsed = [{}] * int(part) + [parsed] if part.isdigit() else {part: parsed}
+    if not isinstance(parsed, dict):
+        raise ConfigError(f"{key.strip()}: the first part of KEY must be a section name")
+    return parsed
+
+
 def _deep_merge(base, override):
     if isinstance(base, dict) and isinstance(override, dict):
         out = dict(base)

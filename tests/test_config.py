@@ -8,10 +8,12 @@ import pytest
 from app.config import (
     ConfigError,
     EmulatorConfig,
+    assignment_override,
     load_config,
     merge_overrides,
     parse_config,
 )
+from app.scenarios import load_scenario
 
 
 def test_defaults_reproduce_the_paper():
@@ -114,3 +116,35 @@ def test_overrides_merge_item_by_item_and_validate():
     assert cfg.satellites[1].mass_kg == 2.0 and cfg.satellites[0].name == "a"
     with pytest.raises(ConfigError, match="orbit.altitude_m"):
         merge_overrides(base, {"orbit": {"altitude_m": -1}})
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("passivity.enabled=false", {"passivity": {"enabled": False}}),
+        ("wrench.lowpass_hz = 20", {"wrench": {"lowpass_hz": 20}}),
+        ("satellites.1.velocity_mps=[0.1, 0, 0]",
+         {"satellites": [{}, {"velocity_mps": [0.1, 0, 0]}]}),
+        ("satellites.0.material=rigid", {"satellites": [{"material": "rigid"}]}),
+    ],
+)
+def test_assignment_override(text, expected):
+    assert assignment_override(text) == expected
+
+
+def test_assignment_override_merges_one_field_of_one_item():
+    base = load_scenario("collision")
+    cfg = merge_overrides(base, assignment_override("satellites.1.velocity_mps=[-0.05, 0, 0]"))
+    assert cfg.satellites[1].velocity_mps == (-0.05, 0.0, 0.0)
+    assert cfg.satellites[1].material == base.satellites[1].material
+    assert cfg.satellites[0] == base.satellites[0]
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [("passivity", "expected KEY=VALUE"), ("a..b=1", "expected KEY=VALUE"),
+     ("0.x=1", "the first part of KEY must be a section name")],
+)
+def test_bad_assignment(text, message):
+    with pytest.raises(ConfigError, match=message):
+        assignment_override(text)

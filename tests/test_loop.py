@@ -200,3 +200,13 @@ def test_cli_scenarios_and_bad_input(tmp_path):
     bad = subprocess.run([EXE, "run", "collision", "--duration", "-1"], capture_output=True,
                          text=True, timeout=60)
     assert bad.returncode == 2 and "must be a positive finite number" in bad.stderr
+    out = tmp_path / "not-written"
+    for setting, message in [
+        ("passivity.gain=3", "passivity.gain: Extra inputs are not permitted"),
+        ("passivity", "expected KEY=VALUE with a dotted KEY, got 'passivity'"),
+        ("loop.seed=-1", "loop.seed: Input should be greater than or equal to 0"),
+    ]:
+        bad = subprocess.run([EXE, "run", "collision", "--set", setting, "--out", str(out)],
+                             capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and message in bad.stderr
+    assert not out.exists()
