@@ -30,6 +30,7 @@ from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, 
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.telemetry import TelemetryBuffer, robot_columns, satellite_columns
 from app.sim.ur10e import T_F_C_from_config, T_W_B_from_config, UR10e
+from app.sim.ur10e_kernel import TcpChain, mockup_state, tcp_chain
 from app.sim.vfdm import Vfdm
 
 # --- commands -------------------------------------------------------------------------
@@ -75,8 +76,11 @@ class Arm:
     v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
     last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
     last_processed: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    use_kernel: bool = True
+    """Mockup pose and twist through app.sim.ur10e_kernel (same results as pinocchio)."""
     _state_key: tuple | None = field(default=None, repr=False)
     _state: tuple = field(default=(), repr=False)
+    _chain: TcpChain | None = field(default=None, repr=False)
 
     def mockup_state_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Actual flange pose, mockup pose, and mockup COM velocity / angular velocity in W.
@@ -87,14 +91,26 @@ class Arm:
         state = self.servo.state
         key = (id(state), state.q_rad.tobytes(), state.qd_radps.tobytes())
         if self._state_key != key:
-            q, qd = state.q_rad, state.qd_radps
-            T_W_F = self.T_W_B @ self.kin.fk(q)
-            T_W_C = T_W_F @ self.T_F_C
-            twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
-            R_W_B = self.T_W_B[:3, :3]
-            self._state = (T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:])
+            if self.use_kernel:
+                self._state = self._mockup_state_compiled(state.q_rad, state.qd_radps)
+            else:
+                self._state = self._mockup_state_reference(state.q_rad, state.qd_radps)
             self._state_key = key
         return self._state
+
+    def _mockup_state_reference(self, q: np.ndarray, qd: np.ndarray) -> tuple:
+        T_W_F = self.T_W_B @ self.kin.fk(q)
+        T_W_C = T_W_F @ self.T_F_C
+        twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
+        R_W_B = self.T_W_B[:3, :3]
+        return T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:]
+
+    def _mockup_state_compiled(self, q: np.ndarray, qd: np.ndarray) -> tuple:
+        if self._chain is None:
+            self._chain = tcp_chain(self.kin.model, self.kin.flange_id, self.T_W_B, self.T_F_C)
+        out = (np.empty((4, 4)), np.empty((4, 4)), np.empty(3), np.empty(3))
+        mockup_state(q, qd, *self._chain, *out)
+        return out
 
 
 # --- the emulator -----------------------------------------------------------------------
