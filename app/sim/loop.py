@@ -12,6 +12,12 @@ sensor, no delay and no servo. It is the reference the HIL run is measured again
 The loop is single-threaded and owns all its state. Anything from outside (a REST push,
 a gizmo drag) arrives as a command through :meth:`Emulator.post` and is consumed at the
 start of the next cycle.
+
+Speed: every stage has a compiled (numba) path next to its Python reference path, on by
+default and switched by a ``use_kernel`` attribute (the loop's own bookkeeping: satellite
+poses, TCP targets, the idle hand and the telemetry row, see :mod:`app.sim.loop_kernel`);
+:meth:`Emulator.set_compiled` flips all of them at once. Both paths give the same results
+up to rounding.
 """
 
 from __future__ import annotations
@@ -25,13 +31,14 @@ from app.config import EmulatorConfig
 from app.propagate import pulse_wrenches
 from app.sim.contact import BoxContactModel
 from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor
+from app.sim.loop_kernel import record_arm, record_satellites, satellite_pose
 from app.sim.orbital import OrbitalSimulator
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.telemetry import TelemetryBuffer, robot_columns, satellite_columns
 from app.sim.ur10e import T_F_C_from_config, T_W_B_from_config, UR10e
 from app.sim.ur10e_kernel import TcpChain, mockup_state, tcp_chain
-from app.sim.vfdm import Vfdm
+from app.sim.vfdm import Vfdm, vfdm_kernel_available
 
 # --- commands -------------------------------------------------------------------------
 
@@ -156,6 +163,19 @@ class Emulator:
         self.applied_torque_B = np.zeros((self.n_sat, 3))
         self.true_force_R = np.zeros((self.n_sat, 3))
         self.contact_active = False
+        # constants of the compiled bookkeeping: each arm's T_B_R, the scripted pulse windows
+        self._T_B_R = [invert_transform(arm.T_W_B) @ self.T_W_R for arm in self.arms]
+        self._pulse_windows = [(p.start_s, p.end_s) for p in config.pulses]
+        self.use_kernel = True
+        """Poses, TCP targets, the idle hand and the telemetry row through loop_kernel."""
+
+    def set_compiled(self, on: bool) -> None:
+        """Switch every stage's compiled path on (default) or back to the Python reference."""
+        self.use_kernel = on
+        for arm in self.arms:
+            arm.use_kernel = arm.servo.use_kernel = on
+            arm.sensor.use_kernel = arm.processor.use_kernel = on
+            arm.vfdm.use_kernel = on and vfdm_kernel_available()
 
     # --- construction ---------------------------------------------------------------------
 
@@ -187,11 +207,19 @@ class Emulator:
 
     def satellite_pose_W(self, i: int) -> np.ndarray:
         """ODS pose of satellite i in the lab: T_W_R · T_R_sat."""
+        if self.use_kernel:
+            T = np.empty((4, 4))
+            satellite_pose(self.T_W_R, self.ods.y, i, T)
+            return T
         T_R_S = make_transform(quat_to_matrix(self.ods.attitude_wxyz[i]), self.ods.position_m[i])
         return self.T_W_R @ T_R_S
 
     def tcp_target_B(self, arm: Arm) -> np.ndarray:
         """TCP target of an arm: T_B_C* = inv(T_W_B) · T_W_R · T_R_sat."""
+        if self.use_kernel:
+            T = np.empty((4, 4))
+            satellite_pose(self._T_B_R[arm.index], self.ods.y, arm.satellite, T)
+            return T
         return invert_transform(arm.T_W_B) @ self.satellite_pose_W(arm.satellite)
 
     # --- start-up -------------------------------------------------------------------------
@@ -287,6 +315,8 @@ class Emulator:
         keeps its push steady); the gizmo's hand is a spring from its anchor to the COM,
         saturated at the hand's maximum force. Returns (N, 6) wrenches in W about each COM.
         """
+        if self.use_kernel and self._hand_idle():
+            return np.zeros((self.n_sat, 6))
         wrench = np.zeros((self.n_sat, 6))
         force_R, torque_B = pulse_wrenches(self.config, self.ods.t_s)
         for sat, f_R, _ in self._pushes:
@@ -302,6 +332,12 @@ class Emulator:
                 f *= hand.max_force_N / norm
             wrench[sat, :3] += f
         return wrench
+
+    def _hand_idle(self) -> bool:
+        """No pulse, push or gizmo acts now (the hand's wrenches are all zero)."""
+        t = self.ods.t_s
+        return not (self._pushes or self._anchors
+                    or any(start <= t < end for start, end in self._pulse_windows))
 
     def step(self) -> None:
         """One control cycle."""
@@ -395,6 +431,9 @@ class Emulator:
         return self.T_R_W[:3, :3] @ arm.mockup_state_W()[2]
 
     def _record(self) -> None:
+        if self.use_kernel:
+            self._record_compiled()
+            return
         ods = self.ods
         parts = [
             [ods.t_s],
@@ -408,6 +447,18 @@ class Emulator:
             parts += [p_R, q_R, self.mockup_velocity_R(arm), arm.servo.state.q_rad, arm.last_raw_S]
         parts.append(self.true_force_R.ravel())
         self.telemetry.append(np.concatenate(parts))
+
+    def _record_compiled(self) -> None:
+        """:meth:`_record` written in place into the telemetry buffer's next row."""
+        ods = self.ods
+        row = self.telemetry.next_row()
+        k = record_satellites(ods.t_s, ods.y, ods.params.orbit_rate_radps,
+                              self.applied_force_R, self.applied_torque_B, row)
+        for arm in self.arms:
+            _, T_W_C, v_W, _ = arm.mockup_state_W()
+            k = record_arm(self.T_R_W, T_W_C, v_W, arm.servo.state.q_rad, arm.last_raw_S,
+                           row, k)
+        row[k:] = self.true_force_R.ravel()
 
     # --- running -----------------------------------------------------------------------
 
