@@ -298,7 +298,7 @@ class WrenchProcessor:
         t: np.ndarray, w_F: np.ndarray, com_F_m: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray]:
         if com_F_m is not None:
-            com = np.asarray(com_F_m, dtype=float)
+            com = np.array(com_F_m, dtype=float)  # a contiguous copy (as the kernel likes)
             return com, (t - np.cross(com, w_F)).mean(axis=0)
         A = np.zeros((3 * len(t), 6))
         for k, w in enumerate(w_F):

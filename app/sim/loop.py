@@ -31,7 +31,7 @@ from app.config import EmulatorConfig
 from app.propagate import pulse_wrenches
 from app.sim.contact import BoxContactModel
 from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor
-from app.sim.loop_kernel import record_arm, record_satellites, satellite_pose
+from app.sim.loop_kernel import ods_states_W, record_arm, record_satellites, satellite_pose
 from app.sim.orbital import OrbitalSimulator
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.servo import UR10eServo, safety_box_for_robot
@@ -166,8 +166,10 @@ class Emulator:
         # constants of the compiled bookkeeping: each arm's T_B_R, the scripted pulse windows
         self._T_B_R = [invert_transform(arm.T_W_B) @ self.T_W_R for arm in self.arms]
         self._pulse_windows = [(p.start_s, p.end_s) for p in config.pulses]
+        self._uncarried = sorted(set(range(self.n_sat)) - {arm.satellite for arm in self.arms})
         self.use_kernel = True
         """Poses, TCP targets, the idle hand and the telemetry row through loop_kernel."""
+        self._load_kernels()
 
     def set_compiled(self, on: bool) -> None:
         """Switch every stage's compiled path on (default) or back to the Python reference."""
@@ -202,6 +204,32 @@ class Emulator:
         cols = ["t_s", *satellite_columns(self.n_sat), *robot_columns(len(self.arms))]
         cols += [f"sat{i + 1}_true_f{a}_N" for i in range(self.n_sat) for a in "xyz"]
         return cols
+
+    def _load_kernels(self) -> None:
+        """Run each compiled path once on scratch objects, so that numba loads the kernels
+        from its cache now rather than in the first timed cycles; no state is touched."""
+        cfg, dt = self.config, self.dt_s
+        force, torque = np.zeros((self.n_sat, 3)), np.zeros((self.n_sat, 3))
+        OrbitalSimulator(self.ods.params, self.ods.y.copy()).step(force, torque, dt)
+        row = np.empty(len(self.columns))
+        k = record_satellites(0.0, self.ods.y, self.ods.params.orbit_rate_radps, force, torque,
+                              row)
+        self._ods_states_W()
+        if not self.arms:
+            return
+        arm = self.arms[0]
+        T_W_F, T_W_C, v_W, _ = arm.mockup_state_W()
+        q = arm.servo.state.q_rad
+        record_arm(self.T_R_W, T_W_C, v_W, q, arm.last_raw_S, row, k)
+        Vfdm(cfg.vfdm, arm.T_F_C, q).solve(self.tcp_target_B(arm))
+        UR10eServo(cfg.servo, dt, q, arm.servo.safety).step(q)
+        rng = np.random.default_rng(0)
+        raw = VirtualFTSensor(cfg.sensor, 1.0, self.gravity_W, rng).measure(
+            np.zeros(6), T_W_C, T_W_F, np.zeros(3)
+        )
+        WrenchProcessor(cfg.wrench, cfg.loop.rate_hz, self.gravity_W).process(
+            raw, T_W_F, T_W_C, self.R_W_R, np.zeros(3)
+        )
 
     # --- poses --------------------------------------------------------------------------
 
@@ -363,31 +391,40 @@ class Emulator:
         self.cycles += 1
         self.cycle_time_ns.append(time.perf_counter_ns() - t0)
 
+    def _ods_states_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every satellite's ODS pose (N, 4, 4) and COM velocity (N, 3) in W, and zero
+        angular velocities (N, 3): the HIL interaction's view of satellites without an arm."""
+        n = self.n_sat
+        w_W = np.zeros((n, 3))
+        if self.use_kernel:
+            T_W_C, v_W = np.empty((n, 4, 4)), np.empty((n, 3))
+            ods_states_W(self.T_W_R, self.ods.y, T_W_C, v_W)
+            return T_W_C, v_W, w_W
+        T_W_C = np.array([self.satellite_pose_W(i) for i in range(n)])
+        v_W = np.zeros((n, 3))
+        for i in range(n):
+            v_W[i] = self.R_W_R @ self.ods.velocity_mps[i]
+        return T_W_C, v_W, w_W
+
     def _interact_hil(self) -> tuple[np.ndarray, np.ndarray]:
         """Contact and hand on the actual mockups, measured by each arm's F/T sensor."""
         n = self.n_sat
-        T_W_C = [self.satellite_pose_W(i) for i in range(n)]
-        v_W, w_W = np.zeros((n, 3)), np.zeros((n, 3))
+        T_W_C, v_W, w_W = self._ods_states_W()  # satellites without an arm: ODS pose
         T_W_F = {}
-        for i in range(n):  # satellites without an arm are at their ODS pose
-            v_W[i] = self.R_W_R @ self.ods.velocity_mps[i]
         for arm in self.arms:
             T_W_F[arm.index], T_W_C[arm.satellite], v_W[arm.satellite], w_W[arm.satellite] = (
                 arm.mockup_state_W()
             )
         contact = self.contact.compute(T_W_C, v_W, w_W)
         self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
-        p_W = np.array([T[:3, 3] for T in T_W_C])
-        R_W_C = [T[:3, :3] for T in T_W_C]
+        p_W, R_W_C = T_W_C[:, :3, 3], T_W_C[:, :3, :3]
         external_W = contact.wrench_W + self.hand_wrenches_W(p_W, R_W_C)
         self.true_force_R = external_W[:, :3] @ self.R_W_R
         force_R = np.zeros((n, 3))
         torque_B = np.zeros((n, 3))
-        carried = {arm.satellite for arm in self.arms}
-        for i in range(n):  # no sensor on a satellite without an arm: the wrench as is
-            if i not in carried:
-                force_R[i] = self.true_force_R[i]
-                torque_B[i] = R_W_C[i].T @ external_W[i, 3:]
+        for i in self._uncarried:  # no sensor on a satellite without an arm: the wrench as is
+            force_R[i] = self.true_force_R[i]
+            torque_B[i] = R_W_C[i].T @ external_W[i, 3:]
         for arm in self.arms:
             s = arm.satellite
             accel_W = (v_W[s] - arm.v_W_prev) / self.dt_s if self.cycles else np.zeros(3)

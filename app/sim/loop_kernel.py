@@ -16,7 +16,7 @@ from numba import njit
 
 from app.sim.orbital import _direction_cosines
 
-__all__ = ["record_arm", "record_satellites", "satellite_pose"]
+__all__ = ["ods_states_W", "record_arm", "record_satellites", "satellite_pose"]
 
 
 @njit(cache=True, fastmath=False)
@@ -35,6 +35,15 @@ def satellite_pose(T_A_R, y, i, out):
         out[a, 3] = A0 * px + A1 * py + A2 * pz + T_A_R[a, 3]
     out[3, 0] = out[3, 1] = out[3, 2] = 0.0
     out[3, 3] = 1.0
+
+
+@njit(cache=True, fastmath=False)
+def ods_states_W(T_W_R, y, T_W_S, v_W):
+    """Every satellite's pose T_W_S (N, 4, 4) and COM velocity v_W (N, 3) in the lab."""
+    for i in range(y.shape[0]):
+        satellite_pose(T_W_R, y, i, T_W_S[i])
+        for a in range(3):
+            v_W[i, a] = T_W_R[a, 0] * y[i, 3] + T_W_R[a, 1] * y[i, 4] + T_W_R[a, 2] * y[i, 5]
 
 
 @njit(cache=True, fastmath=False)
