@@ -106,6 +106,7 @@ class Arm:
         return self._state
 
     def _mockup_state_reference(self, q: np.ndarray, qd: np.ndarray) -> tuple:
+        """Pinocchio FK and TCP Jacobian (the reference path)."""
         T_W_F = self.T_W_B @ self.kin.fk(q)
         T_W_C = T_W_F @ self.T_F_C
         twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
@@ -113,6 +114,7 @@ class Arm:
         return T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:]
 
     def _mockup_state_compiled(self, q: np.ndarray, qd: np.ndarray) -> tuple:
+        """The same through one call of ur10e_kernel.mockup_state."""
         if self._chain is None:
             self._chain = tcp_chain(self.kin.model, self.kin.flange_id, self.T_W_B, self.T_F_C)
         out = (np.empty((4, 4)), np.empty((4, 4)), np.empty(3), np.empty(3))
@@ -207,7 +209,8 @@ class Emulator:
 
     def _load_kernels(self) -> None:
         """Run each compiled path once on scratch objects, so that numba loads the kernels
-        from its cache now rather than in the first timed cycles; no state is touched."""
+        from its cache now rather than in the first timed cycles; the simulation's state is
+        not touched."""
         cfg, dt = self.config, self.dt_s
         force, torque = np.zeros((self.n_sat, 3)), np.zeros((self.n_sat, 3))
         OrbitalSimulator(self.ods.params, self.ods.y.copy()).step(force, torque, dt)
@@ -468,6 +471,7 @@ class Emulator:
         return self.T_R_W[:3, :3] @ arm.mockup_state_W()[2]
 
     def _record(self) -> None:
+        """Append the telemetry row of the current state (columns: :meth:`_columns`)."""
         if self.use_kernel:
             self._record_compiled()
             return
