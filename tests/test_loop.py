@@ -144,52 +144,6 @@ def test_rest_push_command_and_bad_satellite():
     assert em.ods.velocity_mps[0, 2] == pytest.approx(expected, rel=0.25)
 
 
-def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):
-    out = tmp_path / "run"
-    result = subprocess.run(
-        [EXE, "run", "collision", "--mode", "ideal", "--duration", "5", "--out", str(out),
-         "--quiet"],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert result.returncode == 0, result.stderr
-    assert "restitution" in result.stdout and "impulse balance" in result.stdout
-    metrics = json.loads((out / "metrics.json").read_text())
-    for key in ("scenario", "mode", "duration_s", "cycles", "realtime_factor", "cycle_time_us",
-                "satellites", "collision", "safety_stop"):
-        assert key in metrics
-    assert metrics["mode"] == "ideal" and metrics["cycles"] == 2500
-    header = (out / "telemetry.csv").read_text().splitlines()[0].split(",")
-    assert header[0] == "t_s" and "sat2_fx_N" in header
-    for fig in ("fig8_forces", "fig9_velocity", "fig10_position"):
-        png = (out / f"{fig}.png").read_bytes()
-        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
-
-
-def test_cli_hil_telemetry_has_robot_columns(tmp_path):
-    result = subprocess.run(
-        [EXE, "run", "free-floating", "--duration", "0.5", "--out", str(tmp_path), "--quiet"],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert result.returncode == 0, result.stderr
-    header = (tmp_path / "telemetry.csv").read_text().splitlines()[0].split(",")
-    for name in ("rob1_x_m", "rob1_qw", "rob1_q1_rad", "rob1_q6_rad", "rob1_ft_fx_N",
-                 "rob1_ft_tz_Nm", "sat1_wz_radps"):
-        assert name in header
-    assert (tmp_path / "fig6_free_floating.png").exists()
-
-
-def test_cli_scenarios_and_bad_input(tmp_path):
-    listing = subprocess.run([EXE, "scenarios"], capture_output=True, text=True, timeout=60)
-    assert listing.returncode == 0
-    for name, desc in scenario_descriptions().items():
-        assert f"{name}" in listing.stdout and desc in listing.stdout
-    bad = subprocess.run([EXE, "run", "docking"], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "invalid choice: 'docking'" in bad.stderr
-    bad = subprocess.run([EXE, "run", "collision", "--duration", "-1"], capture_output=True,
-                         text=True, timeout=60)
-    assert bad.returncode == 2 and "must be a positive finite number" in bad.stderr
-
-
 # --- compiled paths (set_compiled) vs the Python reference -----------------------------------
 
 
@@ -241,3 +195,50 @@ def test_compiled_loop_follows_the_python_reference(scenario, mode):
     np.testing.assert_allclose(fast.telemetry.rows(), ref.telemetry.rows(), rtol=0, atol=1e-9)
     if scenario == "collision":
         assert ref.telemetry.column("sat1_fx_N").min() < -1.0  # the impact is in the run
+
+
+def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):
+    out = tmp_path / "run"
+    result = subprocess.run(
+        [EXE, "run", "collision", "--mode", "ideal", "--duration", "5", "--out", str(out),
+         "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "restitution" in result.stdout and "impulse balance" in result.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("scenario", "mode", "duration_s", "cycles", "realtime_factor", "cycle_time_us",
+                "satellites", "collision", "safety_stop"):
+        assert key in metrics
+    assert metrics["mode"] == "ideal" and metrics["cycles"] == 2500
+    header = (out / "telemetry.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "t_s" and "sat2_fx_N" in header
+    for fig in ("fig8_forces", "fig9_velocity", "fig10_position"):
+        png = (out / f"{fig}.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_cli_hil_telemetry_has_robot_columns(tmp_path):
+    result = subprocess.run(
+        [EXE, "run", "free-floating", "--duration", "0.5", "--out", str(tmp_path), "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    header = (tmp_path / "telemetry.csv").read_text().splitlines()[0].split(",")
+    for name in ("rob1_x_m", "rob1_qw", "rob1_q1_rad", "rob1_q6_rad", "rob1_ft_fx_N",
+                 "rob1_ft_tz_Nm", "sat1_wz_radps"):
+        assert name in header
+    assert (tmp_path / "fig6_free_floating.png").exists()
+
+
+def test_cli_scenarios_and_bad_input(tmp_path):
+    listing = subprocess.run([EXE, "scenarios"], capture_output=True, text=True, timeout=60)
+    assert listing.returncode == 0
+    for name, desc in scenario_descriptions().items():
+        assert f"{name}" in listing.stdout and desc in listing.stdout
+    bad = subprocess.run([EXE, "run", "docking"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "invalid choice: 'docking'" in bad.stderr
+    bad = subprocess.run([EXE, "run", "collision", "--duration", "-1"], capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 2 and "must be a positive finite number" in bad.stderr
+
