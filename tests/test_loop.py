@@ -241,4 +241,3 @@ def test_cli_scenarios_and_bad_input(tmp_path):
     bad = subprocess.run([EXE, "run", "collision", "--duration", "-1"], capture_output=True,
                          text=True, timeout=60)
     assert bad.returncode == 2 and "must be a positive finite number" in bad.stderr
-
