@@ -175,7 +175,7 @@ class Emulator:
 
     def set_compiled(self, on: bool) -> None:
         """Switch every stage's compiled path on (default) or back to the Python reference."""
-        self.use_kernel = on
+        self.use_kernel = self.ods.use_kernel = on
         for arm in self.arms:
             arm.use_kernel = arm.servo.use_kernel = on
             arm.sensor.use_kernel = arm.processor.use_kernel = on
@@ -213,7 +213,9 @@ class Emulator:
         not touched."""
         cfg, dt = self.config, self.dt_s
         force, torque = np.zeros((self.n_sat, 3)), np.zeros((self.n_sat, 3))
-        OrbitalSimulator(self.ods.params, self.ods.y.copy()).step(force, torque, dt)
+        ods = OrbitalSimulator(self.ods.params, self.ods.y.copy())
+        ods.step(force, torque, dt)
+        _ = ods.omega_rel_radps  # loads its kernel
         row = np.empty(len(self.columns))
         k = record_satellites(0.0, self.ods.y, self.ods.params.orbit_rate_radps, force, torque,
                               row)
