@@ -42,8 +42,8 @@ SWITCHES = {
     "VFDM (Vfdm.use_kernel)": lambda em, on: [
         setattr(a.vfdm, "use_kernel", on and vfdm_module.vfdm_kernel_available())
         for a in em.arms],
-    "bookkeeping + telemetry (Emulator.use_kernel)": lambda em, on: setattr(
-        em, "use_kernel", on),
+    "bookkeeping + telemetry (Emulator, OrbitalSimulator .use_kernel)": lambda em, on: [
+        setattr(x, "use_kernel", on) for x in (em, em.ods)],
 }
 VFDM_SWITCH = "VFDM (Vfdm.use_kernel)"
 
