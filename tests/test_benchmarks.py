@@ -31,7 +31,13 @@ def test_loop_speed_quick():
     out = _run("benchmarks.loop_speed")
     for line in ("## Cycle breakdown", "| VFDM arm 1 |", "| servo arm 2 |", "| ODS step |",
                  "| contact |", "| telemetry (_record) |", "**total cycle**",
+                 "| stage | reference µs / cycle | compiled µs / cycle | speed-up |",
+                 "| F/T chain (sensor+processing) |", "| bookkeeping (rest) |",
+                 "## Whole cycle by switch", "| every switch off (Python reference) |",
+                 "| only the VFDM kernel on", "| all on but servo (UR10eServo.use_kernel) |",
+                 "| every switch on (default) |",
                  "## Real-time factor", "| collision |", "| free-floating |",
+                 "| compiled (run_scenario) |", "| reference |",
                  "## VFDM cost per arm per cycle", "| 10 |", "## Targets",
                  "VFDM <= 100", "collision hil realtime_factor >= 10"):
         assert line in out, line

@@ -198,3 +198,65 @@ def test_inertial_compensation_removes_the_load_of_an_accelerating_mockup():
     np.testing.assert_allclose(
         out_plain.force_R_N, R_W_R.T @ (push_W - MASS_KG * accel_W), atol=1e-6
     )
+
+
+# --- the compiled chain (app.sim.ft_kernel) equals the Python reference ---------------------
+
+
+@pytest.mark.parametrize(
+    ("sensor_cfg", "proc_cfg"),
+    [
+        (DEFAULT_SENSOR, WrenchProcessingConfig()),
+        (SensorConfig(delay_cycles=0), WrenchProcessingConfig(deadband_mode="soft")),
+        (SensorConfig(delay_cycles=3), QUIET),
+        (NOISELESS, WrenchProcessingConfig(payload_compensation=False, lowpass_hz=200.0)),
+    ],
+)
+def test_compiled_chain_equals_python_reference(sensor_cfg, proc_cfg):
+    """Same readings (same noise draws from the same seed) and same processed wrenches
+    over many cycles with saturated channels, deadband edges and a wrapping delay ring."""
+    chains = []
+    for compiled in (False, True):
+        sensor = _sensor(sensor_cfg, seed=21)
+        proc = _calibrated(sensor, proc_cfg)
+        sensor.use_kernel = proc.use_kernel = compiled
+        chains.append((sensor, proc))
+    rng = np.random.default_rng(5)
+    edges = 0
+    for k in range(1500):
+        T_F = make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3))
+        T_C = T_F @ make_transform(rotvec_to_matrix(0.2 * rng.normal(size=3)), COM_F_M)
+        wrench = rng.normal(size=6) * ([80.0] * 3 + [9.0] * 3) * (k % 3)  # some saturate
+        accel = None if k % 5 == 0 and not proc_cfg.inertial_compensation else rng.normal(size=3)
+        outs = []
+        for sensor, proc in chains:
+            raw = sensor.measure(wrench, T_C, T_F, accel)
+            outs.append((raw, proc.process(raw, T_F, T_C, R_W_R, accel)))
+        (raw_a, out_a), (raw_b, out_b) = outs
+        np.testing.assert_allclose(raw_b, raw_a, rtol=0, atol=1e-12)
+        for name in ("force_R_N", "torque_B_Nm", "wrench_S"):
+            np.testing.assert_allclose(getattr(out_b, name), getattr(out_a, name), rtol=0,
+                                       atol=1e-12)
+        edges += int(np.any(np.abs(raw_a) == sensor_cfg.range_force_N))
+    assert edges > 50  # the saturation really happened
+    np.testing.assert_allclose(chains[1][1]._state_S, chains[0][1]._state_S, rtol=0, atol=1e-12)
+
+
+def test_compiled_deadband_edges_equal_reference():
+    """Filtered force right at, just below and just above the thresholds (hard and soft)."""
+    for mode in ("hard", "soft"):
+        cfg = WrenchProcessingConfig(deadband_mode=mode, lowpass_hz=1e9,  # alpha = 1
+                                     inertial_compensation=False, payload_compensation=False)
+        procs = [WrenchProcessor(cfg, RATE_HZ, G_W) for _ in range(2)]
+        procs[0].use_kernel = False
+        for scale in (1.0 - 1e-12, 1.0, 1.0 + 1e-12, 0.0, 3.0):
+            f = np.array([3.0, 0.0, 4.0]) / 5.0 * cfg.deadband_force_N * scale
+            t = np.array([0.0, 0.6, 0.8]) * cfg.deadband_torque_Nm * scale
+            raw = np.concatenate([f, t])
+            for p in procs:
+                p.reset()  # with alpha = 1 the filtered wrench is then exactly raw
+            a, b = (p.process(raw, T_W_F, T_W_C, R_W_R) for p in procs)
+            np.testing.assert_array_equal(b.wrench_S == 0.0, a.wrench_S == 0.0)
+            np.testing.assert_allclose(b.wrench_S, a.wrench_S, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(b.force_R_N, a.force_R_N, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(b.torque_B_Nm, a.torque_B_Nm, rtol=0, atol=1e-12)

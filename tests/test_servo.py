@@ -155,3 +155,94 @@ def test_stopped_arm_decelerates_and_stays_halted_until_reset():
         s = servo.step(q_halt + 0.001)
     assert not s.stopped
     assert np.allclose(s.q_rad, q_halt + 0.001, atol=1e-6)
+
+
+# --- the compiled servo (app.sim.servo_kernel) equals the Python reference ------------------
+
+
+def _twin_servos(cfg, q0, safety):
+    ref, fast = UR10eServo(cfg, DT, q0, safety), UR10eServo(cfg, DT, q0, safety)
+    ref.use_kernel, fast.use_kernel = False, True
+    return ref, fast
+
+
+def _assert_same(ref, fast):
+    a, b = ref.state, fast.state
+    for name in ("q_rad", "qd_radps", "qdd_radps2"):
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-12)
+    assert (a.stopped, a.reason) == (b.stopped, b.reason)
+    np.testing.assert_array_equal(fast._sp_prev, ref._sp_prev)
+
+
+def _episodes():
+    """Set-point runs that saturate, brake and trip every kind of protective stop."""
+    yield "saturation", aggressive_setpoints(600, seed=3)
+    ramp = [Q0 + 0.99 * SPEED_LIMITS_RADPS * DT * k for k in range(1, 400)]
+    yield "speed saturation", ramp  # low acceleration limit: the arm catches up at max speed
+    for j in range(6):
+        moving = aggressive_setpoints(60, seed=j)
+        jump = moving[-1].copy()
+        jump[j] += 1.05 * SPEED_LIMITS_RADPS[j] * DT
+        yield f"joint {j + 1} speed limit", moving + [jump] * 300  # brakes to rest
+    for j in range(6):
+        q = Q0.copy()
+        q[j] = (-1) ** j * (2 * math.pi - 0.001)
+        beyond = [q + (-1) ** j * 0.0005 * k * np.eye(6)[j] for k in range(1, 8)]
+        yield f"joint {j + 1} position limit", [q] * 5 + beyond + [q] * 20
+    nan = Q0.copy()
+    nan[4] = np.nan
+    yield "joint 5 position limit (NaN)", [Q0] * 3 + [nan] * 5
+    swing = [Q0 + np.array([0.5 * DT * k, 0, 0, 0, 0, 0]) for k in range(1, 1500)]
+    yield "TCP left safety volume", swing
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_compiled_step_equals_python_reference(delay):
+    """Same state every cycle over saturation, braking, stops of every kind, resets, and
+    the delay ring wrapping round."""
+    robot = RobotConfig(name="r", satellite="s", base_position_m=(0.0, 0.0, 0.5))
+    box = safety_box_for_robot(robot, UR10e())
+    p0 = box.tcp_position_W(Q0)
+    tight = SafetyBox(p0 - 0.05, p0 + 0.05, box.tcp_position_W, chain=box.chain)
+    cfg = ServoConfig(delay_cycles=delay, accel_limit_radps2=5.0)
+    reasons, saturated = set(), set()
+    for name, setpoints in _episodes():
+        q0, safety = Q0, box
+        if "position" in name:  # postures far from home: no box in the way
+            q0, safety = setpoints[0], None
+        elif name.startswith("TCP"):
+            safety = tight
+        ref, fast = _twin_servos(cfg, q0, safety)
+        for sp in setpoints:
+            ref.step(sp)
+            fast.step(sp)
+            _assert_same(ref, fast)
+            s = ref.state
+            if np.any(np.abs(s.qd_radps) == SPEED_LIMITS_RADPS):
+                saturated.add("speed")
+            if np.any(np.abs(s.qdd_radps2) >= cfg.accel_limit_radps2 - 1e-9):
+                saturated.add("accel")
+        reasons.add(ref.reason)
+        assert ref.reason == ("" if "saturation" in name else name.split(" (")[0]), name
+        fast.reset()
+        ref.reset()
+        _assert_same(ref, fast)
+    assert saturated == {"speed", "accel"}
+    assert len(reasons - {""}) == 13  # 6 speed, 6 position limits and the safety box
+
+
+def test_compiled_step_without_a_box_and_fallback_for_a_plain_box():
+    ref, fast = _twin_servos(ServoConfig(delay_cycles=2), Q0, None)
+    for sp in aggressive_setpoints(300, seed=9):
+        ref.step(sp)
+        fast.step(sp)
+        _assert_same(ref, fast)
+    # a box that only knows its Python TCP map runs the reference path (same answer)
+    ur = UR10e()
+    box = safety_box_for_robot(RobotConfig(name="r", satellite="s"), ur)
+    plain = SafetyBox(box.p_min_W_m, box.p_max_W_m, box.tcp_position_W)
+    ref, fast = _twin_servos(ServoConfig(), Q0, plain)
+    for sp in aggressive_setpoints(100, seed=2):
+        ref.step(sp)
+        fast.step(sp)
+        _assert_same(ref, fast)

@@ -13,6 +13,7 @@ import pytest
 from app.config import RobotConfig
 from app.sim.rotations import matrix_to_rotvec, quat_to_matrix
 from app.sim.ur10e import T_F_C_from_config, T_W_B_from_config, UR10e, urdf_text
+from app.sim.ur10e_kernel import mockup_state, tcp_chain, tcp_position_W
 
 # Official UR10e DH table, typed in independently of the module under test.
 D = [0.1807, 0.0, 0.0, 0.17415, 0.11985, 0.11655]
@@ -143,3 +144,30 @@ def test_urdf_meshes_are_absolute_existing_files():
     assert len(names) >= 14
     for n in names:
         assert Path(n).is_absolute() and Path(n).is_file(), n
+
+
+# --- the compiled kinematics (app.sim.ur10e_kernel) equals the pinocchio path ---------------
+
+
+def test_compiled_tcp_position_and_mockup_state_equal_pinocchio(ur):
+    robot = RobotConfig(
+        name="r", satellite="s", base_position_m=(0.85, 0.1, 2.0),
+        base_attitude_wxyz=(0.0, 1.0, 0.0, 0.0), mockup_offset_m=(0.01, -0.02, 0.07),
+        mockup_attitude_wxyz=(0.9, 0.1, -0.3, 0.2),
+    )
+    T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
+    chain = tcp_chain(ur.model, ur.flange_id, T_W_B, T_F_C)
+    rng = np.random.default_rng(0)
+    qs = [*CONFIGS, *rng.uniform(-2 * math.pi, 2 * math.pi, (300, 6))]
+    for q in qs:
+        qd = rng.uniform(-3.0, 3.0, 6)
+        p = np.empty(3)
+        tcp_position_W(q, *chain, p)
+        np.testing.assert_allclose(p, (T_W_B @ ur.tcp_pose(q, T_F_C))[:3, 3], rtol=0, atol=1e-12)
+        out = (np.empty((4, 4)), np.empty((4, 4)), np.empty(3), np.empty(3))
+        mockup_state(q, qd, *chain, *out)
+        T_W_F = T_W_B @ ur.fk(q)
+        twist = ur.tcp_jacobian(q, T_F_C) @ qd
+        expected = (T_W_F, T_W_F @ T_F_C, T_W_B[:3, :3] @ twist[:3], T_W_B[:3, :3] @ twist[3:])
+        for got, want in zip(out, expected, strict=True):
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

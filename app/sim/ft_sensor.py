@@ -16,6 +16,10 @@ Conventions
   origin of S: ``F_ext + m (g − a)`` and its moment. Processing removes ``m (g − a)`` and so
   returns ``F_ext``, the push acting on the satellite, which is what the ODS needs.
 * Rotational inertial loads of the mockup (I·α + ω × I·ω) are not modelled.
+
+:meth:`VirtualFTSensor.measure` and :meth:`WrenchProcessor.process` run through the compiled
+kernels of :mod:`app.sim.ft_kernel` (``use_kernel``, same results); the Python methods
+below stay the reference.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import SensorConfig, WrenchProcessingConfig
+from app.sim.ft_kernel import process_step, sensor_step
 from app.sim.rotations import skew
 
 __all__ = [
@@ -38,6 +43,9 @@ __all__ = [
     "point_force_wrench_W",
     "sensor_load_S",
 ]
+
+
+_ZERO3 = np.zeros(3)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -108,6 +116,8 @@ class VirtualFTSensor:
         )
         self._ring = np.zeros((config.delay_cycles + 1, 6))
         self._head = -1  # index of the newest reading; -1: ring not yet filled
+        self.use_kernel = True
+        """Run measure() through app.sim.ft_kernel (same readings, same noise draws)."""
 
     def reset(self) -> None:
         """Forget past readings (the next call refills the delay ring)."""
@@ -142,6 +152,8 @@ class VirtualFTSensor:
         T_W_C, T_W_F: mockup COM and flange poses; accel_W_mps2: the mockup COM's linear
         acceleration in W (None: at rest).
         """
+        if self.use_kernel:
+            return self._measure_compiled(wrench_ext_W, T_W_C, T_W_F, accel_W_mps2)
         load = sensor_load_S(
             np.asarray(wrench_ext_W, dtype=float),
             T_W_C,
@@ -151,6 +163,20 @@ class VirtualFTSensor:
             accel_W_mps2,
         )
         return self.delay(self.read_now(load))
+
+    def _measure_compiled(self, wrench_ext_W, T_W_C, T_W_F, accel_W_mps2) -> np.ndarray:
+        """:meth:`measure` in one kernel call; the noise is drawn here, as read_now does."""
+        normals = self.rng.standard_normal(6)
+        fill = self._head < 0
+        self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
+        accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
+        out = np.empty(6)
+        sensor_step(
+            np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, self.mass_kg,
+            self.gravity_W_mps2, accel, normals, self.bias_S, self.noise_std_S, self.range_S,
+            self._ring, self._head, fill, out,
+        )
+        return out
 
 
 def lowpass_alpha(cutoff_hz: float, rate_hz: float) -> float:
@@ -220,6 +246,8 @@ class WrenchProcessor:
         self.alpha = lowpass_alpha(config.lowpass_hz, rate_hz)
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
         self._state_S = np.zeros(6)
+        self.use_kernel = True
+        """Run process() through app.sim.ft_kernel (same results)."""
 
     def reset(self) -> None:
         """Reset the filter state to zero (the expected compensated wrench at rest)."""
@@ -270,7 +298,7 @@ class WrenchProcessor:
         t: np.ndarray, w_F: np.ndarray, com_F_m: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray]:
         if com_F_m is not None:
-            com = np.asarray(com_F_m, dtype=float)
+            com = np.array(com_F_m, dtype=float)  # a contiguous copy (as the kernel likes)
             return com, (t - np.cross(com, w_F)).mean(axis=0)
         A = np.zeros((3 * len(t), 6))
         for k, w in enumerate(w_F):
@@ -316,6 +344,8 @@ class WrenchProcessor:
         B); R_W_R: orientation of the CW frame R in W; accel_W_mps2: mockup acceleration in W
         (used only with inertial_compensation).
         """
+        if self.use_kernel:
+            return self._process_compiled(wrench_S, T_W_F, T_W_C, R_W_R, accel_W_mps2)
         cfg = self.config
         R_W_F = T_W_F[:3, :3]
         w = self.filter(self.compensate(wrench_S, R_W_F, accel_W_mps2))
@@ -330,3 +360,18 @@ class WrenchProcessor:
             torque_B_Nm=torque_B,
             wrench_S=np.concatenate([f_S, t_S]),
         )
+
+    def _process_compiled(self, wrench_S, T_W_F, T_W_C, R_W_R, accel_W_mps2):
+        """:meth:`process` in one kernel call (same filter state, same results)."""
+        cfg, cal = self.config, self.calibration
+        if cfg.inertial_compensation and accel_W_mps2 is None:
+            raise ValueError("inertial_compensation needs the mockup's acceleration")
+        accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
+        out = np.empty(12)
+        process_step(
+            np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R, self.gravity_W_mps2,
+            cfg.payload_compensation, accel, cfg.inertial_compensation, cal.bias_S,
+            cal.mass_kg, cal.com_F_m, self.alpha, self._state_S, cfg.deadband_force_N,
+            cfg.deadband_torque_Nm, cfg.deadband_mode == "soft", out,
+        )
+        return ProcessedWrench(force_R_N=out[0:3], torque_B_Nm=out[3:6], wrench_S=out[6:12])

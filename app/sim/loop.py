@@ -12,6 +12,12 @@ sensor, no delay and no servo. It is the reference the HIL run is measured again
 The loop is single-threaded and owns all its state. Anything from outside (a REST push,
 a gizmo drag) arrives as a command through :meth:`Emulator.post` and is consumed at the
 start of the next cycle.
+
+Speed: every stage has a compiled (numba) path next to its Python reference path, on by
+default and switched by a ``use_kernel`` attribute (the loop's own bookkeeping: satellite
+poses, TCP targets, the idle hand and the telemetry row, see :mod:`app.sim.loop_kernel`);
+:meth:`Emulator.set_compiled` flips all of them at once. Both paths give the same results
+up to rounding.
 """
 
 from __future__ import annotations
@@ -25,13 +31,15 @@ from app.config import EmulatorConfig
 from app.propagate import pulse_wrenches
 from app.sim.contact import BoxContactModel
 from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor
+from app.sim.loop_kernel import ods_states_W, record_arm, record_satellites, satellite_pose
 from app.sim.orbital import OrbitalSimulator
 from app.sim.passivity import PassivityController
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.telemetry import TelemetryBuffer, robot_columns, satellite_columns
 from app.sim.ur10e import T_F_C_from_config, T_W_B_from_config, UR10e
-from app.sim.vfdm import Vfdm
+from app.sim.ur10e_kernel import TcpChain, mockup_state, tcp_chain
+from app.sim.vfdm import Vfdm, vfdm_kernel_available
 
 # --- commands -------------------------------------------------------------------------
 
@@ -77,8 +85,11 @@ class Arm:
     v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
     last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
     last_processed: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    use_kernel: bool = True
+    """Mockup pose and twist through app.sim.ur10e_kernel (same results as pinocchio)."""
     _state_key: tuple | None = field(default=None, repr=False)
     _state: tuple = field(default=(), repr=False)
+    _chain: TcpChain | None = field(default=None, repr=False)
 
     def mockup_state_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Actual flange pose, mockup pose, and mockup COM velocity / angular velocity in W.
@@ -89,14 +100,28 @@ class Arm:
         state = self.servo.state
         key = (id(state), state.q_rad.tobytes(), state.qd_radps.tobytes())
         if self._state_key != key:
-            q, qd = state.q_rad, state.qd_radps
-            T_W_F = self.T_W_B @ self.kin.fk(q)
-            T_W_C = T_W_F @ self.T_F_C
-            twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
-            R_W_B = self.T_W_B[:3, :3]
-            self._state = (T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:])
+            if self.use_kernel:
+                self._state = self._mockup_state_compiled(state.q_rad, state.qd_radps)
+            else:
+                self._state = self._mockup_state_reference(state.q_rad, state.qd_radps)
             self._state_key = key
         return self._state
+
+    def _mockup_state_reference(self, q: np.ndarray, qd: np.ndarray) -> tuple:
+        """Pinocchio FK and TCP Jacobian (the reference path)."""
+        T_W_F = self.T_W_B @ self.kin.fk(q)
+        T_W_C = T_W_F @ self.T_F_C
+        twist_B = self.kin.tcp_jacobian(q, self.T_F_C) @ qd
+        R_W_B = self.T_W_B[:3, :3]
+        return T_W_F, T_W_C, R_W_B @ twist_B[:3], R_W_B @ twist_B[3:]
+
+    def _mockup_state_compiled(self, q: np.ndarray, qd: np.ndarray) -> tuple:
+        """The same through one call of ur10e_kernel.mockup_state."""
+        if self._chain is None:
+            self._chain = tcp_chain(self.kin.model, self.kin.flange_id, self.T_W_B, self.T_F_C)
+        out = (np.empty((4, 4)), np.empty((4, 4)), np.empty(3), np.empty(3))
+        mockup_state(q, qd, *self._chain, *out)
+        return out
 
 
 # --- the emulator -----------------------------------------------------------------------
@@ -142,6 +167,21 @@ class Emulator:
         self.applied_torque_B = np.zeros((self.n_sat, 3))
         self.true_force_R = np.zeros((self.n_sat, 3))
         self.contact_active = False
+        # constants of the compiled bookkeeping: each arm's T_B_R, the scripted pulse windows
+        self._T_B_R = [invert_transform(arm.T_W_B) @ self.T_W_R for arm in self.arms]
+        self._pulse_windows = [(p.start_s, p.end_s) for p in config.pulses]
+        self._uncarried = sorted(set(range(self.n_sat)) - {arm.satellite for arm in self.arms})
+        self.use_kernel = True
+        """Poses, TCP targets, the idle hand and the telemetry row through loop_kernel."""
+        self._load_kernels()
+
+    def set_compiled(self, on: bool) -> None:
+        """Switch every stage's compiled path on (default) or back to the Python reference."""
+        self.use_kernel = self.ods.use_kernel = on
+        for arm in self.arms:
+            arm.use_kernel = arm.servo.use_kernel = on
+            arm.sensor.use_kernel = arm.processor.use_kernel = on
+            arm.vfdm.use_kernel = on and vfdm_kernel_available()
 
     # --- construction ---------------------------------------------------------------------
 
@@ -179,15 +219,52 @@ class Emulator:
         cols += [f"sat{i + 1}_true_f{a}_N" for i in range(self.n_sat) for a in "xyz"]
         return cols
 
+    def _load_kernels(self) -> None:
+        """Run each compiled path once on scratch objects, so that numba loads the kernels
+        from its cache now rather than in the first timed cycles; the simulation's state is
+        not touched."""
+        cfg, dt = self.config, self.dt_s
+        force, torque = np.zeros((self.n_sat, 3)), np.zeros((self.n_sat, 3))
+        ods = OrbitalSimulator(self.ods.params, self.ods.y.copy())
+        ods.step(force, torque, dt)
+        _ = ods.omega_rel_radps  # loads its kernel
+        row = np.empty(len(self.columns))
+        k = record_satellites(0.0, self.ods.y, self.ods.params.orbit_rate_radps, force, torque,
+                              row)
+        self._ods_states_W()
+        if not self.arms:
+            return
+        arm = self.arms[0]
+        T_W_F, T_W_C, v_W, _ = arm.mockup_state_W()
+        q = arm.servo.state.q_rad
+        record_arm(self.T_R_W, T_W_C, v_W, q, arm.last_raw_S, row, k)
+        Vfdm(cfg.vfdm, arm.T_F_C, q).solve(self.tcp_target_B(arm))
+        UR10eServo(cfg.servo, dt, q, arm.servo.safety).step(q)
+        rng = np.random.default_rng(0)
+        raw = VirtualFTSensor(cfg.sensor, 1.0, self.gravity_W, rng).measure(
+            np.zeros(6), T_W_C, T_W_F, np.zeros(3)
+        )
+        WrenchProcessor(cfg.wrench, cfg.loop.rate_hz, self.gravity_W).process(
+            raw, T_W_F, T_W_C, self.R_W_R, np.zeros(3)
+        )
+
     # --- poses --------------------------------------------------------------------------
 
     def satellite_pose_W(self, i: int) -> np.ndarray:
         """ODS pose of satellite i in the lab: T_W_R · T_R_sat."""
+        if self.use_kernel:
+            T = np.empty((4, 4))
+            satellite_pose(self.T_W_R, self.ods.y, i, T)
+            return T
         T_R_S = make_transform(quat_to_matrix(self.ods.attitude_wxyz[i]), self.ods.position_m[i])
         return self.T_W_R @ T_R_S
 
     def tcp_target_B(self, arm: Arm) -> np.ndarray:
         """TCP target of an arm: T_B_C* = inv(T_W_B) · T_W_R · T_R_sat."""
+        if self.use_kernel:
+            T = np.empty((4, 4))
+            satellite_pose(self._T_B_R[arm.index], self.ods.y, arm.satellite, T)
+            return T
         return invert_transform(arm.T_W_B) @ self.satellite_pose_W(arm.satellite)
 
     # --- start-up -------------------------------------------------------------------------
@@ -283,6 +360,8 @@ class Emulator:
         keeps its push steady); the gizmo's hand is a spring from its anchor to the COM,
         saturated at the hand's maximum force. Returns (N, 6) wrenches in W about each COM.
         """
+        if self.use_kernel and self._hand_idle():
+            return np.zeros((self.n_sat, 6))
         wrench = np.zeros((self.n_sat, 6))
         force_R, torque_B = pulse_wrenches(self.config, self.ods.t_s)
         for sat, f_R, _ in self._pushes:
@@ -298,6 +377,12 @@ class Emulator:
                 f *= hand.max_force_N / norm
             wrench[sat, :3] += f
         return wrench
+
+    def _hand_idle(self) -> bool:
+        """No pulse, push or gizmo acts now (the hand's wrenches are all zero)."""
+        t = self.ods.t_s
+        return not (self._pushes or self._anchors
+                    or any(start <= t < end for start, end in self._pulse_windows))
 
     def step(self) -> None:
         """One control cycle."""
@@ -323,31 +408,40 @@ class Emulator:
         self.cycles += 1
         self.cycle_time_ns.append(time.perf_counter_ns() - t0)
 
+    def _ods_states_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every satellite's ODS pose (N, 4, 4) and COM velocity (N, 3) in W, and zero
+        angular velocities (N, 3): the HIL interaction's view of satellites without an arm."""
+        n = self.n_sat
+        w_W = np.zeros((n, 3))
+        if self.use_kernel:
+            T_W_C, v_W = np.empty((n, 4, 4)), np.empty((n, 3))
+            ods_states_W(self.T_W_R, self.ods.y, T_W_C, v_W)
+            return T_W_C, v_W, w_W
+        T_W_C = np.array([self.satellite_pose_W(i) for i in range(n)])
+        v_W = np.zeros((n, 3))
+        for i in range(n):
+            v_W[i] = self.R_W_R @ self.ods.velocity_mps[i]
+        return T_W_C, v_W, w_W
+
     def _interact_hil(self) -> tuple[np.ndarray, np.ndarray]:
         """Contact and hand on the actual mockups, measured by each arm's F/T sensor."""
         n = self.n_sat
-        T_W_C = [self.satellite_pose_W(i) for i in range(n)]
-        v_W, w_W = np.zeros((n, 3)), np.zeros((n, 3))
+        T_W_C, v_W, w_W = self._ods_states_W()  # satellites without an arm: ODS pose
         T_W_F = {}
-        for i in range(n):  # satellites without an arm are at their ODS pose
-            v_W[i] = self.R_W_R @ self.ods.velocity_mps[i]
         for arm in self.arms:
             T_W_F[arm.index], T_W_C[arm.satellite], v_W[arm.satellite], w_W[arm.satellite] = (
                 arm.mockup_state_W()
             )
         contact = self.contact.compute(T_W_C, v_W, w_W)
         self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
-        p_W = np.array([T[:3, 3] for T in T_W_C])
-        R_W_C = [T[:3, :3] for T in T_W_C]
+        p_W, R_W_C = T_W_C[:, :3, 3], T_W_C[:, :3, :3]
         external_W = contact.wrench_W + self.hand_wrenches_W(p_W, R_W_C)
         self.true_force_R = external_W[:, :3] @ self.R_W_R
         force_R = np.zeros((n, 3))
         torque_B = np.zeros((n, 3))
-        carried = {arm.satellite for arm in self.arms}
-        for i in range(n):  # no sensor on a satellite without an arm: the wrench as is
-            if i not in carried:
-                force_R[i] = self.true_force_R[i]
-                torque_B[i] = R_W_C[i].T @ external_W[i, 3:]
+        for i in self._uncarried:  # no sensor on a satellite without an arm: the wrench as is
+            force_R[i] = self.true_force_R[i]
+            torque_B[i] = R_W_C[i].T @ external_W[i, 3:]
         for arm in self.arms:
             s = arm.satellite
             accel_W = (v_W[s] - arm.v_W_prev) / self.dt_s if self.cycles else np.zeros(3)
@@ -401,6 +495,10 @@ class Emulator:
         return self.T_R_W[:3, :3] @ arm.mockup_state_W()[2]
 
     def _record(self) -> None:
+        """Append the telemetry row of the current state (columns: :meth:`_columns`)."""
+        if self.use_kernel:
+            self._record_compiled()
+            return
         ods = self.ods
         parts = [
             [ods.t_s],
@@ -414,6 +512,18 @@ class Emulator:
             parts += [p_R, q_R, self.mockup_velocity_R(arm), arm.servo.state.q_rad, arm.last_raw_S]
         parts.append(self.true_force_R.ravel())
         self.telemetry.append(np.concatenate(parts))
+
+    def _record_compiled(self) -> None:
+        """:meth:`_record` written in place into the telemetry buffer's next row."""
+        ods = self.ods
+        row = self.telemetry.next_row()
+        k = record_satellites(ods.t_s, ods.y, ods.params.orbit_rate_radps,
+                              self.applied_force_R, self.applied_torque_B, row)
+        for arm in self.arms:
+            _, T_W_C, v_W, _ = arm.mockup_state_W()
+            k = record_arm(self.T_R_W, T_W_C, v_W, arm.servo.state.q_rad, arm.last_raw_S,
+                           row, k)
+        row[k:] = self.true_force_R.ravel()
 
     # --- running -----------------------------------------------------------------------
 

@@ -86,6 +86,15 @@ def omega_relative_from_inertial(
 
 
 @njit(cache=True)
+def _omega_relative(y, orbit_rate_radps, out):
+    """Kernel of :func:`omega_relative_from_inertial` on a whole state y (N, 13)."""
+    for i in range(y.shape[0]):
+        n = _direction_cosines(y[i, 6:10])[1]
+        for a in range(3):
+            out[i, a] = y[i, 10 + a] - orbit_rate_radps * n[a]
+
+
+@njit(cache=True)
 def _derivative(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dy):
     """Kernel of :func:`derivative`, one satellite row at a time (writes dy)."""
     gg = 3.0 * W * W if gg_on else 0.0
@@ -203,6 +212,8 @@ class OrbitalSimulator:
     y: np.ndarray
     t_s: float = 0.0
     names: list[str] = field(default_factory=list)
+    use_kernel: bool = True
+    """omega_rel_radps through one compiled call (same numbers as the Python function)."""
 
     @classmethod
     def from_config(cls, config) -> OrbitalSimulator:
@@ -250,6 +261,10 @@ class OrbitalSimulator:
     @property
     def omega_rel_radps(self) -> np.ndarray:
         """Angular velocity relative to R, body axes (what the lab sees)."""
+        if self.use_kernel:
+            out = np.empty((self.y.shape[0], 3))
+            _omega_relative(self.y, self.params.orbit_rate_radps, out)
+            return out
         return omega_relative_from_inertial(
             self.y[:, QUAT], self.y[:, OMEGA], self.params.orbit_rate_radps
         )

@@ -16,19 +16,24 @@ Each control cycle the caller hands over one joint set-point. The servo
 When stopped, the arm ignores set-points and *decelerates* to rest at the acceleration
 limit (UR stop category 2 style: it stays on its path, joint by joint), then stays halted
 until :meth:`UR10eServo.reset`.
+
+:meth:`UR10eServo.step` runs through the compiled kernel of :mod:`app.sim.servo_kernel`
+(``UR10eServo.use_kernel``, same results) when the safety box carries its kinematics
+(:func:`safety_box_for_robot`, or no box); the Python methods below stay the reference.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from app.config import RobotConfig, ServoConfig
+from app.sim.servo_kernel import reason_of, servo_step
 from app.sim.ur10e import N_JOINTS, T_F_C_from_config, T_W_B_from_config, UR10e
+from app.sim.ur10e_kernel import TcpChain, tcp_chain
 
 __all__ = ["SafetyBox", "ServoState", "UR10eServo", "safety_box_for_robot"]
 
@@ -39,11 +44,13 @@ class SafetyBox:
 
     ``tcp_position_W`` maps joint positions to the TCP position in W (the caller's
     kinematics and mounting), so the servo itself stays free of robot geometry.
+    ``chain``, when given, is the same map for the compiled servo (UR10e kinematics).
     """
 
     p_min_W_m: np.ndarray
     p_max_W_m: np.ndarray
     tcp_position_W: Callable[[np.ndarray], np.ndarray]
+    chain: TcpChain | None = None
 
     def contains(self, q_rad: np.ndarray) -> bool:
         p_W = self.tcp_position_W(q_rad)
@@ -60,7 +67,8 @@ def safety_box_for_robot(robot: RobotConfig, ur: UR10e | None = None) -> SafetyB
         return (T_W_B @ ur.tcp_pose(q_rad, T_F_C))[:3, 3]
 
     return SafetyBox(
-        np.array(robot.safety_box_min_m), np.array(robot.safety_box_max_m), tcp_position_W
+        np.array(robot.safety_box_min_m), np.array(robot.safety_box_max_m), tcp_position_W,
+        chain=tcp_chain(ur.model, ur.flange_id, T_W_B, T_F_C),
     )
 
 
@@ -73,6 +81,11 @@ class ServoState:
     qdd_radps2: np.ndarray
     stopped: bool = False
     reason: str = ""
+
+
+_NO_BOX = np.zeros(3)
+_NO_CHAIN = TcpChain(np.zeros((N_JOINTS, 3, 3)), np.zeros((N_JOINTS, 3)), np.eye(3),
+                     np.zeros(3), np.eye(4), np.eye(4))
 
 
 class UR10eServo:
@@ -93,6 +106,8 @@ class UR10eServo:
         w = 2.0 * math.pi * cfg.bandwidth_hz
         self._w2 = w * w
         self._2zw = 2.0 * cfg.damping_ratio * w
+        self.use_kernel = True
+        """Run step() through app.sim.servo_kernel (same results; needs a box with a chain)."""
         self.reset(q0_rad)
 
     # --- public -----------------------------------------------------------------------
@@ -101,7 +116,9 @@ class UR10eServo:
         """Clear a protective stop; the arm rests at ``q_rad`` (default: where it is)."""
         q = self.state.q_rad if q_rad is None else np.array(q_rad, dtype=float)
         self.state = ServoState(q.copy(), np.zeros(N_JOINTS), np.zeros(N_JOINTS))
-        self._queue = deque([q.copy() for _ in range(self.cfg.delay_cycles)])
+        # transport delay: ring of the set-points in flight, _slot indexes the oldest
+        self._ring = np.tile(q, (self.cfg.delay_cycles, 1))
+        self._slot = 0
         self._sp_prev = q.copy()  # last accepted set-point: the reference for speed checks
 
     @property
@@ -114,10 +131,9 @@ class UR10eServo:
 
     def step(self, q_setpoint_rad: np.ndarray) -> ServoState:
         """Advance one cycle ``dt_s`` with a new set-point; returns the (live) state."""
-        sp = np.array(q_setpoint_rad, dtype=float)
-        if self._queue:
-            self._queue.append(sp)
-            sp = self._queue.popleft()
+        if self.use_kernel and (self.safety is None or self.safety.chain is not None):
+            return self._step_compiled(np.asarray(q_setpoint_rad, dtype=float))
+        sp = self._delay(np.array(q_setpoint_rad, dtype=float))
         if not self.state.stopped:
             reason = self.check(sp)
             if reason:
@@ -130,6 +146,34 @@ class UR10eServo:
         else:
             self._track(sp)
         return self.state
+
+    def _delay(self, sp: np.ndarray) -> np.ndarray:
+        """Put a set-point into the delay ring; return the one sent delay_cycles ago."""
+        if not len(self._ring):
+            return sp
+        out = self._ring[self._slot].copy()
+        self._ring[self._slot] = sp
+        self._slot = (self._slot + 1) % len(self._ring)
+        return out
+
+    def _step_compiled(self, sp: np.ndarray) -> ServoState:
+        """:meth:`step` in one call of the compiled kernel (same state, same results)."""
+        s, box, cfg = self.state, self.safety, self.cfg
+        chain = _NO_CHAIN if box is None or box.chain is None else box.chain
+        lo, hi = (_NO_BOX, _NO_BOX) if box is None else (box.p_min_W_m, box.p_max_W_m)
+        slot = self._slot if len(self._ring) else -1
+        q, qd, qdd = np.empty(N_JOINTS), np.empty(N_JOINTS), np.empty(N_JOINTS)
+        code = servo_step(
+            sp, self._ring, slot, self._sp_prev, s.q_rad, s.qd_radps, q, qd, qdd, s.stopped,
+            self.dt_s, self._w2, self._2zw, self.accel_limit_radps2, cfg.position_limit_rad,
+            self.speed_limits_radps, box is not None, lo, hi, *chain,
+        )
+        if slot >= 0:
+            self._slot = (slot + 1) % len(self._ring)
+        s.q_rad, s.qd_radps, s.qdd_radps2 = q, qd, qdd
+        if code:
+            s.stopped, s.reason = True, reason_of(code)
+        return s
 
     def check(self, sp: np.ndarray) -> str:
         """Reason a set-point would trigger a protective stop, or ``""`` if it is fine."""

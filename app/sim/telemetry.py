@@ -50,12 +50,20 @@ class TelemetryBuffer:
 
     def append(self, row: np.ndarray) -> None:
         """Store one row (length = number of columns)."""
-        self._data[self._next] = row
+        self.next_row()[:] = row
+
+    def next_row(self) -> np.ndarray:
+        """Claim the next row and return it (a view) for the caller to fill in place.
+
+        It counts as appended at once (and, when full, overwrites the oldest row).
+        """
+        row = self._data[self._next]
         self._next = (self._next + 1) % self.capacity
         if self.count < self.capacity:
             self.count += 1
         else:
             self.dropped += 1
+        return row
 
     def rows(self, last: int | None = None) -> np.ndarray:
         """A copy of the stored rows, oldest first (the newest `last` only, if given)."""

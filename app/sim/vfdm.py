@@ -27,9 +27,14 @@ try:  # the compiled inner loop (numba); the Python path below stays the referen
 except ImportError:  # pragma: no cover - numba missing
     _solve_compiled = None
 
-__all__ = ["Vfdm", "clamp_norm", "pose_error", "virtual_inertias"]
+__all__ = ["Vfdm", "clamp_norm", "pose_error", "vfdm_kernel_available", "virtual_inertias"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+def vfdm_kernel_available() -> bool:
+    """Whether the compiled VFDM path (numba) can run."""
+    return _solve_compiled is not None
 
 
 def pose_error(T_B_target: np.ndarray, T_B_C: np.ndarray) -> np.ndarray:

@@ -1,0 +1,118 @@
+"""Compiled (numba) bookkeeping of the emulation loop, same maths as Emulator's Python path.
+
+Satellite poses from the ODS state (``T_A_R · T_R_S`` for a constant ``T_A_R``: the lab
+pose ``T_W_R`` or an arm's ``T_B_R``) and the telemetry row, written in place into the
+telemetry buffer instead of being concatenated from many small arrays. The rotation
+formulas are those of :mod:`app.sim.rotations` (quaternion <-> matrix) and of the ODS
+(angular velocity relative to R).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from app.sim.orbital import _direction_cosines
+
+__all__ = ["ods_states_W", "record_arm", "record_satellites", "satellite_pose"]
+
+
+@njit(cache=True, fastmath=False)
+def satellite_pose(T_A_R, y, i, out):
+    """out (4, 4) := T_A_R · T_R_S of satellite i of the ODS state y (N, 13)."""
+    px, py, pz = y[i, 0], y[i, 1], y[i, 2]
+    w, x, yy, z = y[i, 6], y[i, 7], y[i, 8], y[i, 9]
+    R00, R01, R02 = 1 - 2 * (yy * yy + z * z), 2 * (x * yy - w * z), 2 * (x * z + w * yy)
+    R10, R11, R12 = 2 * (x * yy + w * z), 1 - 2 * (x * x + z * z), 2 * (yy * z - w * x)
+    R20, R21, R22 = 2 * (x * z - w * yy), 2 * (yy * z + w * x), 1 - 2 * (x * x + yy * yy)
+    for a in range(3):
+        A0, A1, A2 = T_A_R[a, 0], T_A_R[a, 1], T_A_R[a, 2]
+        out[a, 0] = A0 * R00 + A1 * R10 + A2 * R20
+        out[a, 1] = A0 * R01 + A1 * R11 + A2 * R21
+        out[a, 2] = A0 * R02 + A1 * R12 + A2 * R22
+        out[a, 3] = A0 * px + A1 * py + A2 * pz + T_A_R[a, 3]
+    out[3, 0] = out[3, 1] = out[3, 2] = 0.0
+    out[3, 3] = 1.0
+
+
+@njit(cache=True, fastmath=False)
+def ods_states_W(T_W_R, y, T_W_S, v_W):
+    """Every satellite's pose T_W_S (N, 4, 4) and COM velocity v_W (N, 3) in the lab."""
+    for i in range(y.shape[0]):
+        satellite_pose(T_W_R, y, i, T_W_S[i])
+        for a in range(3):
+            v_W[i, a] = T_W_R[a, 0] * y[i, 3] + T_W_R[a, 1] * y[i, 4] + T_W_R[a, 2] * y[i, 5]
+
+
+@njit(cache=True, fastmath=False)
+def _matrix_to_quat(R, out, k):
+    """rotations.matrix_to_quat of R (3x3 block) into out[k:k + 4] (wxyz, w >= 0)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    q0 = q1 = q2 = q3 = 0.0
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q0, q1 = 0.25 * s, (R[2, 1] - R[1, 2]) / s
+        q2, q3 = (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
+    else:
+        i = 0
+        if R[1, 1] > R[i, i]:
+            i = 1
+        if R[2, 2] > R[i, i]:
+            i = 2
+        j, m = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * math.sqrt(1.0 + R[i, i] - R[j, j] - R[m, m])
+        v = [0.0, 0.0, 0.0]
+        v[i] = 0.25 * s
+        v[j] = (R[j, i] + R[i, j]) / s
+        v[m] = (R[m, i] + R[i, m]) / s
+        q0, q1, q2, q3 = (R[m, j] - R[j, m]) / s, v[0], v[1], v[2]
+    if q0 < 0.0:
+        q0, q1, q2, q3 = -q0, -q1, -q2, -q3
+    n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    out[k], out[k + 1], out[k + 2], out[k + 3] = q0 / n, q1 / n, q2 / n, q3 / n
+
+
+@njit(cache=True, fastmath=False)
+def record_satellites(t_s, y, orbit_rate, force_R, torque_B, row):
+    """row[0] = t and the ODS columns of every satellite; returns the next free index.
+
+    Per satellite: position, velocity, attitude (wxyz), angular velocity relative to R
+    (body axes), applied force and torque (telemetry.SAT_FIELDS).
+    """
+    row[0] = t_s
+    k = 1
+    for i in range(y.shape[0]):
+        for c in range(10):
+            row[k + c] = y[i, c]
+        n = _direction_cosines(y[i, 6:10])[1]
+        for a in range(3):
+            row[k + 10 + a] = y[i, 10 + a] - orbit_rate * n[a]
+            row[k + 13 + a] = force_R[i, a]
+            row[k + 16 + a] = torque_B[i, a]
+        k += 19
+    return k
+
+
+@njit(cache=True, fastmath=False)
+def record_arm(T_R_W, T_W_C, v_W, q, raw_S, row, k):
+    """An arm's columns from row[k] (telemetry.ROBOT_FIELDS); returns the next free index.
+
+    Mockup COM position and attitude (wxyz) in R, from ``T_R_W · T_W_C``; its velocity
+    in R; the joint positions; the raw F/T reading.
+    """
+    R = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            R[a, b] = (T_R_W[a, 0] * T_W_C[0, b] + T_R_W[a, 1] * T_W_C[1, b]
+                       + T_R_W[a, 2] * T_W_C[2, b])
+    for a in range(3):
+        row[k + a] = (T_R_W[a, 0] * T_W_C[0, 3] + T_R_W[a, 1] * T_W_C[1, 3]
+                      + T_R_W[a, 2] * T_W_C[2, 3] + T_R_W[a, 3])
+        row[k + 7 + a] = T_R_W[a, 0] * v_W[0] + T_R_W[a, 1] * v_W[1] + T_R_W[a, 2] * v_W[2]
+    _matrix_to_quat(R, row, k + 3)
+    for j in range(6):
+        row[k + 10 + j] = q[j]
+        row[k + 16 + j] = raw_S[j]
+    return k + 22
