@@ -33,7 +33,7 @@ from app.sim.contact import BoxContactModel
 from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor
 from app.sim.loop_kernel import ods_states_W, record_arm, record_satellites, satellite_pose
 from app.sim.orbital import OrbitalSimulator
-from app.sim.passivity import PassivityController
+from app.sim.passivity import PassivityController, is_zero
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.telemetry import TelemetryBuffer, robot_columns, satellite_columns
@@ -459,8 +459,15 @@ class Emulator:
         """The ODS input of an arm's satellite through its passivity controllers."""
         s = arm.satellite
         pc_f, pc_t = arm.passivity
-        force = pc_f.step(out.force_R_N, self.ods.velocity_mps[s], self.R_W_R.T @ v_W)
-        torque = pc_t.step(out.torque_B_Nm, self.ods.omega_rel_radps[s], R_W_C.T @ w_W)
+        force, torque = out.force_R_N, out.torque_B_Nm
+        if is_zero(force):  # the velocities are only needed while something acts
+            pc_f.idle()
+        else:
+            force = pc_f.step(force, self.ods.velocity_mps[s], self.R_W_R.T @ v_W)
+        if is_zero(torque):
+            pc_t.idle()
+        else:
+            torque = pc_t.step(torque, self.ods.omega_rel_radps[s], R_W_C.T @ w_W)
         return force, torque
 
     def _interact_ideal(self) -> tuple[np.ndarray, np.ndarray]:

@@ -38,7 +38,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PassivityController"]
+__all__ = ["PassivityController", "is_zero"]
+
+
+def is_zero(v: np.ndarray) -> bool:
+    """Whether a 3-vector is exactly zero (inside the deadband); cheaper than ndarray.any."""
+    return v[0] == 0.0 and v[1] == 0.0 and v[2] == 0.0
 
 
 class PassivityController:
@@ -63,12 +68,16 @@ class PassivityController:
         self.dissipated_J = 0.0
         self._idle_cycles = 0
 
+    def idle(self) -> None:
+        """One cycle with zero measured force (what :meth:`step` does with one)."""
+        self._idle_cycles += 1
+        if self._idle_cycles >= self.idle_reset_cycles:
+            self.energy_J = 0.0
+
     def step(self, force: np.ndarray, v_virtual: np.ndarray, v_physical: np.ndarray) -> np.ndarray:
         """Observe one cycle; return the force for the virtual satellite (PO, then PC)."""
-        if not force.any():
-            self._idle_cycles += 1
-            if self._idle_cycles >= self.idle_reset_cycles:
-                self.energy_J = 0.0
+        if is_zero(force):
+            self.idle()
             return force
         self._idle_cycles = 0
         dt = self.dt_s
