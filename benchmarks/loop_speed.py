@@ -94,6 +94,7 @@ def _with_stage_timers(em: Emulator) -> dict[str, int]:
     em.ods.step = _timed(em.ods.step, acc, "ODS step")
     em.contact.compute = _timed(em.contact.compute, acc, "contact")
     em._record = _timed(em._record, acc, "telemetry (_record)")
+    em._passivate = _timed(em._passivate, acc, "passivity (PO/PC, both arms)")
     for arm in em.arms:
         arm.mockup_state_W = _timed(arm.mockup_state_W, acc, "arm FK + twist")
         arm.sensor.measure = _timed(arm.sensor.measure, acc, "F/T chain (sensor+processing)")
