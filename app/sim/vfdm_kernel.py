@@ -16,6 +16,8 @@ import math
 import numpy as np
 from numba import njit
 
+from app.sim.ur10e_kernel import fk_joints
+
 __all__ = ["model_arrays", "vfdm_steps", "log3"]
 
 
@@ -114,26 +116,10 @@ def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
     qdd = np.empty(n)
     for _ in range(iterations):
         # --- forward kinematics (no temporaries)
+        fk_joints(q, pR, pp, R, p)
         for i in range(n):
-            c, s = math.cos(q[i]), math.sin(q[i])
             for a in range(3):
-                if i == 0:
-                    r0, r1, r2 = pR[0, a, 0], pR[0, a, 1], pR[0, a, 2]
-                    p[0, a] = pp[0, a]
-                else:
-                    r0 = r1 = r2 = 0.0
-                    pa = p[i - 1, a]
-                    for b in range(3):
-                        rab = R[i - 1, a, b]
-                        r0 += rab * pR[i, b, 0]
-                        r1 += rab * pR[i, b, 1]
-                        r2 += rab * pR[i, b, 2]
-                        pa += rab * pp[i, b]
-                    p[i, a] = pa
-                R[i, a, 0] = c * r0 + s * r1
-                R[i, a, 1] = -s * r0 + c * r1
-                R[i, a, 2] = r2
-                z[i, a] = r2
+                z[i, a] = R[i, a, 2]
         R6 = R[n - 1]
         for a in range(3):
             pa = p[n - 1, a]
