@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from app.sim.orbital import _direction_cosines
+from app.sim.orbital import _omega_relative_into
 
 __all__ = ["ods_states_W", "record_arm", "record_satellites", "satellite_pose"]
 
@@ -86,9 +86,8 @@ def record_satellites(t_s, y, orbit_rate, force_R, torque_B, row):
     for i in range(y.shape[0]):
         for c in range(10):
             row[k + c] = y[i, c]
-        n = _direction_cosines(y[i, 6:10])[1]
+        _omega_relative_into(y, i, orbit_rate, row, k + 10)
         for a in range(3):
-            row[k + 10 + a] = y[i, 10 + a] - orbit_rate * n[a]
             row[k + 13 + a] = force_R[i, a]
             row[k + 16 + a] = torque_B[i, a]
         k += 19

@@ -86,12 +86,18 @@ def omega_relative_from_inertial(
 
 
 @njit(cache=True)
+def _omega_relative_into(y, i, orbit_rate_radps, out, k):
+    """out[k:k + 3] := satellite i's angular velocity relative to R (body axes)."""
+    n = _direction_cosines(y[i, 6:10])[1]
+    for a in range(3):
+        out[k + a] = y[i, 10 + a] - orbit_rate_radps * n[a]
+
+
+@njit(cache=True)
 def _omega_relative(y, orbit_rate_radps, out):
     """Kernel of :func:`omega_relative_from_inertial` on a whole state y (N, 13)."""
     for i in range(y.shape[0]):
-        n = _direction_cosines(y[i, 6:10])[1]
-        for a in range(3):
-            out[i, a] = y[i, 10 + a] - orbit_rate_radps * n[a]
+        _omega_relative_into(y, i, orbit_rate_radps, out[i], 0)
 
 
 @njit(cache=True)
