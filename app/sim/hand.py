@@ -1,0 +1,118 @@
+"""The operator's hand: scripted pulses, pushes and the gizmo (DESIGN.md "Scenarios").
+
+Three ways a hand acts on a mockup:
+
+* **scripted pulses** (``[[pulses]]`` of a scenario): a force in R and a torque in body
+  axes, held constant over ``[start_s, end_s)``; the headless free-floating scenario;
+* **pushes** (:class:`Push`, e.g. ``POST /api/push``): a force in R for a duration, from the
+  cycle after it was posted;
+* **the gizmo** (:class:`HandAnchor`): the hand is a spring from an anchor in the lab to the
+  mockup's COM, saturated at the hand's maximum force.
+
+Everything outside the loop posts commands; the hand consumes them at the start of the next
+cycle, so the loop stays the only owner of its state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.config import EmulatorConfig
+
+__all__ = ["Command", "HandAnchor", "OperatorHand", "Push", "pulse_wrenches"]
+
+
+@dataclass(frozen=True)
+class Push:
+    """A hand pushing satellite `satellite` (0-based) with force_R_N (in R) for duration_s."""
+
+    satellite: int
+    force_R_N: tuple[float, float, float]
+    duration_s: float
+
+
+@dataclass(frozen=True)
+class HandAnchor:
+    """The operator's hand (gizmo) at anchor_W_m, spring-coupled to the mockup; None lets go."""
+
+    satellite: int
+    anchor_W_m: tuple[float, float, float] | None
+
+
+Command = Push | HandAnchor
+
+
+def pulse_wrenches(config: EmulatorConfig, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Force (in R) and torque (body axes) of the scripted pulses active at t_s, (N, 3) each."""
+    n = len(config.satellites)
+    force, torque = np.zeros((n, 3)), np.zeros((n, 3))
+    for p in config.pulses:
+        if p.start_s <= t_s < p.end_s:
+            i = config.satellite_index(p.satellite)
+            force[i] += p.force_N
+            torque[i] += p.torque_Nm
+    return force, torque
+
+
+class OperatorHand:
+    """Every hand acting on the satellites: pulses, pushes and gizmo anchors."""
+
+    def __init__(self, config: EmulatorConfig, R_W_R: np.ndarray) -> None:
+        self.config = config
+        self.R_W_R = R_W_R
+        self.n_sat = len(config.satellites)
+        self._queue: list[Command] = []
+        self._pushes: list[tuple[int, np.ndarray, float]] = []  # (sat, force_R, until_s)
+        self._anchors: dict[int, np.ndarray] = {}
+        self._pulse_windows = [(p.start_s, p.end_s) for p in config.pulses]
+
+    def post(self, command: Command) -> None:
+        """Queue a command; it takes effect at the next :meth:`update`."""
+        if not 0 <= command.satellite < self.n_sat:
+            raise ValueError(
+                f"satellite must be between 1 and {self.n_sat}, got {command.satellite + 1}"
+            )
+        self._queue.append(command)
+
+    def update(self, t_s: float) -> None:
+        """Apply the queued commands at t_s and let go of the pushes that have ended."""
+        for cmd in self._queue:
+            if isinstance(cmd, Push):
+                self._pushes.append((cmd.satellite, np.array(cmd.force_R_N), t_s + cmd.duration_s))
+            elif cmd.anchor_W_m is None:
+                self._anchors.pop(cmd.satellite, None)
+            else:
+                self._anchors[cmd.satellite] = np.array(cmd.anchor_W_m)
+        self._queue.clear()
+        self._pushes = [p for p in self._pushes if t_s < p[2] - 1e-12]
+
+    def idle(self, t_s: float) -> bool:
+        """No pulse, push or gizmo acts at t_s (the hand's wrenches are all zero)."""
+        return not (self._pushes or self._anchors
+                    or any(start <= t_s < end for start, end in self._pulse_windows))
+
+    def wrenches_W(self, t_s: float, p_W_C: np.ndarray, R_W_C: np.ndarray) -> np.ndarray:
+        """(N, 6) wrenches in W about each COM (p_W_C (N, 3), R_W_C (N, 3, 3) of the mockups).
+
+        Pulses and pushes act through the COM with the force they specify (a hand that keeps
+        its push steady); the gizmo's hand is a spring from its anchor to the COM.
+        """
+        wrench = np.zeros((self.n_sat, 6))
+        if self.idle(t_s):
+            return wrench
+        force_R, torque_B = pulse_wrenches(self.config, t_s)
+        for sat, f_R, _ in self._pushes:
+            force_R[sat] += f_R
+        wrench[:, :3] = force_R @ self.R_W_R.T
+        for i in range(self.n_sat):
+            wrench[i, 3:] = R_W_C[i] @ torque_B[i]
+        hand = self.config.hand
+        for sat, anchor in self._anchors.items():
+            f = hand.stiffness_Npm * (anchor - p_W_C[sat])
+            norm = float(np.linalg.norm(f))
+            if norm > hand.max_force_N:
+                f *= hand.max_force_N / norm
+            wrench[sat, :3] += f
+        return wrench
