@@ -92,17 +92,10 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
 
 def passivity_metrics(em: Emulator) -> dict | None:
     """Energy each arm's passivity controller removed (None when it is off)."""
-    if not em.config.passivity.enabled or not em.arms:
+    removed = em.coupling.dissipated_J()
+    if removed is None:
         return None
-    return {
-        "dissipated_J": {
-            f"sat{arm.satellite + 1}": {
-                "force": arm.passivity[0].dissipated_J,
-                "torque": arm.passivity[1].dissipated_J,
-            }
-            for arm in em.arms
-        }
-    }
+    return {"dissipated_J": {f"sat{s + 1}": ports for s, ports in removed.items()}}
 
 
 def compute_metrics(em: Emulator, wall_s: float, restitution_ideal: float | None = None) -> dict:

@@ -5,20 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.sim.hand import pulse_wrenches
 from app.sim.orbital import OrbitalSimulator
 from app.sim.telemetry import satellite_columns
-
-
-def pulse_wrenches(config: EmulatorConfig, t_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Force (in R) and torque (body axes) of the scripted pulses active at t_s."""
-    n = len(config.satellites)
-    force, torque = np.zeros((n, 3)), np.zeros((n, 3))
-    for p in config.pulses:
-        if p.start_s <= t_s < p.end_s:
-            i = config.satellite_index(p.satellite)
-            force[i] += p.force_N
-            torque[i] += p.torque_Nm
-    return force, torque
 
 
 def satellite_row(sim: OrbitalSimulator, force: np.ndarray, torque: np.ndarray) -> np.ndarray:

@@ -44,7 +44,8 @@ from typing import Any
 import numpy as np
 
 from app.config import EmulatorConfig
-from app.sim.loop import Command, Emulator
+from app.sim.hand import Command
+from app.sim.loop import Emulator
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
 
 log = logging.getLogger("orbit_emulator.runner")

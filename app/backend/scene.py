@@ -39,7 +39,7 @@ PLOT_WINDOW_S = 10.0
 def _load_urdf():
     import yourdfpy
 
-    from app.sim.ur10e import urdf_text
+    from app.backend.urdf import urdf_text
 
     return yourdfpy.URDF.load(
         io.StringIO(urdf_text()), build_scene_graph=True, load_meshes=True,

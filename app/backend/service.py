@@ -13,7 +13,7 @@ from typing import Any
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
-from app.sim.loop import HandAnchor, Push
+from app.sim.hand import HandAnchor, Push
 
 __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
 

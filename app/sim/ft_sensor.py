@@ -17,9 +17,8 @@ Conventions
   returns ``F_ext``, the push acting on the satellite, which is what the ODS needs.
 * Rotational inertial loads of the mockup (I·α + ω × I·ω) are not modelled.
 
-:meth:`VirtualFTSensor.measure` and :meth:`WrenchProcessor.process` run through the compiled
-kernels of :mod:`app.sim.ft_kernel` (``use_kernel``, same results); the Python methods
-below stay the reference.
+One cycle of the sensor is one call of :func:`sensor_step`, one cycle of the processing
+chain one call of :func:`process_step` (numba); the calibration, run once at rest, is NumPy.
 """
 
 from __future__ import annotations
@@ -28,9 +27,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from app.config import SensorConfig, WrenchProcessingConfig
-from app.sim.ft_kernel import process_step, sensor_step
 from app.sim.rotations import skew
 
 __all__ = [
@@ -38,10 +37,10 @@ __all__ = [
     "ProcessedWrench",
     "VirtualFTSensor",
     "WrenchProcessor",
-    "apply_deadband",
     "lowpass_alpha",
     "point_force_wrench_W",
-    "sensor_load_S",
+    "process_step",
+    "sensor_step",
 ]
 
 
@@ -64,28 +63,120 @@ def point_force_wrench_W(
     return np.concatenate([force_W_N, _cross(r_W, force_W_N)])
 
 
-def sensor_load_S(
-    wrench_ext_W: np.ndarray,
-    T_W_C: np.ndarray,
-    T_W_F: np.ndarray,
-    mass_kg: float,
-    gravity_W_mps2: np.ndarray,
-    accel_W_mps2: np.ndarray | None = None,
-) -> np.ndarray:
-    """Noise-free wrench that a rigidly mounted mockup exerts on the flange sensor, in S.
+# --- kernels ------------------------------------------------------------------------------
 
-    Newton on the mockup, m a = F_ext + m g + F_sensor→mockup, gives the load on the sensor
-    f = F_ext + m (g − a); its moment about the sensor origin is τ_ext,C + r_FC × f
-    (all terms of f act through C or are already reduced to C).
+
+@njit(cache=True, fastmath=False)
+def sensor_step(wrench, T_W_C, T_W_F, mass, gravity, accel, normals, bias, noise_std,
+                range_S, ring, head, fill, out):
+    """One reading of the UR10e flange sensor into out (6,): load, bias, noise, range, delay.
+
+    The load of a rigidly mounted mockup on the sensor, from Newton on the mockup
+    (m a = F_ext + m g + F_sensor→mockup): ``f = F_ext + m (g − a)``, with its moment about
+    the sensor origin ``τ_ext,C + r_FC × f``, rotated into S. Then per component
+    clip(load + bias + std·normal, ±range) (data sheet: range 100 N / 10 N·m), written
+    into the delay ring at row ``head``; out is the oldest row. ``fill``: the ring is
+    empty and every row takes the new reading. ``normals``: six standard normal draws
+    (the caller's generator); ``accel``: zeros for a mockup at rest.
     """
-    g_eff = np.asarray(gravity_W_mps2, dtype=float)
-    if accel_W_mps2 is not None:
-        g_eff = g_eff - np.asarray(accel_W_mps2, dtype=float)
-    force_W = wrench_ext_W[:3] + mass_kg * g_eff
-    r_FC_W = T_W_C[:3, 3] - T_W_F[:3, 3]
-    torque_F_W = wrench_ext_W[3:] + _cross(r_FC_W, force_W)
-    R_F_W = T_W_F[:3, :3].T
-    return np.concatenate([R_F_W @ force_W, R_F_W @ torque_F_W])
+    fx = wrench[0] + mass * (gravity[0] - accel[0])
+    fy = wrench[1] + mass * (gravity[1] - accel[1])
+    fz = wrench[2] + mass * (gravity[2] - accel[2])
+    rx, ry, rz = T_W_C[0, 3] - T_W_F[0, 3], T_W_C[1, 3] - T_W_F[1, 3], T_W_C[2, 3] - T_W_F[2, 3]
+    tx = wrench[3] + (ry * fz - rz * fy)
+    ty = wrench[4] + (rz * fx - rx * fz)
+    tz = wrench[5] + (rx * fy - ry * fx)
+    load = np.empty(6)
+    for a in range(3):  # R_F_W = R_W_F^T
+        load[a] = T_W_F[0, a] * fx + T_W_F[1, a] * fy + T_W_F[2, a] * fz
+        load[a + 3] = T_W_F[0, a] * tx + T_W_F[1, a] * ty + T_W_F[2, a] * tz
+    n = ring.shape[0]
+    for k in range(6):
+        v = load[k] + bias[k] + noise_std[k] * normals[k]
+        if v < -range_S[k]:
+            v = -range_S[k]
+        elif v > range_S[k]:
+            v = range_S[k]
+        if fill:
+            for r in range(n):
+                ring[r, k] = v
+        else:
+            ring[head, k] = v
+    oldest = (head + 1) % n
+    for k in range(6):
+        out[k] = ring[oldest, k]
+
+
+@njit(cache=True, fastmath=False)
+def _deadband(v, threshold, soft):
+    """Deadband on the magnitude of a 3-vector, in place, direction kept.
+
+    hard: v if |v| > threshold else 0 (a step at the edge; real pushes come through
+    unchanged); soft: (|v| − threshold)·v/|v| above, 0 below (continuous, every output
+    shrunk by the threshold).
+    """
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n <= threshold:
+        v[0] = v[1] = v[2] = 0.0
+    elif soft:
+        s = (n - threshold) / n
+        v[0] *= s
+        v[1] *= s
+        v[2] *= s
+
+
+@njit(cache=True, fastmath=False)
+def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertial, bias,
+                 mass, com, alpha, state, db_force, db_torque, soft, out):
+    """One cycle of the lab's processing chain; the filter state (6,) is updated in place.
+
+    Bias removal → payload compensation ``m g`` (and, with ``inertial``, ``−m a``) in S
+    with its moment ``c × f`` → first-order low-pass → deadbands on the force and torque
+    magnitudes → moment shifted from S to the COM → force rotated into R, torque into the
+    body axes. Fills out (12,) with the force in R, the torque about the COM in body axes
+    and the processed wrench in S.
+    """
+    ge = np.empty(3)
+    for a in range(3):
+        ge[a] = gravity[a] if payload else 0.0
+        if inertial:
+            ge[a] = ge[a] - accel[a]
+    gx, gy, gz = mass * ge[0], mass * ge[1], mass * ge[2]
+    lf = (T_W_F[0, 0] * gx + T_W_F[1, 0] * gy + T_W_F[2, 0] * gz,
+          T_W_F[0, 1] * gx + T_W_F[1, 1] * gy + T_W_F[2, 1] * gz,
+          T_W_F[0, 2] * gx + T_W_F[1, 2] * gy + T_W_F[2, 2] * gz)
+    lt = (com[1] * lf[2] - com[2] * lf[1],
+          com[2] * lf[0] - com[0] * lf[2],
+          com[0] * lf[1] - com[1] * lf[0])
+    w = out[6:12]
+    for a in range(3):
+        w[a] = (wrench_S[a] - bias[a]) - lf[a]
+        w[a + 3] = (wrench_S[a + 3] - bias[a + 3]) - lt[a]
+    for k in range(6):
+        state[k] += alpha * (w[k] - state[k])
+        w[k] = state[k]
+    f, t = w[0:3], w[3:6]
+    _deadband(f, db_force, soft)
+    _deadband(t, db_torque, soft)
+    dx, dy, dz = T_W_C[0, 3] - T_W_F[0, 3], T_W_C[1, 3] - T_W_F[1, 3], T_W_C[2, 3] - T_W_F[2, 3]
+    r = (T_W_F[0, 0] * dx + T_W_F[1, 0] * dy + T_W_F[2, 0] * dz,
+         T_W_F[0, 1] * dx + T_W_F[1, 1] * dy + T_W_F[2, 1] * dz,
+         T_W_F[0, 2] * dx + T_W_F[1, 2] * dy + T_W_F[2, 2] * dz)
+    tc = (t[0] - (r[1] * f[2] - r[2] * f[1]),
+          t[1] - (r[2] * f[0] - r[0] * f[2]),
+          t[2] - (r[0] * f[1] - r[1] * f[0]))
+    fW0 = T_W_F[0, 0] * f[0] + T_W_F[0, 1] * f[1] + T_W_F[0, 2] * f[2]
+    fW1 = T_W_F[1, 0] * f[0] + T_W_F[1, 1] * f[1] + T_W_F[1, 2] * f[2]
+    fW2 = T_W_F[2, 0] * f[0] + T_W_F[2, 1] * f[1] + T_W_F[2, 2] * f[2]
+    tW0 = T_W_F[0, 0] * tc[0] + T_W_F[0, 1] * tc[1] + T_W_F[0, 2] * tc[2]
+    tW1 = T_W_F[1, 0] * tc[0] + T_W_F[1, 1] * tc[1] + T_W_F[1, 2] * tc[2]
+    tW2 = T_W_F[2, 0] * tc[0] + T_W_F[2, 1] * tc[1] + T_W_F[2, 2] * tc[2]
+    for a in range(3):
+        out[a] = R_W_R[0, a] * fW0 + R_W_R[1, a] * fW1 + R_W_R[2, a] * fW2
+        out[a + 3] = T_W_C[0, a] * tW0 + T_W_C[1, a] * tW1 + T_W_C[2, a] * tW2
+
+
+# --- the sensor and the processing chain ---------------------------------------------------
 
 
 class VirtualFTSensor:
@@ -116,28 +207,10 @@ class VirtualFTSensor:
         )
         self._ring = np.zeros((config.delay_cycles + 1, 6))
         self._head = -1  # index of the newest reading; -1: ring not yet filled
-        self.use_kernel = True
-        """Run measure() through app.sim.ft_kernel (same readings, same noise draws)."""
 
     def reset(self) -> None:
         """Forget past readings (the next call refills the delay ring)."""
         self._head = -1
-
-    def read_now(self, load_S: np.ndarray) -> np.ndarray:
-        """One undelayed reading of a true load: bias, noise, saturation."""
-        noisy = load_S + self.bias_S + self.noise_std_S * self.rng.standard_normal(6)
-        return np.clip(noisy, -self.range_S, self.range_S)
-
-    def delay(self, reading_S: np.ndarray) -> np.ndarray:
-        """Push a reading into the delay ring; return the one from delay_cycles calls ago."""
-        n = self._ring.shape[0]
-        if self._head < 0:
-            self._ring[:] = reading_S
-            self._head = 0
-        else:
-            self._head = (self._head + 1) % n
-            self._ring[self._head] = reading_S
-        return self._ring[(self._head + 1) % n].copy()
 
     def measure(
         self,
@@ -152,20 +225,6 @@ class VirtualFTSensor:
         T_W_C, T_W_F: mockup COM and flange poses; accel_W_mps2: the mockup COM's linear
         acceleration in W (None: at rest).
         """
-        if self.use_kernel:
-            return self._measure_compiled(wrench_ext_W, T_W_C, T_W_F, accel_W_mps2)
-        load = sensor_load_S(
-            np.asarray(wrench_ext_W, dtype=float),
-            T_W_C,
-            T_W_F,
-            self.mass_kg,
-            self.gravity_W_mps2,
-            accel_W_mps2,
-        )
-        return self.delay(self.read_now(load))
-
-    def _measure_compiled(self, wrench_ext_W, T_W_C, T_W_F, accel_W_mps2) -> np.ndarray:
-        """:meth:`measure` in one kernel call; the noise is drawn here, as read_now does."""
         normals = self.rng.standard_normal(6)
         fill = self._head < 0
         self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
@@ -185,21 +244,6 @@ def lowpass_alpha(cutoff_hz: float, rate_hz: float) -> float:
     Exact discretisation (zero-order hold) of 1/(1 + s/ω_c): α = 1 − exp(−ω_c / rate).
     """
     return 1.0 - math.exp(-2.0 * math.pi * cutoff_hz / rate_hz)
-
-
-def apply_deadband(v: np.ndarray, threshold: float, mode: str = "hard") -> np.ndarray:
-    """Deadband on the magnitude of a 3-vector (direction kept).
-
-    'hard': v if |v| > threshold else 0 (a step of size `threshold` at the edge, but real
-    pushes come through unchanged); 'soft': (|v| − threshold)·v/|v| above, 0 below
-    (continuous, every output shrunk by `threshold`).
-    """
-    n = math.sqrt(float(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
-    if n <= threshold:
-        return np.zeros(3)
-    if mode == "soft":
-        return v * ((n - threshold) / n)
-    return v.copy()
 
 
 @dataclass(frozen=True)
@@ -246,8 +290,6 @@ class WrenchProcessor:
         self.alpha = lowpass_alpha(config.lowpass_hz, rate_hz)
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
         self._state_S = np.zeros(6)
-        self.use_kernel = True
-        """Run process() through app.sim.ft_kernel (same results)."""
 
     def reset(self) -> None:
         """Reset the filter state to zero (the expected compensated wrench at rest)."""
@@ -309,27 +351,6 @@ class WrenchProcessor:
             raise ValueError("calibration: COM needs readings in three or more orientations")
         return x[:3], x[3:]
 
-    def compensate(
-        self, wrench_S: np.ndarray, R_W_F: np.ndarray, accel_W_mps2: np.ndarray | None
-    ) -> np.ndarray:
-        """Remove bias, payload weight and (optionally) the inertial load m·a, in S."""
-        cfg, cal = self.config, self.calibration
-        w = np.asarray(wrench_S, dtype=float) - cal.bias_S
-        g_eff = self.gravity_W_mps2 if cfg.payload_compensation else np.zeros(3)
-        if cfg.inertial_compensation:
-            if accel_W_mps2 is None:
-                raise ValueError("inertial_compensation needs the mockup's acceleration")
-            g_eff = g_eff - np.asarray(accel_W_mps2, dtype=float)
-        load_F = R_W_F.T @ (cal.mass_kg * g_eff)
-        w[:3] -= load_F
-        w[3:] -= _cross(cal.com_F_m, load_F)
-        return w
-
-    def filter(self, wrench_S: np.ndarray) -> np.ndarray:
-        """First-order low-pass, one step at the loop rate."""
-        self._state_S += self.alpha * (wrench_S - self._state_S)
-        return self._state_S.copy()
-
     def process(
         self,
         wrench_S: np.ndarray,
@@ -344,25 +365,6 @@ class WrenchProcessor:
         B); R_W_R: orientation of the CW frame R in W; accel_W_mps2: mockup acceleration in W
         (used only with inertial_compensation).
         """
-        if self.use_kernel:
-            return self._process_compiled(wrench_S, T_W_F, T_W_C, R_W_R, accel_W_mps2)
-        cfg = self.config
-        R_W_F = T_W_F[:3, :3]
-        w = self.filter(self.compensate(wrench_S, R_W_F, accel_W_mps2))
-        f_S = apply_deadband(w[:3], cfg.deadband_force_N, cfg.deadband_mode)
-        t_S = apply_deadband(w[3:], cfg.deadband_torque_Nm, cfg.deadband_mode)
-        r_FC_S = R_W_F.T @ (T_W_C[:3, 3] - T_W_F[:3, 3])
-        t_C_S = t_S - _cross(r_FC_S, f_S)  # moment about C = moment about S − r_SC × f
-        force_R = R_W_R.T @ (R_W_F @ f_S)
-        torque_B = T_W_C[:3, :3].T @ (R_W_F @ t_C_S)
-        return ProcessedWrench(
-            force_R_N=force_R,
-            torque_B_Nm=torque_B,
-            wrench_S=np.concatenate([f_S, t_S]),
-        )
-
-    def _process_compiled(self, wrench_S, T_W_F, T_W_C, R_W_R, accel_W_mps2):
-        """:meth:`process` in one kernel call (same filter state, same results)."""
         cfg, cal = self.config, self.calibration
         if cfg.inertial_compensation and accel_W_mps2 is None:
             raise ValueError("inertial_compensation needs the mockup's acceleration")

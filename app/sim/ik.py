@@ -13,7 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
-from app.sim.ur10e import UR10e
+from app.sim.ur10e import tcp_jacobian_B, tcp_pose_B
 from app.sim.vfdm import pose_error
 
 __all__ = [
@@ -35,10 +35,9 @@ class CartesianSolver(Protocol):
 
 
 class _DiffIK:
-    """Shared state: kinematics, TCP mounting and the current joint estimate."""
+    """Shared state: the TCP mounting and the current joint estimate."""
 
     def __init__(self, T_F_C: np.ndarray, q0_rad: np.ndarray | None = None) -> None:
-        self.robot = UR10e()
         self.T_F_C = np.array(T_F_C, dtype=float)
         self.q_rad = np.zeros(6) if q0_rad is None else np.array(q0_rad, dtype=float)
 
@@ -46,8 +45,8 @@ class _DiffIK:
         self.q_rad = np.array(q_rad, dtype=float)
 
     def solve(self, T_B_C_target: np.ndarray) -> np.ndarray:
-        J = self.robot.tcp_jacobian(self.q_rad, self.T_F_C)
-        e = pose_error(T_B_C_target, self.robot.tcp_pose(self.q_rad, self.T_F_C))
+        J = tcp_jacobian_B(self.q_rad, self.T_F_C)
+        e = pose_error(T_B_C_target, tcp_pose_B(self.q_rad, self.T_F_C))
         self.q_rad = self.q_rad + self._dq(J, e)
         return self.q_rad.copy()
 

@@ -14,7 +14,7 @@ State of N satellites, one row each, ``y`` of shape (N, 13)::
 The paper's Eqs. 4-7 use the inertial angular velocity. What the lab sees is motion
 relative to R, which itself turns at Omega about z: ``omega_rel = omega - R_R_B^T Omega z``.
 The configuration and the telemetry speak of omega_rel; convert with
-:func:`omega_inertial_from_relative` and :func:`omega_relative_from_inertial`.
+:func:`omega_inertial_from_relative` and :attr:`OrbitalSimulator.omega_rel_radps`.
 """
 
 from __future__ import annotations
@@ -76,17 +76,8 @@ def omega_inertial_from_relative(
     return np.atleast_2d(omega_rel_radps) + orbit_rate_radps * n
 
 
-def omega_relative_from_inertial(
-    attitude_wxyz: np.ndarray, omega_radps: np.ndarray, orbit_rate_radps: float
-) -> np.ndarray:
-    """Body-axes angular velocity relative to R from the inertial one (both (N, 3))."""
-    q = np.atleast_2d(np.asarray(attitude_wxyz, dtype=float))
-    n = np.array([_direction_cosines(qi)[1] for qi in q])
-    return np.atleast_2d(omega_radps) - orbit_rate_radps * n
-
-
 @njit(cache=True)
-def _omega_relative_into(y, i, orbit_rate_radps, out, k):
+def omega_relative_into(y, i, orbit_rate_radps, out, k):
     """out[k:k + 3] := satellite i's angular velocity relative to R (body axes)."""
     n = _direction_cosines(y[i, 6:10])[1]
     for a in range(3):
@@ -95,9 +86,9 @@ def _omega_relative_into(y, i, orbit_rate_radps, out, k):
 
 @njit(cache=True)
 def _omega_relative(y, orbit_rate_radps, out):
-    """Kernel of :func:`omega_relative_from_inertial` on a whole state y (N, 13)."""
+    """out (N, 3) := every satellite's angular velocity relative to R (body axes)."""
     for i in range(y.shape[0]):
-        _omega_relative_into(y, i, orbit_rate_radps, out[i], 0)
+        omega_relative_into(y, i, orbit_rate_radps, out[i], 0)
 
 
 @njit(cache=True)
@@ -218,8 +209,6 @@ class OrbitalSimulator:
     y: np.ndarray
     t_s: float = 0.0
     names: list[str] = field(default_factory=list)
-    use_kernel: bool = True
-    """omega_rel_radps through one compiled call (same numbers as the Python function)."""
 
     @classmethod
     def from_config(cls, config) -> OrbitalSimulator:
@@ -267,10 +256,6 @@ class OrbitalSimulator:
     @property
     def omega_rel_radps(self) -> np.ndarray:
         """Angular velocity relative to R, body axes (what the lab sees)."""
-        if self.use_kernel:
-            out = np.empty((self.y.shape[0], 3))
-            _omega_relative(self.y, self.params.orbit_rate_radps, out)
-            return out
-        return omega_relative_from_inertial(
-            self.y[:, QUAT], self.y[:, OMEGA], self.params.orbit_rate_radps
-        )
+        out = np.empty((self.y.shape[0], 3))
+        _omega_relative(self.y, self.params.orbit_rate_radps, out)
+        return out

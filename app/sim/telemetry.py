@@ -1,13 +1,22 @@
-"""Telemetry: column names and a bounded ring buffer of per-cycle rows.
+"""Telemetry: column names, a bounded ring buffer of per-cycle rows, and the recorder.
 
-The loop appends one row of floats per cycle; readers take copies (snapshots), so they
-never hold the loop up. When the buffer is full the oldest rows are overwritten and
-counted in ``dropped`` (a headless run sizes the buffer to hold the whole run).
+The loop appends one row of floats per cycle, written in place by compiled kernels;
+readers take copies (snapshots), so they never hold the loop up. When the buffer is full
+the oldest rows are overwritten and counted in ``dropped`` (a headless run sizes the
+buffer to hold the whole run).
+
+Row layout: ``t_s``; per satellite its ODS state and the wrench the ODS received
+(:data:`SAT_FIELDS`); per arm its actual mockup and joints and the raw F/T reading
+(:data:`ROBOT_FIELDS`); per satellite the true external force on the actual mockup.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
+
+from app.sim.frames import matrix_to_quat_into
+from app.sim.orbital import omega_relative_into
 
 SAT_FIELDS = (
     "x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps",
@@ -29,6 +38,17 @@ def satellite_columns(count: int) -> list[str]:
 def robot_columns(count: int) -> list[str]:
     """Columns of `count` arms: actual mockup pose and velocity in R, joints, raw F/T."""
     return [f"rob{i}_{f}" for i in range(1, count + 1) for f in ROBOT_FIELDS]
+
+
+def true_force_columns(count: int) -> list[str]:
+    """Columns of the true external force on each actual mockup (in R)."""
+    return [f"sat{i}_true_f{a}_N" for i in range(1, count + 1) for a in "xyz"]
+
+
+def loop_columns(n_sat: int, n_arms: int) -> list[str]:
+    """Every column of the loop's telemetry, in row order."""
+    return ["t_s", *satellite_columns(n_sat), *robot_columns(n_arms),
+            *true_force_columns(n_sat)]
 
 
 class TelemetryBuffer:
@@ -79,3 +99,69 @@ class TelemetryBuffer:
         self._next = 0
         self.count = 0
         self.dropped = 0
+
+
+# --- row kernels ----------------------------------------------------------------------------
+
+
+@njit(cache=True, fastmath=False)
+def record_satellites(t_s, y, orbit_rate, force_R, torque_B, row):
+    """row[0] = t and the ODS columns of every satellite; returns the next free index.
+
+    Per satellite: position, velocity, attitude (wxyz), angular velocity relative to R
+    (body axes), applied force and torque (:data:`SAT_FIELDS`).
+    """
+    row[0] = t_s
+    k = 1
+    for i in range(y.shape[0]):
+        for c in range(10):
+            row[k + c] = y[i, c]
+        omega_relative_into(y, i, orbit_rate, row, k + 10)
+        for a in range(3):
+            row[k + 13 + a] = force_R[i, a]
+            row[k + 16 + a] = torque_B[i, a]
+        k += 19
+    return k
+
+
+@njit(cache=True, fastmath=False)
+def record_arm(T_R_W, T_W_C, v_W, q, raw_S, row, k):
+    """An arm's columns from row[k] (:data:`ROBOT_FIELDS`); returns the next free index.
+
+    Mockup COM position and attitude (wxyz) in R, from ``T_R_W · T_W_C``; its velocity
+    in R; the joint positions; the raw F/T reading.
+    """
+    R = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            R[a, b] = (T_R_W[a, 0] * T_W_C[0, b] + T_R_W[a, 1] * T_W_C[1, b]
+                       + T_R_W[a, 2] * T_W_C[2, b])
+    for a in range(3):
+        row[k + a] = (T_R_W[a, 0] * T_W_C[0, 3] + T_R_W[a, 1] * T_W_C[1, 3]
+                      + T_R_W[a, 2] * T_W_C[2, 3] + T_R_W[a, 3])
+        row[k + 7 + a] = T_R_W[a, 0] * v_W[0] + T_R_W[a, 1] * v_W[1] + T_R_W[a, 2] * v_W[2]
+    matrix_to_quat_into(R, row, k + 3)
+    for j in range(6):
+        row[k + 10 + j] = q[j]
+        row[k + 16 + j] = raw_S[j]
+    return k + 22
+
+
+class Recorder:
+    """Writes the loop's telemetry row of each cycle into a :class:`TelemetryBuffer`."""
+
+    def __init__(self, n_sat: int, n_arms: int, capacity: int, T_R_W: np.ndarray,
+                 orbit_rate_radps: float) -> None:
+        self.buffer = TelemetryBuffer(loop_columns(n_sat, n_arms), capacity)
+        self.T_R_W = np.ascontiguousarray(T_R_W, dtype=float)
+        self.orbit_rate_radps = float(orbit_rate_radps)
+
+    def record(self, t_s: float, y: np.ndarray, force_R: np.ndarray, torque_B: np.ndarray,
+               arms, true_force_R: np.ndarray) -> None:
+        """One row: time, ODS state y (N, 13) with the wrench (N, 3) + (N, 3) it receives,
+        each arm's ``(T_W_C, v_W, q_rad, raw_S)`` and the true force on each mockup (N, 3)."""
+        row = self.buffer.next_row()
+        k = record_satellites(t_s, y, self.orbit_rate_radps, force_R, torque_B, row)
+        for T_W_C, v_W, q_rad, raw_S in arms:
+            k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, row, k)
+        row[k:] = true_force_R.ravel()

@@ -1,53 +1,54 @@
-"""UR10e kinematics: a Pinocchio model built from the official DH parameters.
+"""UR10e kinematics from the official DH parameters, compiled with numba.
 
-Frames (see DESIGN.md "Frames"):
+Frames (DESIGN.md "Frames"):
 
 * ``B`` — robot base, DH frame 0 (= the UR controller's "Base" and the URDF link ``base``);
-* ``F`` — flange, DH frame 6 (= URDF ``tool0``), Pinocchio frame ``"flange"``;
+* ``F`` — flange, DH frame 6 (= URDF ``tool0``);
 * ``C`` — mockup centre of mass = TCP; ``T_F_C`` is the mockup mounting (RobotConfig).
 
 Joint i (1-based) turns about z of DH frame i-1, so the standard DH link transform
 ``Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)`` splits into the joint rotation and a constant
-placement ``Tz(d_i) Tx(a_i) Rx(alpha_i)`` that becomes the placement of joint i+1 (or of
-the flange frame for i = 6).
+placement ``Tz(d_i) Tx(a_i) Rx(alpha_i)``: the placement of joint i+1 in the frame of joint
+i (or of the flange in the frame of joint 6). With those placements the chain is
 
-The view model (:func:`urdf_text`) re-uses example-robot-data's UR10 meshes (the UR10e's
-are not shipped there) with UR10e joint origins; its root link ``base`` is the DH base B,
-so its ``tool0``/``flange`` frame equals :meth:`UR10e.fk` with no correction. The UR10
-meshes live in ``base_link``, which ROS-Industrial rotates by pi about z relative to the
-controller base; the URDF keeps that as the fixed joint ``base -> base_link``.
+    R_i = R_{i-1} · Rp_i · Rz(q_i),   p_i = p_{i-1} + R_{i-1} · pp_i
+
+and every result below is in the base frame B unless its name says otherwise. A joint's
+Jacobian column at a point c is ``[z_i × (c − p_i); z_i]``.
 """
 
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
-from dataclasses import dataclass
-from functools import cache
-from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
-import pinocchio as pin
+from numba import njit
 
 from app.config import UR10E_SPEED_LIMITS_RADPS, RobotConfig
-from app.sim.rotations import make_transform, quat_to_matrix, skew
+from app.sim.rotations import make_transform, quat_to_matrix
 
 __all__ = [
     "DH_A_M",
     "DH_ALPHA_RAD",
     "DH_D_M",
+    "JOINT_NAMES",
+    "MAX_EFFORT_NM",
     "N_JOINTS",
     "POSITION_LIMIT_RAD",
     "SPEED_LIMITS_RADPS",
-    "UR10e",
-    "LinkInertias",
+    "TcpChain",
     "T_F_C_from_config",
-    "T_J6_F_dh",
+    "T_J6_F",
     "T_W_B_from_config",
-    "build_model",
     "dh_link_transform",
-    "ur10_urdf_path",
-    "urdf_text",
+    "flange_pose_B",
+    "joint_placements",
+    "mockup_state",
+    "tcp_chain",
+    "tcp_jacobian_B",
+    "tcp_pose_B",
+    "tcp_position_W",
 ]
 
 N_JOINTS = 6
@@ -77,103 +78,218 @@ def dh_link_transform(theta_rad: float, d_m: float, a_m: float, alpha_rad: float
     )
 
 
-@dataclass(frozen=True)
-class LinkInertias:
-    """Mass properties for :func:`build_model`.
+def _dh_placement(i: int) -> np.ndarray:
+    """``Tz(d_i) Tx(a_i) Rx(alpha_i)`` of link i (0-based), the joint angle left out."""
+    return dh_link_transform(0.0, DH_D_M[i], DH_A_M[i], DH_ALPHA_RAD[i])
 
-    ``links[i]`` is the inertia of the body moved by joint i+1, expressed in that joint's
-    frame (DH frame i). :func:`build_model` without it gives every link a nominal body
-    (kinematics only).
+
+T_J6_F = _dh_placement(5)
+"""The flange (DH frame 6) in the frame of joint 6 (DH frame 5)."""
+
+
+def joint_placements() -> tuple[np.ndarray, np.ndarray]:
+    """(Rp (6, 3, 3), pp (6, 3)): joint i+1 placed in the frame of joint i; joint 1 at B."""
+    Rp, pp = np.zeros((N_JOINTS, 3, 3)), np.zeros((N_JOINTS, 3))
+    Rp[0] = np.eye(3)
+    for i in range(1, N_JOINTS):
+        T = _dh_placement(i - 1)
+        Rp[i], pp[i] = T[:3, :3], T[:3, 3]
+    return Rp, pp
+
+
+class TcpChain(NamedTuple):
+    """Everything the kernels need to place the TCP of a UR10e mounted in the lab."""
+
+    pR: np.ndarray
+    """(6, 3, 3) joint placement rotations (joint i in the frame of joint i-1)."""
+    pp: np.ndarray
+    """(6, 3) joint placement translations."""
+    fR: np.ndarray
+    """(3, 3) rotation of the flange in the frame of joint 6."""
+    fp: np.ndarray
+    """(3,) translation of the flange in the frame of joint 6."""
+    T_W_B: np.ndarray
+    """(4, 4) base pose in the lab."""
+    T_F_C: np.ndarray
+    """(4, 4) TCP (mockup COM) in the flange frame."""
+
+
+def tcp_chain(T_W_B: np.ndarray | None = None, T_F_C: np.ndarray | None = None) -> TcpChain:
+    """The :class:`TcpChain` of a UR10e with its base at T_W_B and its TCP at T_F_C."""
+    pR, pp = joint_placements()
+    return TcpChain(
+        pR, pp, np.ascontiguousarray(T_J6_F[:3, :3]), np.ascontiguousarray(T_J6_F[:3, 3]),
+        np.ascontiguousarray(np.eye(4) if T_W_B is None else T_W_B, dtype=float),
+        np.ascontiguousarray(np.eye(4) if T_F_C is None else T_F_C, dtype=float),
+    )
+
+
+# --- kernels ------------------------------------------------------------------------------
+
+
+@njit(cache=True, fastmath=False)
+def fk_joints(q, pR, pp, R, p):
+    """Joint frames in B: fills R (6, 3, 3) and p (6, 3) for the joint positions q."""
+    for i in range(6):
+        c, s = math.cos(q[i]), math.sin(q[i])
+        for a in range(3):
+            if i == 0:
+                r0, r1, r2 = pR[0, a, 0], pR[0, a, 1], pR[0, a, 2]
+                p[0, a] = pp[0, a]
+            else:
+                r0 = r1 = r2 = 0.0
+                pa = p[i - 1, a]
+                for b in range(3):
+                    rab = R[i - 1, a, b]
+                    r0 += rab * pR[i, b, 0]
+                    r1 += rab * pR[i, b, 1]
+                    r2 += rab * pR[i, b, 2]
+                    pa += rab * pp[i, b]
+                p[i, a] = pa
+            R[i, a, 0] = c * r0 + s * r1
+            R[i, a, 1] = -s * r0 + c * r1
+            R[i, a, 2] = r2
+
+
+@njit(cache=True, fastmath=False)
+def end_frame(R, p, fR, fp, T):
+    """T (4, 4) := a frame fixed on joint 6 (placement fR, fp) in B (upper 3 rows)."""
+    for a in range(3):
+        pa = p[5, a]
+        for b in range(3):
+            pa += R[5, a, b] * fp[b]
+            T[a, b] = R[5, a, 0] * fR[0, b] + R[5, a, 1] * fR[1, b] + R[5, a, 2] * fR[2, b]
+        T[a, 3] = pa
+
+
+@njit(cache=True, fastmath=False)
+def compose(A, B, out):
+    """out (4, 4) := A · B for rigid transforms (bottom rows 0 0 0 1)."""
+    for a in range(3):
+        for b in range(4):
+            v = A[a, 0] * B[0, b] + A[a, 1] * B[1, b] + A[a, 2] * B[2, b]
+            if b == 3:
+                v += A[a, 3]
+            out[a, b] = v
+    out[3, 0] = out[3, 1] = out[3, 2] = 0.0
+    out[3, 3] = 1.0
+
+
+@njit(cache=True, fastmath=False)
+def jacobian_at(R, p, c, J):
+    """J (6, 6) := the geometric Jacobian at point c (B), rows [v; ω] in base axes."""
+    for i in range(6):
+        dx, dy, dz = c[0] - p[i, 0], c[1] - p[i, 1], c[2] - p[i, 2]
+        zx, zy, zz = R[i, 0, 2], R[i, 1, 2], R[i, 2, 2]
+        J[0, i] = zy * dz - zz * dy
+        J[1, i] = zz * dx - zx * dz
+        J[2, i] = zx * dy - zy * dx
+        J[3, i], J[4, i], J[5, i] = zx, zy, zz
+
+
+@njit(cache=True, fastmath=False)
+def _flange_pose(q, pR, pp, fR, fp, T_B_F):
+    R = np.empty((6, 3, 3))
+    p = np.empty((6, 3))
+    fk_joints(q, pR, pp, R, p)
+    end_frame(R, p, fR, fp, T_B_F)
+    T_B_F[3, 0] = T_B_F[3, 1] = T_B_F[3, 2] = 0.0
+    T_B_F[3, 3] = 1.0
+
+
+@njit(cache=True, fastmath=False)
+def _tcp_jacobian(q, pR, pp, fR, fp, T_F_C, J):
+    R = np.empty((6, 3, 3))
+    p = np.empty((6, 3))
+    T_B_F = np.empty((4, 4))
+    fk_joints(q, pR, pp, R, p)
+    end_frame(R, p, fR, fp, T_B_F)
+    c = np.empty(3)
+    for a in range(3):
+        c[a] = (T_B_F[a, 0] * T_F_C[0, 3] + T_B_F[a, 1] * T_F_C[1, 3]
+                + T_B_F[a, 2] * T_F_C[2, 3] + T_B_F[a, 3])
+    jacobian_at(R, p, c, J)
+
+
+@njit(cache=True, fastmath=False)
+def tcp_position_W(q, pR, pp, fR, fp, T_W_B, T_F_C, out):
+    """out (3,) := TCP position in W, ``(T_W_B · T_B_F(q) · T_F_C)[:3, 3]``."""
+    R = np.empty((6, 3, 3))
+    p = np.empty((6, 3))
+    T_B_F = np.empty((4, 4))
+    T_W_F = np.empty((4, 4))
+    fk_joints(q, pR, pp, R, p)
+    end_frame(R, p, fR, fp, T_B_F)
+    compose(T_W_B, T_B_F, T_W_F)
+    for a in range(3):
+        out[a] = (T_W_F[a, 0] * T_F_C[0, 3] + T_W_F[a, 1] * T_F_C[1, 3]
+                  + T_W_F[a, 2] * T_F_C[2, 3] + T_W_F[a, 3])
+
+
+@njit(cache=True, fastmath=False)
+def mockup_state(q, qd, pR, pp, fR, fp, T_W_B, T_F_C, T_W_F, T_W_C, v_W, w_W):
+    """Flange and TCP poses in W, TCP linear and angular velocity in W (all filled in).
+
+    The twist is the flange Jacobian's (columns ``[z_i × (p_F − p_i); z_i]``) times qd,
+    shifted to the TCP: ``v_C = v_F + ω × p_FC``, then rotated by R_W_B.
     """
-
-    links: tuple[pin.Inertia, ...]
-
-
-def _nominal_inertias() -> LinkInertias:
-    return LinkInertias(tuple(pin.Inertia.FromSphere(1.0, 0.05) for _ in range(N_JOINTS)))
-
-
-def build_model(
-    inertias: LinkInertias | None = None,
-    T_F_C: np.ndarray | None = None,
-    gravity: bool = True,
-) -> pin.Model:
-    """Pinocchio model of the UR10e from its DH parameters.
-
-    Frames: ``"flange"`` (DH frame 6 = tool0) on joint 6 and, when ``T_F_C`` is given,
-    ``"tcp"`` (mockup COM) placed at ``T_F_C`` from the flange.
-    """
-    inertias = inertias or _nominal_inertias()
-    model = pin.Model()
-    model.name = "ur10e"
-    placement = pin.SE3.Identity()  # joint 1 sits at DH frame 0 = B
-    parent = 0
-    for i in range(N_JOINTS):
-        parent = model.addJoint(
-            parent,
-            pin.JointModelRZ(),
-            placement,
-            JOINT_NAMES[i],
-            np.array([MAX_EFFORT_NM[i]]),
-            np.array([SPEED_LIMITS_RADPS[i]]),
-            np.array([-POSITION_LIMIT_RAD]),
-            np.array([POSITION_LIMIT_RAD]),
-        )
-        model.appendBodyToJoint(parent, inertias.links[i], pin.SE3.Identity())
-        placement = pin.SE3(dh_link_transform(0.0, DH_D_M[i], DH_A_M[i], DH_ALPHA_RAD[i]))
-    flange_id = model.addFrame(pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME))
-    if T_F_C is not None:
-        T_J6_C = placement.homogeneous @ T_F_C
-        model.addFrame(
-            pin.Frame("tcp", parent, flange_id, pin.SE3(T_J6_C), pin.FrameType.OP_FRAME)
-        )
-    if not gravity:
-        model.gravity = pin.Motion.Zero()
-    return model
+    R = np.empty((6, 3, 3))
+    p = np.empty((6, 3))
+    T_B_F = np.empty((4, 4))
+    fk_joints(q, pR, pp, R, p)
+    end_frame(R, p, fR, fp, T_B_F)
+    compose(T_W_B, T_B_F, T_W_F)
+    compose(T_W_F, T_F_C, T_W_C)
+    vx = vy = vz = wx = wy = wz = 0.0
+    for i in range(6):
+        dx, dy, dz = T_B_F[0, 3] - p[i, 0], T_B_F[1, 3] - p[i, 1], T_B_F[2, 3] - p[i, 2]
+        zx, zy, zz = R[i, 0, 2], R[i, 1, 2], R[i, 2, 2]
+        vx += (zy * dz - zz * dy) * qd[i]
+        vy += (zz * dx - zx * dz) * qd[i]
+        vz += (zx * dy - zy * dx) * qd[i]
+        wx += zx * qd[i]
+        wy += zy * qd[i]
+        wz += zz * qd[i]
+    # p_FC in B: R_B_F · p_FC_F
+    rx = T_B_F[0, 0] * T_F_C[0, 3] + T_B_F[0, 1] * T_F_C[1, 3] + T_B_F[0, 2] * T_F_C[2, 3]
+    ry = T_B_F[1, 0] * T_F_C[0, 3] + T_B_F[1, 1] * T_F_C[1, 3] + T_B_F[1, 2] * T_F_C[2, 3]
+    rz = T_B_F[2, 0] * T_F_C[0, 3] + T_B_F[2, 1] * T_F_C[1, 3] + T_B_F[2, 2] * T_F_C[2, 3]
+    vx -= ry * wz - rz * wy
+    vy -= rz * wx - rx * wz
+    vz -= rx * wy - ry * wx
+    for a in range(3):
+        v_W[a] = T_W_B[a, 0] * vx + T_W_B[a, 1] * vy + T_W_B[a, 2] * vz
+        w_W[a] = T_W_B[a, 0] * wx + T_W_B[a, 1] * wy + T_W_B[a, 2] * wz
 
 
-def T_J6_F_dh() -> np.ndarray:
-    """Flange (DH frame 6) in the frame of joint 6 (DH frame 5): ``Tz(d6) Rx(alpha6)``."""
-    return dh_link_transform(0.0, DH_D_M[5], DH_A_M[5], DH_ALPHA_RAD[5])
+# --- plain functions for callers outside the loop (baselines, benchmarks, tests) -----------
+
+_CHAIN = tcp_chain()
 
 
-class UR10e:
-    """Kinematics of one UR10e: FK to flange/TCP and the TCP Jacobian (base frame)."""
-
-    def __init__(self) -> None:
-        self.model = build_model()
-        self.data = self.model.createData()
-        self.flange_id = self.model.getFrameId("flange")
-        self.q_min_rad = np.full(N_JOINTS, -POSITION_LIMIT_RAD)
-        self.q_max_rad = np.full(N_JOINTS, POSITION_LIMIT_RAD)
-        self.qd_max_radps = SPEED_LIMITS_RADPS.copy()
-
-    def fk(self, q_rad: np.ndarray) -> np.ndarray:
-        """Flange pose ``T_B_F`` (4x4)."""
-        pin.forwardKinematics(self.model, self.data, np.asarray(q_rad, dtype=float))
-        return pin.updateFramePlacement(self.model, self.data, self.flange_id).homogeneous
-
-    def tcp_pose(self, q_rad: np.ndarray, T_F_C: np.ndarray) -> np.ndarray:
-        """TCP (mockup COM) pose ``T_B_C = T_B_F T_F_C``."""
-        return self.fk(q_rad) @ T_F_C
-
-    def tcp_jacobian(self, q_rad: np.ndarray, T_F_C: np.ndarray) -> np.ndarray:
-        """6x6 Jacobian of the TCP, rows ``[v_C; omega]`` in base axes (LOCAL_WORLD_ALIGNED).
-
-        The flange Jacobian is shifted to the TCP point: ``v_C = v_F + omega x p_FC``.
-        """
-        q = np.asarray(q_rad, dtype=float)
-        J = pin.computeFrameJacobian(
-            self.model, self.data, q, self.flange_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        )
-        R_B_F = self.data.oMf[self.flange_id].rotation
-        p_FC_B = R_B_F @ T_F_C[:3, 3]
-        J = J.copy()
-        J[:3] -= skew(p_FC_B) @ J[3:]
-        return J
+def flange_pose_B(q_rad: np.ndarray) -> np.ndarray:
+    """Flange pose ``T_B_F`` (4x4) at the joint positions q_rad."""
+    T = np.empty((4, 4))
+    c = _CHAIN
+    _flange_pose(np.asarray(q_rad, dtype=float), c.pR, c.pp, c.fR, c.fp, T)
+    return T
 
 
-# --- mounting ---------------------------------------------------------------------------
+def tcp_pose_B(q_rad: np.ndarray, T_F_C: np.ndarray) -> np.ndarray:
+    """TCP (mockup COM) pose ``T_B_C = T_B_F T_F_C``."""
+    return flange_pose_B(q_rad) @ T_F_C
+
+
+def tcp_jacobian_B(q_rad: np.ndarray, T_F_C: np.ndarray) -> np.ndarray:
+    """6x6 geometric Jacobian of the TCP, rows ``[v_C; ω]`` in base axes."""
+    J = np.empty((6, 6))
+    c = _CHAIN
+    _tcp_jacobian(np.asarray(q_rad, dtype=float), c.pR, c.pp, c.fR, c.fp,
+                  np.ascontiguousarray(T_F_C, dtype=float), J)
+    return J
+
+
+# --- mounting -------------------------------------------------------------------------------
 
 
 def T_W_B_from_config(robot: RobotConfig) -> np.ndarray:
@@ -184,98 +300,3 @@ def T_W_B_from_config(robot: RobotConfig) -> np.ndarray:
 def T_F_C_from_config(robot: RobotConfig) -> np.ndarray:
     """Mockup mounting ``T_F_C``; the attitude quaternion is read as ``q_F_C`` (C -> F)."""
     return make_transform(quat_to_matrix(robot.mockup_attitude_wxyz), robot.mockup_offset_m)
-
-
-# --- view model (URDF) --------------------------------------------------------------------
-
-_UR10_URDF_REL = "share/example-robot-data/robots/ur_description/urdf/ur10_robot.urdf"
-
-# UR10e joint origins in the ROS-Industrial layout. The UR10 y offsets of the shoulder
-# (0.220941) and elbow (-0.1719) are kept so the meshes line up; the wrist-2 offset takes
-# the rest, so the three sum to d4.
-_SHOULDER_Y_M = 0.220941
-_ELBOW_Y_M = -0.1719
-_URDF_ORIGINS_M = {
-    "shoulder_pan_joint": (0.0, 0.0, DH_D_M[0]),
-    "shoulder_lift_joint": (0.0, _SHOULDER_Y_M, 0.0),
-    "elbow_joint": (0.0, _ELBOW_Y_M, -DH_A_M[1]),
-    "wrist_1_joint": (0.0, 0.0, -DH_A_M[2]),
-    "wrist_2_joint": (0.0, DH_D_M[3] - _SHOULDER_Y_M - _ELBOW_Y_M, 0.0),
-    "wrist_3_joint": (0.0, 0.0, DH_D_M[4]),
-    "ee_fixed_joint": (0.0, DH_D_M[5], 0.0),
-    "wrist_3_link-tool0_fixed_joint": (0.0, DH_D_M[5], 0.0),
-}
-
-
-def ur10_urdf_path() -> Path:
-    """example-robot-data's UR10 URDF, found next to the installed pinocchio (cmeel prefix)."""
-    candidates = [Path(pin.__file__).resolve().parents[4] / _UR10_URDF_REL]
-    try:  # a non-cmeel install exposes its own module
-        from example_robot_data.path import EXAMPLE_ROBOT_DATA_MODEL_DIR  # type: ignore
-
-        candidates.insert(
-            0, Path(EXAMPLE_ROBOT_DATA_MODEL_DIR) / "ur_description/urdf/ur10_robot.urdf"
-        )
-    except ImportError:
-        pass
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise FileNotFoundError(f"example-robot-data UR10 URDF not found in {candidates}")
-
-
-def _fmt(v: tuple[float, ...]) -> str:
-    return " ".join(repr(float(x)) for x in v)
-
-
-@cache
-def urdf_text() -> str:
-    """URDF of the UR10e for the 3D view: UR10 meshes, UR10e joint origins and limits.
-
-    Mesh filenames are absolute file paths. The root link is ``base`` (= DH base B);
-    ``tool0`` and ``flange`` (identical) are DH frame 6.
-    """
-    src = ur10_urdf_path()
-    share = src.parents[3]  # .../share/example-robot-data
-    root = ET.fromstring(src.read_text())
-    for tag in ("gazebo", "transmission"):
-        for el in root.findall(tag):
-            root.remove(el)
-    for el in root.findall("link"):
-        if el.get("name") == "world":
-            root.remove(el)
-    for el in root.findall("joint"):
-        name = el.get("name")
-        if name == "world_joint":
-            root.remove(el)
-            continue
-        if name == "base_link-base_fixed_joint":  # re-root at the DH base
-            el.set("name", "base-base_link_fixed_joint")
-            el.find("parent").set("link", "base")
-            el.find("child").set("link", "base_link")
-            el.find("origin").set("rpy", _fmt((0.0, 0.0, math.pi)))
-        if name in _URDF_ORIGINS_M:
-            el.find("origin").set("xyz", _fmt(_URDF_ORIGINS_M[name]))
-        if name in JOINT_NAMES:
-            i = JOINT_NAMES.index(name)
-            lim = el.find("limit")
-            lim.set("lower", repr(-POSITION_LIMIT_RAD))
-            lim.set("upper", repr(POSITION_LIMIT_RAD))
-            lim.set("velocity", repr(float(SPEED_LIMITS_RADPS[i])))
-            lim.set("effort", repr(MAX_EFFORT_NM[i]))
-    for mesh in root.iter("mesh"):
-        fn = mesh.get("filename")
-        prefix = "package://example-robot-data/"
-        if fn.startswith(prefix):
-            mesh.set("filename", str(share / fn.removeprefix(prefix)))
-    # base first so that parsers taking the first link as root agree with the tree
-    base = next(el for el in root.findall("link") if el.get("name") == "base")
-    root.remove(base)
-    root.insert(0, base)
-    ET.SubElement(root, "link", name="flange")
-    joint = ET.SubElement(root, "joint", name="tool0-flange_fixed_joint", type="fixed")
-    ET.SubElement(joint, "parent", link="tool0")
-    ET.SubElement(joint, "child", link="flange")
-    ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
-    root.set("name", "ur10e")
-    return ET.tostring(root, encoding="unicode")

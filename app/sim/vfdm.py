@@ -1,4 +1,4 @@
-"""VFDM Cartesian motion controller (paper Section 3, Eqs. 10-13, Table 1).
+"""VFDM Cartesian motion controller (paper Section 3, Eqs. 9-13, Table 1), compiled.
 
 A *virtual* UR10e with the real arm's kinematics and a conditioned inertia is pulled
 towards the target TCP pose by a Cartesian PD "force" (Eq. 13). Its forward dynamics
@@ -7,59 +7,310 @@ cycle; the virtual joint positions are the set-points for the real arm. No Jacob
 inverse appears anywhere: near a singularity the virtual arm just moves slowly in the
 directions it cannot move well, instead of demanding unbounded joint speeds.
 
-Conditioned inertia: every link carries ``link_mass_kg`` and ``link_inertia_ratio *
-end_inertia_kgm2 * I3`` at its joint origin; the last link carries ``end_mass_kg`` and
-``end_inertia_kgm2 * I3`` with its centre of mass at the TCP. Then ``H ~= J^T diag(m_e,
-m_e, m_e, I_e, I_e, I_e) J`` plus a tiny regularising term, so the operational-space
-inverse inertia ``J H^-1 J^T`` (Eq. 12) is ~diagonal and the same at every posture.
+Conditioned inertia (Table 1): every link carries ``link_mass_kg`` and ``link_inertia_ratio
+* end_inertia_kgm2 * I3`` at its joint origin; the last link carries ``end_mass_kg`` and
+``end_inertia_kgm2 * I3`` with its centre of mass at the TCP. Then ``H ≈ Jᵀ diag(m_e, m_e,
+m_e, I_e, I_e, I_e) J`` plus a tiny regularising term, so the operational-space inverse
+inertia ``J H⁻¹ Jᵀ`` (Eq. 12) is nearly diagonal and the same at every posture.
+
+One internal step (:func:`vfdm_steps` runs ``iterations`` of them in machine code):
+
+1. forward kinematics of the virtual arm: joint frames and the TCP pose;
+2. Eq. 13: ``f = K_P e + K_D ė`` on the clamped pose error ``e = [p* − p; log(R* Rᵀ)]``;
+3. Eq. 9: ``τ = Jᵀ f`` with the TCP Jacobian in base axes;
+4. Eq. 10: ``q̈ = H(q)⁻¹ τ``, H from the composite-rigid-body algorithm, solved by Cholesky;
+5. semi-implicit Euler with the velocity damping (or the per-cycle reset of Eq. 11), and
+   the joint-limit clamp.
 """
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
-import pinocchio as pin
+from numba import njit
 
 from app.config import VfdmConfig
-from app.sim.ur10e import N_JOINTS, POSITION_LIMIT_RAD, LinkInertias, T_J6_F_dh, build_model
+from app.sim.ur10e import (
+    N_JOINTS,
+    POSITION_LIMIT_RAD,
+    T_J6_F,
+    end_frame,
+    fk_joints,
+    jacobian_at,
+    joint_placements,
+    tcp_pose_B,
+)
 
-try:  # the compiled inner loop (numba); the Python path below stays the reference
-    from app.sim.vfdm_kernel import solve_compiled as _solve_compiled
-except ImportError:  # pragma: no cover - numba missing
-    _solve_compiled = None
-
-__all__ = ["Vfdm", "clamp_norm", "pose_error", "vfdm_kernel_available", "virtual_inertias"]
-
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+__all__ = ["VirtualArm", "Vfdm", "joint_acceleration", "log3", "pose_error", "virtual_arm"]
 
 
-def vfdm_kernel_available() -> bool:
-    """Whether the compiled VFDM path (numba) can run."""
-    return _solve_compiled is not None
+class VirtualArm(NamedTuple):
+    """The virtual model's numbers, as the kernels take them."""
+
+    pR: np.ndarray
+    """(6, 3, 3) joint placement rotations."""
+    pp: np.ndarray
+    """(6, 3) joint placement translations."""
+    mass: np.ndarray
+    """(6,) link masses [kg]."""
+    lever: np.ndarray
+    """(6, 3) link centres of mass in their joint frames [m]."""
+    Icom: np.ndarray
+    """(6, 3, 3) link inertias about their centres of mass [kg m²]."""
+    tR: np.ndarray
+    """(3, 3) rotation of the TCP in the frame of joint 6."""
+    tp: np.ndarray
+    """(3,) position of the TCP in the frame of joint 6."""
+
+
+def virtual_arm(cfg: VfdmConfig, T_F_C: np.ndarray) -> VirtualArm:
+    """Table 1's conditioned inertia on the UR10e chain: small links, ``m_e, I_e`` at the TCP."""
+    pR, pp = joint_placements()
+    T_J6_C = T_J6_F @ np.asarray(T_F_C, dtype=float)
+    mass = np.full(N_JOINTS, float(cfg.link_mass_kg))
+    mass[-1] = cfg.end_mass_kg
+    lever = np.zeros((N_JOINTS, 3))
+    lever[-1] = T_J6_C[:3, 3]
+    Icom = np.tile(cfg.link_inertia_ratio * cfg.end_inertia_kgm2 * np.eye(3), (N_JOINTS, 1, 1))
+    Icom[-1] = cfg.end_inertia_kgm2 * np.eye(3)
+    return VirtualArm(pR, pp, mass, lever, Icom, np.ascontiguousarray(T_J6_C[:3, :3]),
+                      np.ascontiguousarray(T_J6_C[:3, 3]))
+
+
+# --- kernels ------------------------------------------------------------------------------
+
+
+@njit(cache=True, fastmath=False)
+def log3(R):
+    """SO(3) logarithm (rotation vector) of a rotation matrix, angle in [0, π]."""
+    out = np.empty(3)
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    cth = 0.5 * (tr - 1.0)
+    if cth > 1.0:
+        cth = 1.0
+    elif cth < -1.0:
+        cth = -1.0
+    theta = math.acos(cth)
+    vx, vy, vz = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+    if theta < 1e-4:
+        k = 0.5 + theta * theta / 12.0
+        out[0], out[1], out[2] = k * vx, k * vy, k * vz
+    elif math.pi - theta < 1e-3:
+        # near pi: axis from the symmetric part, sign from the skew part
+        for a in range(3):
+            d = (R[a, a] - cth) / (1.0 - cth)
+            out[a] = math.sqrt(d if d > 0.0 else 0.0)
+        sk = (vx, vy, vz)
+        big = 0
+        for a in range(1, 3):
+            if out[a] > out[big]:
+                big = a
+        if sk[big] < 0.0:
+            out[big] = -out[big]
+        for a in range(3):
+            if a != big:
+                s = R[a, big] + R[big, a]
+                out[a] = s / (2.0 * out[big] * (1.0 - cth))
+        nrm = math.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
+        for a in range(3):
+            out[a] *= theta / nrm
+    else:
+        k = theta / (2.0 * math.sin(theta))
+        out[0], out[1], out[2] = k * vx, k * vy, k * vz
+    return out
+
+
+@njit(cache=True, fastmath=False)
+def _clamp(v, max_norm):
+    """Scale the 3-vector v down (in place) to a norm of at most max_norm."""
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n > max_norm:
+        s = max_norm / n
+        v[0] *= s
+        v[1] *= s
+        v[2] *= s
+
+
+@njit(cache=True, fastmath=False)
+def clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e):
+    """e (6,) := [p* − p; log(R* Rᵀ)] (the e of Eq. 13), each part clamped in norm."""
+    Rerr = np.empty((3, 3))
+    for a in range(3):
+        e[a] = pt[a] - T_B_C[a, 3]
+    _clamp(e[:3], max_lin)
+    for a in range(3):
+        for b in range(3):
+            Rerr[a, b] = Rt[a, 0] * T_B_C[b, 0] + Rt[a, 1] * T_B_C[b, 1] + Rt[a, 2] * T_B_C[b, 2]
+    w = log3(Rerr)
+    _clamp(w, max_rot)
+    e[3], e[4], e[5] = w[0], w[1], w[2]
+
+
+@njit(cache=True, fastmath=False)
+def joint_space_inertia(R, p, mass, lever, Icom, H):
+    """H (6, 6) := the joint-space inertia (composite-rigid-body algorithm, world frame).
+
+    Walking from the last link inwards, the composite body of links j..6 (mass, first
+    moment, inertia about B's origin) gives ``H[i, j] = S_iᵀ I^c_j S_j`` for i ≤ j, with
+    ``S_i = [p_i × z_i; z_i]`` the motion of joint i at B's origin.
+    """
+    n = 6
+    s_acc = np.zeros(3)
+    IO = np.zeros((3, 3))
+    vS = np.empty((n, 3))
+    cw = np.empty(3)
+    RI = np.empty((3, 3))
+    for i in range(n):  # S_i linear part at the origin: p_i x z_i
+        vS[i, 0] = p[i, 1] * R[i, 2, 2] - p[i, 2] * R[i, 1, 2]
+        vS[i, 1] = p[i, 2] * R[i, 0, 2] - p[i, 0] * R[i, 2, 2]
+        vS[i, 2] = p[i, 0] * R[i, 1, 2] - p[i, 1] * R[i, 0, 2]
+    m_acc = 0.0
+    for j in range(n - 1, -1, -1):
+        mj = mass[j]
+        for a in range(3):  # the link's centre of mass in B
+            ca = p[j, a]
+            for b in range(3):
+                ca += R[j, a, b] * lever[j, b]
+            cw[a] = ca
+        for a in range(3):  # RI = R_j I_com
+            for b in range(3):
+                RI[a, b] = (R[j, a, 0] * Icom[j, 0, b] + R[j, a, 1] * Icom[j, 1, b]
+                            + R[j, a, 2] * Icom[j, 2, b])
+        cc = cw[0] * cw[0] + cw[1] * cw[1] + cw[2] * cw[2]
+        for a in range(3):  # parallel axis: inertia about B's origin
+            for b in range(3):
+                iw = RI[a, 0] * R[j, b, 0] + RI[a, 1] * R[j, b, 1] + RI[a, 2] * R[j, b, 2]
+                IO[a, b] += iw - mj * cw[a] * cw[b]
+            IO[a, a] += mj * cc
+            s_acc[a] += mj * cw[a]
+        m_acc += mj
+        wx, wy, wz = R[j, 0, 2], R[j, 1, 2], R[j, 2, 2]
+        vx, vy, vz = vS[j, 0], vS[j, 1], vS[j, 2]
+        sx, sy, sz = s_acc[0], s_acc[1], s_acc[2]
+        # the composite body's momentum under S_j: linear l, angular a (about B's origin)
+        lx = m_acc * vx + (wy * sz - wz * sy)
+        ly = m_acc * vy + (wz * sx - wx * sz)
+        lz = m_acc * vz + (wx * sy - wy * sx)
+        ax = (sy * vz - sz * vy) + IO[0, 0] * wx + IO[0, 1] * wy + IO[0, 2] * wz
+        ay = (sz * vx - sx * vz) + IO[1, 0] * wx + IO[1, 1] * wy + IO[1, 2] * wz
+        az = (sx * vy - sy * vx) + IO[2, 0] * wx + IO[2, 1] * wy + IO[2, 2] * wz
+        for i in range(j + 1):
+            hij = vS[i, 0] * lx + vS[i, 1] * ly + vS[i, 2] * lz
+            hij += R[i, 0, 2] * ax + R[i, 1, 2] * ay + R[i, 2, 2] * az
+            H[i, j] = hij
+            H[j, i] = hij
+
+
+@njit(cache=True, fastmath=False)
+def cholesky_solve(H, b, x):
+    """x := H⁻¹ b for a symmetric positive definite 6x6 H (H = L Lᵀ, two triangular solves)."""
+    n = 6
+    L = np.zeros((n, n))
+    y = np.empty(n)
+    for i in range(n):
+        for k in range(i + 1):
+            s = H[i, k]
+            for m in range(k):
+                s -= L[i, m] * L[k, m]
+            if i == k:
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, k] = s / L[k, k]
+    for i in range(n):
+        s = b[i]
+        for m in range(i):
+            s -= L[i, m] * y[m]
+        y[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for m in range(i + 1, n):
+            s -= L[m, i] * x[m]
+        x[i] = s / L[i, i]
+
+
+@njit(cache=True, fastmath=False)
+def _joint_acceleration(q, tau, pR, pp, mass, lever, Icom, qdd):
+    R = np.empty((6, 3, 3))
+    p = np.empty((6, 3))
+    H = np.zeros((6, 6))
+    fk_joints(q, pR, pp, R, p)
+    joint_space_inertia(R, p, mass, lever, Icom, H)
+    cholesky_solve(H, tau, qdd)
+
+
+@njit(cache=True, fastmath=False)
+def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
+               pR, pp, mass, lever, Icom, tR, tp, kp, kdh, use_kd, keep, h, qlim,
+               max_lin, max_rot):
+    """Run ``iterations`` internal VFDM steps in place on q, qd, e_prev, last_e.
+
+    state[0] is 1.0 when e_prev holds a previous error (the D term is active), else 0.0.
+    """
+    n = 6
+    R = np.empty((n, 3, 3))
+    p = np.empty((n, 3))
+    T_B_C = np.empty((4, 4))
+    J = np.empty((6, n))
+    H = np.zeros((n, n))
+    e = np.empty(6)
+    f = np.empty(6)
+    tau = np.empty(n)
+    qdd = np.empty(n)
+    for _ in range(iterations):
+        # 1. forward kinematics of the virtual arm
+        fk_joints(q, pR, pp, R, p)
+        end_frame(R, p, tR, tp, T_B_C)
+        # 2. Eq. 13 on the clamped pose error; the D term on (e - e_prev) / h
+        clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e)
+        for a in range(6):
+            f[a] = kp[a] * e[a]
+        if use_kd and state[0] > 0.5:
+            for a in range(6):
+                f[a] += kdh[a] * (e[a] - e_prev[a])
+        for a in range(6):
+            e_prev[a] = e[a]
+            last_e[a] = e[a]
+        state[0] = 1.0
+        # 3. Eq. 9: tau = J^T f
+        jacobian_at(R, p, T_B_C[:3, 3], J)
+        for i in range(n):
+            t = 0.0
+            for a in range(6):
+                t += J[a, i] * f[a]
+            tau[i] = t
+        # 4. Eq. 10: qdd = H^-1 tau
+        joint_space_inertia(R, p, mass, lever, Icom, H)
+        cholesky_solve(H, tau, qdd)
+        # 5. semi-implicit Euler, velocity damping, joint-limit clamp
+        for i in range(n):
+            qd[i] += h * qdd[i]
+            qd[i] *= keep
+            q[i] += h * qd[i]
+        for i in range(n):
+            if abs(q[i]) > qlim:
+                q[i] = qlim if q[i] > 0 else -qlim
+                qd[i] = 0.0
+
+
+# --- the solver ---------------------------------------------------------------------------
 
 
 def pose_error(T_B_target: np.ndarray, T_B_C: np.ndarray) -> np.ndarray:
-    """Pose error ``e = [p* - p ; log(R* R^T)]`` in base axes (the e of Eq. 13)."""
+    """Pose error ``e = [p* − p ; log(R* Rᵀ)]`` in base axes (the e of Eq. 13), unclamped."""
     e = np.empty(6)
     e[:3] = T_B_target[:3, 3] - T_B_C[:3, 3]
-    e[3:] = pin.log3(T_B_target[:3, :3] @ T_B_C[:3, :3].T)
+    e[3:] = log3(np.ascontiguousarray(T_B_target[:3, :3] @ T_B_C[:3, :3].T))
     return e
 
 
-def clamp_norm(v: np.ndarray, max_norm: float) -> np.ndarray:
-    """``v`` scaled down (in place) so that its norm is at most ``max_norm``."""
-    n = float(np.sqrt(v @ v))
-    if n > max_norm:
-        v *= max_norm / n
-    return v
-
-
-def virtual_inertias(cfg: VfdmConfig, T_F_C: np.ndarray) -> LinkInertias:
-    """Table 1 conditioned inertia: small links, last link ``m_e, I_e`` centred at the TCP."""
-    I_l = cfg.link_inertia_ratio * cfg.end_inertia_kgm2 * np.eye(3)
-    small = pin.Inertia(cfg.link_mass_kg, np.zeros(3), I_l)
-    p_J6_C = (T_J6_F_dh() @ T_F_C)[:3, 3]
-    end = pin.Inertia(cfg.end_mass_kg, p_J6_C, cfg.end_inertia_kgm2 * np.eye(3))
-    return LinkInertias((small,) * (N_JOINTS - 1) + (end,))
+def joint_acceleration(arm: VirtualArm, q_rad: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Eq. 10: ``q̈ = H(q)⁻¹ τ`` of the virtual model (no gravity, no Coriolis)."""
+    qdd = np.empty(N_JOINTS)
+    _joint_acceleration(np.asarray(q_rad, dtype=float), np.asarray(tau, dtype=float),
+                        arm.pR, arm.pp, arm.mass, arm.lever, arm.Icom, qdd)
+    return qdd
 
 
 class Vfdm:
@@ -70,9 +321,7 @@ class Vfdm:
     ) -> None:
         self.cfg = cfg
         self.T_F_C = np.array(T_F_C, dtype=float)
-        self.model = build_model(virtual_inertias(cfg, self.T_F_C), self.T_F_C, gravity=False)
-        self.data = self.model.createData()
-        self.tcp_id = self.model.getFrameId("tcp")
+        self.arm = virtual_arm(cfg, self.T_F_C)
         h = cfg.internal_dt_s
         self._h = h
         # Eq. 13 gains, already multiplied by the error scale; D acts on (e - e_prev) / h.
@@ -81,70 +330,36 @@ class Vfdm:
         self._kd_over_h = s * np.array([cfg.kd_lin] * 3 + [cfg.kd_rot] * 3) / h
         self._use_kd = bool(np.any(self._kd_over_h))
         self._keep = 1.0 - cfg.damping if cfg.velocity_mode == "damped" else 1.0
-        self._q_lim = POSITION_LIMIT_RAD
-        self._zero_v = np.zeros(N_JOINTS)
+        self._e_prev = np.zeros(6)
+        self._has_prev = np.zeros(1)
         self.q_rad = np.zeros(N_JOINTS)
         self.qd_radps = np.zeros(N_JOINTS)
-        self._e_prev: np.ndarray | None = None
         self.last_error = np.zeros(6)
         """Clamped pose error [m; rad] seen by the last internal step (before its move)."""
-        self.use_kernel = _solve_compiled is not None
-        """Run solve() through app.sim.vfdm_kernel (same results; ~26x faster)."""
         self.reset(np.zeros(N_JOINTS) if q0_rad is None else q0_rad)
 
     def reset(self, q_rad: np.ndarray) -> None:
         """Put the virtual arm at ``q_rad``, at rest."""
-        self.q_rad = np.clip(np.array(q_rad, dtype=float), -self._q_lim, self._q_lim)
+        self.q_rad = np.clip(np.array(q_rad, dtype=float), -POSITION_LIMIT_RAD,
+                             POSITION_LIMIT_RAD)
         self.qd_radps[:] = 0.0
-        self._e_prev = None
+        self._has_prev[0] = 0.0
 
     def tcp_pose(self) -> np.ndarray:
         """Virtual TCP pose ``T_B_C`` at the current virtual ``q``."""
-        pin.framesForwardKinematics(self.model, self.data, self.q_rad)
-        return self.data.oMf[self.tcp_id].homogeneous
+        return tcp_pose_B(self.q_rad, self.T_F_C)
 
     def solve(self, T_B_C_target: np.ndarray) -> np.ndarray:
         """One control cycle: ``iterations`` internal steps; returns the joint set-points."""
-        if self.use_kernel:
-            return _solve_compiled(self, T_B_C_target)
-        if self.cfg.velocity_mode == "reset":
+        cfg = self.cfg
+        if cfg.velocity_mode == "reset":
             self.qd_radps[:] = 0.0  # the paper's "each cycle starts at rest" (Eq. 11)
-        for _ in range(self.cfg.iterations):
-            self._step(T_B_C_target)
+        T = np.asarray(T_B_C_target, dtype=float)
+        last_e = np.empty(6)
+        vfdm_steps(self.q_rad, self.qd_radps, self._e_prev, self._has_prev, last_e,
+                   np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+                   cfg.iterations, *self.arm, self._kp, self._kd_over_h, self._use_kd,
+                   self._keep, self._h, POSITION_LIMIT_RAD, cfg.max_error_lin_m,
+                   cfg.max_error_rot_rad)
+        self.last_error = last_e
         return self.q_rad.copy()
-
-    def _step(self, T_B_C_target: np.ndarray) -> None:
-        """One internal step: Eq. 13 force, Eq. 10 acceleration, semi-implicit Euler."""
-        model, data, cfg, h = self.model, self.data, self.cfg, self._h
-        q = self.q_rad
-        pin.computeJointJacobians(model, data, q)  # also forward kinematics
-        oMc = pin.updateFramePlacement(model, data, self.tcp_id)
-        J = pin.getFrameJacobian(model, data, self.tcp_id, _LWA)
-        e = np.empty(6)
-        e[:3] = clamp_norm(T_B_C_target[:3, 3] - oMc.translation, cfg.max_error_lin_m)
-        e[3:] = clamp_norm(
-            pin.log3(T_B_C_target[:3, :3] @ oMc.rotation.T), cfg.max_error_rot_rad
-        )
-        f = self._kp * e  # Eq. 13
-        if self._use_kd and self._e_prev is not None:
-            f += self._kd_over_h * (e - self._e_prev)
-        self._e_prev = e
-        self.last_error = e
-        qdd = self.joint_acceleration(q, J.T @ f)
-        qd = self.qd_radps
-        qd += h * qdd
-        qd *= self._keep
-        q += h * qd
-        if np.any(np.abs(q) > self._q_lim):
-            hit = np.abs(q) > self._q_lim
-            np.clip(q, -self._q_lim, self._q_lim, out=q)
-            qd[hit] = 0.0
-
-    def joint_acceleration(self, q_rad: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """Eq. 10: ``qdd = H(q)^-1 tau`` with ``tau = J^T f`` (Eq. 9).
-
-        ABA with zero velocity on the gravity-free virtual model returns exactly
-        ``H^-1 tau`` (the CRBA inertia; Coriolis and gravity terms vanish) in O(n),
-        without forming or factorising H.
-        """
-        return pin.aba(self.model, self.data, q_rad, self._zero_v, tau)

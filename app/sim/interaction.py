@@ -1,0 +1,82 @@
+"""The physical interaction on the actual mockups: contact between them and the operator's hand.
+
+In the lab the mockups touch each other and the operator's hand, wherever the arms
+actually hold them (DESIGN.md "The loop"); in an ideal run there are no arms and the
+bodies are where the ODS has them. Either way this module turns the bodies' poses and
+velocities into the external wrench on each body (lab axes, moment about its COM): what
+the F/T sensors then measure, or, in an ideal run, what the ODS receives exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from app.sim.contact import BoxContactModel
+from app.sim.frames import ods_states_W
+from app.sim.hand import OperatorHand
+from app.sim.orbital import OrbitalSimulator
+
+__all__ = ["Bodies", "PhysicalInteraction", "actual_bodies", "exact_ods_input", "ods_bodies"]
+
+
+class Bodies(NamedTuple):
+    """Pose and velocity of every body (mockup or satellite) in the lab W."""
+
+    T_W_C: np.ndarray
+    """(N, 4, 4) COM poses."""
+    v_W: np.ndarray
+    """(N, 3) COM velocities."""
+    w_W: np.ndarray
+    """(N, 3) angular velocities."""
+
+
+def ods_bodies(T_W_R: np.ndarray, ods: OrbitalSimulator) -> Bodies:
+    """The satellites where the ODS has them (the ideal run's bodies)."""
+    n = ods.y.shape[0]
+    T_W_C, v_unused = np.empty((n, 4, 4)), np.empty((n, 3))
+    ods_states_W(T_W_R, ods.y, T_W_C, v_unused)
+    v_W = ods.velocity_mps @ T_W_R[:3, :3].T
+    omega_rel = ods.omega_rel_radps
+    w_W = np.array([T_W_C[i, :3, :3] @ omega_rel[i] for i in range(n)])
+    return Bodies(T_W_C, v_W, w_W)
+
+
+def actual_bodies(T_W_R: np.ndarray, ods: OrbitalSimulator, rigs: Sequence) -> Bodies:
+    """The actual mockups: each carried one where its arm holds it (forward kinematics);
+    a satellite without an arm where the ODS has it, not turning."""
+    n = ods.y.shape[0]
+    T_W_C, v_W, w_W = np.empty((n, 4, 4)), np.empty((n, 3)), np.zeros((n, 3))
+    ods_states_W(T_W_R, ods.y, T_W_C, v_W)
+    for rig in rigs:
+        s = rig.satellite
+        _, T_W_C[s], v_W[s], w_W[s] = rig.mockup_state_W()
+    return Bodies(T_W_C, v_W, w_W)
+
+
+def exact_ods_input(external_W: np.ndarray, T_W_C: np.ndarray,
+                    R_W_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """External wrenches as the ODS takes them: forces in R (N, 3), torques in body axes
+    (N, 3); what a perfect sensor would hand over (ideal runs, satellites without an arm)."""
+    force_R = external_W[:, :3] @ R_W_R
+    torque_B = np.array([T_W_C[i, :3, :3].T @ external_W[i, 3:] for i in range(len(T_W_C))])
+    return force_R, torque_B
+
+
+class PhysicalInteraction:
+    """Contact between the bodies plus the operator's hand, as external wrenches."""
+
+    def __init__(self, contact: BoxContactModel, hand: OperatorHand) -> None:
+        self.contact = contact
+        self.hand = hand
+        self.contact_active = False
+        """Whether any pair of bodies pushed on each other in the last call."""
+
+    def wrenches_W(self, bodies: Bodies, t_s: float) -> np.ndarray:
+        """(N, 6) external wrench on each body at t_s: force in W, moment about its COM."""
+        T_W_C = bodies.T_W_C
+        contact = self.contact.compute(T_W_C, bodies.v_W, bodies.w_W)
+        self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
+        return contact.wrench_W + self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3])

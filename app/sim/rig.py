@@ -1,0 +1,178 @@
+"""One arm rig: a UR10e with its servo, its flange F/T sensor and processing chain, its VFDM.
+
+Per cycle (paper Fig. 3, one robot's share of it):
+
+* :meth:`ArmRig.mockup_state_W` — servo state → forward kinematics: the actual flange and
+  mockup poses and the mockup's twist, in the lab;
+* :meth:`ArmRig.sense` — the external wrench on the mockup → virtual F/T reading → the
+  lab's processing chain → the wrench the ODS may receive;
+* :meth:`ArmRig.command` — the satellite's pose from the ODS, in the base frame → VFDM
+  joint set-points → servo step.
+
+And at start-up: find the start posture with the VFDM, make a smooth joint move there,
+and calibrate the sensor at rest (as the paper's lab did).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.config import EmulatorConfig, RobotConfig
+from app.sim.frames import satellite_pose
+from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
+from app.sim.rotations import invert_transform
+from app.sim.servo import UR10eServo, safety_box_for_robot
+from app.sim.ur10e import (
+    T_F_C_from_config,
+    T_W_B_from_config,
+    TcpChain,
+    mockup_state,
+    tcp_chain,
+)
+from app.sim.vfdm import Vfdm
+
+__all__ = ["ArmRig", "build_rig"]
+
+
+@dataclass
+class ArmRig:
+    """One UR10e carrying the mockup of satellite ``satellite`` (0-based)."""
+
+    index: int
+    satellite: int
+    chain: TcpChain
+    T_B_R: np.ndarray
+    """(4, 4) the CW frame R in the base frame: ``inv(T_W_B) · T_W_R``."""
+    vfdm: Vfdm
+    servo: UR10eServo
+    sensor: VirtualFTSensor
+    processor: WrenchProcessor
+    mockup_mass_kg: float
+    q_start_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    """The raw F/T reading of the last cycle, in S."""
+    last_processed: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    """The processed wrench of the last cycle: force in R, torque about the COM in B."""
+    _state_key: tuple | None = field(default=None, repr=False)
+    _state: tuple = field(default=(), repr=False)
+
+    @property
+    def T_W_B(self) -> np.ndarray:
+        return self.chain.T_W_B
+
+    @property
+    def T_F_C(self) -> np.ndarray:
+        return self.chain.T_F_C
+
+    # --- the cycle ----------------------------------------------------------------------
+
+    def mockup_state_W(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(T_W_F, T_W_C, v_W, ω_W): actual flange and mockup poses, mockup COM velocity
+        and angular velocity, in the lab, from the servo's joint state.
+
+        Kept until that state changes, so the cycle's interaction and its telemetry row
+        share one forward kinematics.
+        """
+        state = self.servo.state
+        key = (id(state), state.q_rad.tobytes(), state.qd_radps.tobytes())
+        if self._state_key != key:
+            out = (np.empty((4, 4)), np.empty((4, 4)), np.empty(3), np.empty(3))
+            mockup_state(state.q_rad, state.qd_radps, *self.chain, *out)
+            self._state, self._state_key = out, key
+        return self._state
+
+    def sense(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
+              R_W_R: np.ndarray, dt_s: float, first_cycle: bool) -> ProcessedWrench:
+        """The F/T sensor reads the external wrench (W, about the COM) on the mockup at
+        T_W_C moving at v_W; the processing chain turns the reading into the ODS's input.
+
+        The mockup's acceleration (for the inertial load and its compensation) is the
+        difference of its velocity over the last cycle.
+        """
+        accel_W = (v_W - self.v_W_prev) / dt_s if not first_cycle else np.zeros(3)
+        self.v_W_prev = v_W.copy()
+        T_W_F = self.mockup_state_W()[0]
+        raw = self.sensor.measure(wrench_ext_W, T_W_C, T_W_F, accel_W)
+        out = self.processor.process(raw, T_W_F, T_W_C, R_W_R, accel_W)
+        self.last_raw_S = raw
+        self.last_processed = np.concatenate([out.force_R_N, out.torque_B_Nm])
+        return out
+
+    def tcp_target_B(self, ods_y: np.ndarray) -> np.ndarray:
+        """TCP target ``T_B_C* = T_B_R · T_R_sat`` of the satellite in the ODS state."""
+        T = np.empty((4, 4))
+        satellite_pose(self.T_B_R, ods_y, self.satellite, T)
+        return T
+
+    def command(self, T_B_C_target: np.ndarray) -> None:
+        """VFDM set-points towards the target, one servo step (which may stop the arm)."""
+        self.servo.step(self.vfdm.solve(T_B_C_target))
+
+    # --- start-up -------------------------------------------------------------------------
+
+    def solve_start_posture(self, T_B_C_target: np.ndarray,
+                            max_steps: int) -> tuple[np.ndarray | None, float]:
+        """(q, position error m): joint positions that put the TCP at the target, found by
+        the VFDM run on its virtual model only until converged (q None if it does not)."""
+        vfdm = Vfdm(self.vfdm.cfg, self.T_F_C, self.vfdm.q_rad)
+        err = vfdm.last_error
+        for _ in range(max_steps):
+            q = vfdm.solve(T_B_C_target)
+            err = vfdm.last_error
+            if np.linalg.norm(err[:3]) < 1e-5 and np.linalg.norm(err[3:]) < 1e-4:
+                return q, float(np.linalg.norm(err[:3]))
+        return None, float(np.linalg.norm(err[:3]))
+
+    def move_to(self, q_goal_rad: np.ndarray, dt_s: float) -> None:
+        """Cosine-profiled joint move, peak speed at most half of each joint's limit, then
+        0.2 s at rest."""
+        q0 = self.servo.state.q_rad.copy()
+        dq = q_goal_rad - q0
+        limits = self.servo.speed_limits_radps * 0.5
+        duration = max(0.5, float(np.max(np.abs(dq) * (np.pi / 2) / limits)))
+        n = int(np.ceil(duration / dt_s))
+        for k in range(1, n + 1):
+            s = 0.5 * (1.0 - np.cos(np.pi * k / n))
+            self.servo.step(q0 + s * dq)
+        for _ in range(int(0.2 / dt_s)):
+            self.servo.step(q_goal_rad)
+
+    def rest_reading(self) -> np.ndarray:
+        """One servo step at the start posture and a raw F/T reading with nothing touching."""
+        self.servo.step(self.q_start_rad)
+        T_W_F, T_W_C, _, _ = self.mockup_state_W()
+        return self.sensor.measure(np.zeros(6), T_W_C, T_W_F)
+
+    def calibrate(self, readings_S: np.ndarray) -> None:
+        """Payload calibration at rest with the mockup's known mass and COM; the VFDM
+        starts from where the arm is."""
+        T_W_F = self.mockup_state_W()[0]
+        self.processor.calibrate(readings_S, T_W_F[:3, :3], mass_kg=self.mockup_mass_kg,
+                                 com_F_m=self.T_F_C[:3, 3])
+        self.processor.reset()
+        self.vfdm.reset(self.servo.state.q_rad)
+
+
+def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.ndarray,
+              rng: np.random.Generator) -> ArmRig:
+    """The rig of ``robot`` (config.robots[index]) at its home posture."""
+    dt_s = 1.0 / config.loop.rate_hz
+    gravity_W = np.array(config.lab.gravity_mps2)
+    sat = config.satellite_index(robot.satellite)
+    T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
+    q_home = np.array(robot.q_home_rad)
+    mass = config.satellites[sat].mass_kg
+    return ArmRig(
+        index=index,
+        satellite=sat,
+        chain=tcp_chain(T_W_B, T_F_C),
+        T_B_R=invert_transform(T_W_B) @ T_W_R,
+        vfdm=Vfdm(config.vfdm, T_F_C, q_home),
+        servo=UR10eServo(config.servo, dt_s, q_home, safety_box_for_robot(robot)),
+        sensor=VirtualFTSensor(config.sensor, mass, gravity_W, rng),
+        processor=WrenchProcessor(config.wrench, config.loop.rate_hz, gravity_W),
+        mockup_mass_kg=mass,
+    )
