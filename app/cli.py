@@ -1,4 +1,5 @@
-"""The `orbit-emulator` command line."""
+"""The `orbit-emulator` command line: the parser and the `propagate`, `run` and `scenarios`
+subcommands; `serve` (the web app) is registered from :mod:`app.backend.cli`."""
 
 from __future__ import annotations
 
@@ -6,7 +7,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.config import ConfigError, EmulatorConfig, load_config
+from app.backend.cli import register_serve
+from app.config import (
+    ConfigError,
+    EmulatorConfig,
+    assignment_override,
+    load_config,
+    merge_overrides,
+)
+from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 
 
 def _positive_float(text: str) -> float:
@@ -31,6 +40,45 @@ def _cmd_propagate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_scenarios(args: argparse.Namespace) -> int:
+    for name, desc in scenario_descriptions().items():
+        print(f"{name:15s} {desc}")
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from app.headless import run_scenario
+    from app.report import run_summary
+
+    config = load_config(args.config) if args.config else load_scenario(args.scenario)
+    overrides: dict = {"loop": {}}
+    if args.seed is not None:
+        overrides["loop"]["seed"] = args.seed
+    config = merge_overrides(config, overrides)
+    for assignment in args.set:
+        config = merge_overrides(config, assignment_override(assignment))
+    duration = args.duration or config.loop.duration_s
+    bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
+               disable=args.quiet, file=sys.stderr)
+
+    def progress(k, n):
+        bar.update(k - bar.n)
+
+    result = run_scenario(config, mode=args.mode, duration_s=duration, out_dir=default_out(args),
+                          progress=progress)
+    bar.update(bar.total - bar.n)
+    bar.close()
+    print(run_summary(result.metrics))
+    print(f"\nwrote {', '.join(str(p) for p in result.files)}")
+    return 0
+
+
+def default_out(args: argparse.Namespace) -> Path:
+    return Path(args.out or f"runs/{args.scenario}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="orbit-emulator",
@@ -45,9 +93,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out", help="output directory")
     p.set_defaults(func=_cmd_propagate)
 
-    from app import commands  # run, scenarios, serve
+    p = sub.add_parser("run", help="run a scenario headless: telemetry, metrics and plots")
+    p.add_argument("scenario", choices=scenario_names(), metavar="SCENARIO",
+                   help=f"one of: {', '.join(scenario_names())}")
+    p.add_argument("--mode", choices=("hil", "ideal"), default=None,
+                   help="hil: arms in the loop (default); ideal: the reference without arms")
+    p.add_argument("--duration", type=_positive_float, default=None,
+                   help="seconds of scenario time")
+    p.add_argument("--config", help="TOML file replacing the scenario's configuration")
+    p.add_argument("--seed", type=int, default=None, help="seed of the sensor noise")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one setting, e.g. --set passivity.enabled=false "
+                        "or --set robots.1.q_home_rad=[0,-2,1.6,0.4,-1.57,0] (repeatable)")
+    p.add_argument("--out", default=None, help="output directory (default: runs/SCENARIO)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_run)
 
-    commands.register(sub)
+    p = sub.add_parser("scenarios", help="list the built-in scenarios")
+    p.set_defaults(func=_cmd_scenarios)
+
+    register_serve(sub)
     return parser
 
 

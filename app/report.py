@@ -1,4 +1,4 @@
-"""Writing what a run recorded: telemetry CSV and metrics JSON."""
+"""Writing what a run recorded: telemetry CSV, metrics JSON and the summary table."""
 
 from __future__ import annotations
 
@@ -29,3 +29,47 @@ def write_json(path: str | Path, data: dict) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+def run_summary(metrics: dict) -> str:
+    """The table a headless run prints: timing, tracking errors per satellite, events."""
+    lines = [
+        f"scenario {metrics['scenario']}  mode {metrics['mode']}  status {metrics['status']}",
+        f"simulated {metrics['duration_s']:.2f} s in {metrics['cycles']} cycles, "
+        f"real-time factor {metrics['realtime_factor']:.2f}, cycle p50 "
+        f"{metrics['cycle_time_us']['p50']:.0f} us / p99 {metrics['cycle_time_us']['p99']:.0f} us",
+        f"force scale {metrics['force_scale']:g}, torque scale {metrics['torque_scale']:g}",
+        "",
+        f"{'sat':>3} {'name':12s} {'pos err max':>12} {'pos err rms':>12} {'vel err rms':>12} "
+        f"{'att err max':>12} {'delta v':>10}",
+    ]
+
+    def fmt(v, scale=1.0, unit=""):
+        return f"{v * scale:10.3f}{unit}" if v is not None else f"{'-':>12}"
+
+    for s in metrics["satellites"]:
+        lines.append(
+            f"{s['id']:>3} {s['name']:12s} {fmt(s['position_error_max_m'], 1e3, 'mm')} "
+            f"{fmt(s['position_error_rms_m'], 1e3, 'mm')} "
+            f"{fmt(s['velocity_error_rms_mps'], 1e3, 'mm/s')[:-2]:>12} "
+            f"{fmt(s['attitude_error_max_rad'], 1e3, 'mr')} {s['delta_v_mps']:8.4f}m/s"
+        )
+    coll = metrics.get("collision")
+    if coll:
+        e, ei = coll["restitution"], coll["restitution_ideal"]
+        lines += [
+            "",
+            f"collision at {coll['contact_start_s']:.3f} s: impulse balance "
+            f"{coll['impulse_balance']:.3f}, restitution "
+            f"{'-' if e is None else f'{e:.3f}'} (ideal {'-' if ei is None else f'{ei:.3f}'})",
+        ]
+    pc = metrics.get("passivity")
+    if pc:
+        removed = sum(d["force"] + d["torque"] for d in pc["dissipated_J"].values())
+        lines.append(f"passivity controller removed {removed * 1e3:.2f} mJ")
+    stop = metrics.get("safety_stop")
+    if stop:
+        lines.append(
+            f"SAFETY STOP: robot {stop['robot']} at t = {stop['t_s']:.3f} s: {stop['reason']}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,345 @@
+"""The loop process: the Emulator runs paced at its loop rate in a process of its own.
+
+:class:`LoopCore` owns the Emulator (see :mod:`app.backend.runner` for why a process, and
+for :class:`~app.backend.runner.Runner`, its proxy in the web process). It
+
+* polls the command pipe between cycles: commands (:class:`~app.sim.hand.Push`,
+  :class:`~app.sim.hand.HandAnchor`) go to ``Emulator.post``, control requests (start /
+  stop / reset) begin or end a run;
+* publishes a snapshot (a plain dict) every ``snapshot_every`` cycles through the shared
+  memory channel of :mod:`app.backend.snapshots`;
+* answers heavy reads (telemetry rows, metrics) on the response pipe, between two cycles.
+
+Pacing: cycle k is due to start at ``t0 + k·dt`` and must finish by ``t0 + (k+1)·dt``
+(its deadline); a cycle that finishes later is a deadline miss. The loop sleeps until
+``spin_s`` before the next start, then spins. When it falls more than ``max_lag_s``
+behind (a stalled machine) it drops the backlog and restarts the schedule from now
+instead of running a burst of catch-up cycles (counted in ``resyncs``).
+
+:func:`_loop_main` is the process entry point.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+import traceback
+from multiprocessing import shared_memory
+from typing import Any
+
+import numpy as np
+
+from app.backend.snapshots import SnapshotWriter
+from app.config import EmulatorConfig
+from app.sim.loop import Emulator
+from app.sim.rotations import matrix_to_quat, quat_to_matrix
+
+log = logging.getLogger("orbit_emulator.runner")
+
+_TIMING_WINDOW = 5000  # cycles kept for the p50 / p99 of the cycle time (10 s at 500 Hz)
+
+
+class LoopCore:
+    """Runs in the loop process: owns the Emulator, paces it, answers requests."""
+
+    def __init__(self, cmd_conn, resp_conn, shm_name: str, config: EmulatorConfig,
+                 scenario: str, mode: str, settings: dict) -> None:
+        self.cmd_conn = cmd_conn
+        self.resp_conn = resp_conn
+        self.shm = shared_memory.SharedMemory(name=shm_name)
+        self.writer = SnapshotWriter(self.shm)
+        self.snapshot_every = max(1, int(settings.get("snapshot_every", 10)))
+        self.spin_s = float(settings.get("spin_s", 0.0003))
+        self.max_lag_s = float(settings.get("max_lag_s", 0.1))
+        self.scheduling = boost_priority(settings.get("rt_priority", 10),
+                                         settings.get("nice", -10))
+        self.status = "idle"
+        self.reason: str | None = None
+        self.scenario = scenario
+        self.em = Emulator(config, mode=mode)
+        self.generation = 0
+        self.shutdown = False
+        self._reset_timing()
+        if settings.get("warm_up", True):
+            warm_up(config)
+        self.publish()
+
+    # --- control --------------------------------------------------------------------
+
+    def _reset_timing(self) -> None:
+        self.cycle_ns = np.zeros(_TIMING_WINDOW, dtype=np.int64)
+        self.cycle_count = 0
+        self.deadline_misses = 0
+        self.resyncs = 0
+        self.max_late_us = 0.0
+        self.wall_s = 0.0
+        self.timing = {"p50": 0.0, "p99": 0.0, "max": 0.0}
+
+    def serve(self) -> None:
+        try:
+            while not self.shutdown:
+                if self.cmd_conn.poll(0.05 if self.status != "running" else 0):
+                    self.handle(self.cmd_conn.recv())
+                elif self.status == "running":
+                    self.run_paced()
+        except (EOFError, KeyboardInterrupt, BrokenPipeError):
+            pass  # the web process went away
+        except Exception as err:  # pragma: no cover - last resort
+            self.fail(err)
+        finally:
+            self.shm.close()
+
+    def handle(self, msg: tuple) -> None:
+        """One message from the web process (may end a paced run)."""
+        kind = msg[0]
+        if kind == "cmd":
+            if self.status == "running":
+                try:
+                    self.em.post(msg[1])
+                except ValueError as err:
+                    log.warning("command rejected: %s", err)
+        elif kind == "start":
+            _, scenario, config, mode = msg
+            self.begin(scenario, config, mode, prepare=True)
+        elif kind == "reset":
+            _, scenario, config, mode = msg
+            self.begin(scenario, config, mode, prepare=False)
+        elif kind == "stop":
+            if self.status in ("running", "starting"):
+                if self.em.status == "running":
+                    self.em.status = "stopped"
+                self.status, self.reason = "stopped", "stopped by the operator"
+                self.publish()
+        elif kind == "read":
+            _, req_id, what = msg
+            try:
+                result = (True, self.read(what))
+            except Exception as err:
+                result = (False, f"{type(err).__name__}: {err}")
+            self.resp_conn.send(("resp", req_id, *result))
+        elif kind == "shutdown":
+            self.shutdown = True
+
+    def read(self, what: str) -> Any:
+        if what == "telemetry":
+            return list(self.em.telemetry.columns), self.em.telemetry.rows()
+        if what == "metrics":
+            from app.metrics import compute_metrics
+
+            return compute_metrics(self.em, self.wall_s)
+        raise ValueError(f"unknown read {what!r}")
+
+    def begin(self, scenario: str, config: EmulatorConfig, mode: str | None,
+              prepare: bool) -> None:
+        self.status = "starting" if prepare else "idle"
+        self.reason = None
+        self.generation += 1
+        try:
+            em = Emulator(config, mode=mode)
+        except Exception as err:
+            self.fail(err)
+            return
+        self.scenario, self.em = scenario, em
+        self._reset_timing()
+        self.publish()
+        if not prepare:
+            return
+        try:
+            em.prepare()
+        except Exception as err:
+            self.fail(err)
+            return
+        if em.status == "running":
+            self.status = "running"
+        else:
+            self.status = em.status
+            self.reason = (em.safety_stop or {}).get("reason")
+        self.publish()
+
+    def fail(self, err: BaseException) -> None:
+        msg = f"{type(err).__name__}: {err}"
+        log.error("emulator loop error: %s\n%s", msg, traceback.format_exc())
+        self.status = "error"
+        self.reason = msg
+        try:
+            self.publish()
+        except Exception:  # pragma: no cover
+            log.exception("could not publish the error state")
+
+    # --- the paced loop ---------------------------------------------------------------
+
+    def run_paced(self) -> None:
+        em = self.em
+        dt_ns = int(round(em.dt_s * 1e9))
+        spin_ns = int(self.spin_s * 1e9)
+        max_lag_ns = int(self.max_lag_s * 1e9)
+        duration_s = em.config.loop.duration_s - 0.5 * em.dt_s
+        perf = time.perf_counter_ns
+        poll = self.cmd_conn.poll
+        wall0 = time.monotonic() - self.wall_s
+        t0 = perf()
+        k = n = 0
+        while not self.shutdown:
+            start_ns = t0 + k * dt_ns
+            # commands and requests between cycles; they may end this run
+            while poll():
+                self.handle(self.cmd_conn.recv())
+                if self.status != "running" or self.em is not em:
+                    return
+            wait = start_ns - perf()
+            if wait > spin_ns:
+                time.sleep((wait - spin_ns) * 1e-9)
+            while perf() < start_ns:
+                pass
+            c0 = perf()
+            try:
+                em.step()
+            except Exception as err:
+                self.fail(err)
+                return
+            c1 = perf()
+            self.cycle_ns[self.cycle_count % _TIMING_WINDOW] = c1 - c0
+            self.cycle_count += 1
+            late = c1 - (start_ns + dt_ns)
+            if late > 0:
+                self.deadline_misses += 1
+                self.max_late_us = max(self.max_late_us, late / 1e3)
+            k += 1
+            n += 1
+            if c1 - (t0 + k * dt_ns) > max_lag_ns:  # hopelessly behind: restart schedule
+                t0, k = c1, 0
+                self.resyncs += 1
+            self.wall_s = time.monotonic() - wall0
+            if em.status == "running" and em.t_s >= duration_s:
+                em.status = "finished"
+                self.reason = f"reached the scenario duration ({em.config.loop.duration_s:g} s)"
+            if em.status != "running":
+                self.status = em.status
+                if em.safety_stop:
+                    self.reason = em.safety_stop.get("reason")
+                self.publish()
+                return
+            if n % self.snapshot_every == 0:
+                self.publish()
+
+    # --- snapshots --------------------------------------------------------------------
+
+    def _timing(self) -> dict[str, float]:
+        n = min(self.cycle_count, _TIMING_WINDOW)
+        # percentiles cost ~100 us: refresh them every 250 cycles only
+        if n and (self.cycle_count % 250 < self.snapshot_every or n < 250):
+            window = self.cycle_ns[:n]
+            p50, p99 = np.percentile(window, [50, 99])
+            self.timing = {"p50": float(p50) / 1e3, "p99": float(p99) / 1e3,
+                           "max": float(window.max()) / 1e3}
+        return self.timing
+
+    def publish(self) -> None:
+        self.writer.write(self.build_snapshot())
+
+    def build_snapshot(self) -> dict[str, Any]:
+        em = self.em
+        ods = em.ods
+        cfg = em.config
+        T_W_R = em.T_W_R
+        R_W_R = T_W_R[:3, :3]
+        sats = []
+        for i, s in enumerate(cfg.satellites):
+            T_W_S = em.satellite_pose_W(i)
+            sats.append({
+                "name": s.name,
+                "material": s.material,
+                "size_m": list(s.size_m),
+                "position_m": ods.position_m[i].tolist(),
+                "velocity_mps": ods.velocity_mps[i].tolist(),
+                "attitude_wxyz": ods.attitude_wxyz[i].tolist(),
+                "omega_radps": ods.omega_rel_radps[i].tolist(),
+                "applied_force_N": em.applied_force_R[i].tolist(),
+                "position_W_m": T_W_S[:3, 3].tolist(),
+                "attitude_W_wxyz": matrix_to_quat(T_W_S[:3, :3]).tolist(),
+            })
+        robots = []
+        for arm in em.arms:
+            p_R, q_R = em.mockup_pose_R(arm)
+            robots.append({
+                "name": cfg.robots[arm.index].name,
+                "satellite": arm.satellite + 1,
+                "q_rad": arm.servo.state.q_rad.tolist(),
+                "mockup_position_m": p_R.tolist(),
+                "mockup_attitude_wxyz": q_R.tolist(),
+                "mockup_position_W_m": (R_W_R @ p_R + T_W_R[:3, 3]).tolist(),
+                "mockup_attitude_W_wxyz": matrix_to_quat(R_W_R @ quat_to_matrix(q_R)).tolist(),
+                "tracking_error_m": float(np.linalg.norm(p_R - ods.position_m[arm.satellite])),
+                "ft_raw": arm.last_raw_S.tolist(),
+                "ft_processed": arm.last_processed.tolist(),
+            })
+        timing = self._timing()
+        cycles = self.cycle_count
+        return {
+            "generation": self.generation,
+            "scenario": self.scenario,
+            "mode": em.mode,
+            "status": self.status,
+            "reason": self.reason,
+            "safety_stop": em.safety_stop,
+            "t_s": float(ods.t_s),
+            "duration_s": cfg.loop.duration_s,
+            "n_satellites": em.n_sat,
+            "satellites": sats,
+            "robots": robots,
+            "contact_active": bool(em.contact_active),
+            "layout": {
+                "T_W_R": T_W_R.tolist(),
+                "arms": [[cfg.robots[a.index].name, a.T_W_B.tolist()] for a in em.arms],
+                "satellites": [[s.name, list(s.size_m), s.material] for s in cfg.satellites],
+            },
+            "loop": {
+                "rate_hz": cfg.loop.rate_hz,
+                "cycles": cycles,
+                "cycle_time_us": {"p50": timing["p50"], "p99": timing["p99"],
+                                  "max": timing["max"]},
+                "deadline_misses": self.deadline_misses,
+                "deadline_miss_ratio": self.deadline_misses / cycles if cycles else 0.0,
+                "max_late_us": self.max_late_us,
+                "resyncs": self.resyncs,
+                "wall_s": self.wall_s,
+                "scheduling": self.scheduling,
+                "pid": os.getpid(),
+            },
+        }
+
+
+def warm_up(config: EmulatorConfig) -> None:
+    """Run a throwaway emulator a few cycles: the first cycle in a process costs ~12 ms
+    (JIT and lazy initialisation), which would be a burst of deadline misses."""
+    em = Emulator(config)
+    em.prepare(settle_s=0.02)
+    for _ in range(3):
+        em.step()
+
+
+def boost_priority(rt_priority: int | None, nice: int | None) -> str:
+    """Best effort: SCHED_FIFO for this (single-threaded) process, else a better nice
+    value; without privileges (CAP_SYS_NICE) it keeps the default. The loop sleeps most
+    of each period and spins at most ``spin_s``; the kernel's RT throttling still leaves
+    5 % of each CPU to everything else."""
+    if rt_priority:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(rt_priority)))
+            return f"SCHED_FIFO {int(rt_priority)}"
+        except (OSError, AttributeError):
+            pass
+    if nice is not None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, int(nice))
+            return f"nice {int(nice)}"
+        except (OSError, AttributeError):
+            pass
+    return "default"
+
+
+def _loop_main(cmd_conn, resp_conn, shm_name, config, scenario, mode, settings) -> None:
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s loop: %(message)s")
+    core = LoopCore(cmd_conn, resp_conn, shm_name, config, scenario, mode, settings)
+    core.serve()

@@ -1,0 +1,147 @@
+"""The shape of the code: no import cycles between app modules; a numeric core without web.
+
+Every module under app/ is parsed with :mod:`ast` (nothing is imported), and every import
+statement counts, wherever it is: at module level, inside a function, under ``if
+TYPE_CHECKING``. ``from app.x import y`` names the module ``app.x.y`` when that is a module
+of its own, else ``app.x`` (importing a submodule runs its package's ``__init__``, which is
+not counted as a dependency on the package); relative imports are resolved against the
+importing module.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+APP = Path(__file__).resolve().parent.parent / "app"
+
+#: What app/sim/ (the numeric core) must not import: the web stack and the backend.
+WEB_IMPORTS = ("fastapi", "uvicorn", "viser", "app.backend")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(APP.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def app_modules() -> dict[str, Path]:
+    return {module_name(p): p for p in sorted(APP.rglob("*.py"))}
+
+
+def imported_names(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The module names the import statements of module `name` (file `path`) name."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: from . import x, from ..y import z
+                parts = package.split(".")
+                parts = parts[: len(parts) - (node.level - 1)]
+                base = ".".join([*parts, node.module] if node.module else parts)
+            else:
+                base = node.module or ""
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                found.add(sub if sub in modules else base)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    """app module -> the app modules it imports (an import of itself left out)."""
+    modules = app_modules()
+    return {
+        name: {m for m in imported_names(name, path, modules) if m in modules and m != name}
+        for name, path in modules.items()
+    }
+
+
+def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle (a, b, ..., a) per strongly connected component that has one."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+    counter = [0]
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1 or v in graph.get(v, ()):
+                components.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+
+    cycles = []
+    for component in components:
+        members = set(component)
+        start = component[0]
+        # shortest way back to `start` inside the component (breadth first)
+        paths = {w: [start, w] for w in sorted(graph[start]) if w in members}
+        frontier = list(paths)
+        while start not in paths:
+            nxt = []
+            for v in frontier:
+                for w in sorted(graph[v]):
+                    if w in members and w not in paths:
+                        paths[w] = paths[v] + [w]
+                        nxt.append(w)
+            frontier = nxt
+        cycles.append(paths[start])
+    return cycles
+
+
+def test_the_cycle_finder_finds_and_prints_cycles():
+    assert find_cycles({"a": {"b"}, "b": {"c"}, "c": set()}) == []
+    assert find_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c", "a"]]
+    assert find_cycles({"a": {"a"}}) == [["a", "a"]]
+
+
+def test_the_graph_sees_every_kind_of_import():
+    graph = import_graph()
+    assert {"app.cli", "app.sim.loop", "app.backend.runner", "app.scenarios"} <= set(graph)
+    assert "app.sim.loop" in graph["app.backend.loop_process"]  # from app.sim.loop import ...
+    assert "app.backend.snapshots" in graph["app.backend.runner"]  # from app.backend import m
+    assert "app.headless" in graph["app.cli"]  # inside a function
+    assert "app.backend" not in graph["app.backend.runner"]  # only the package of a module
+
+
+def test_no_import_cycles_between_app_modules():
+    cycles = find_cycles(import_graph())
+    assert not cycles, "import cycles between app modules:\n" + "\n".join(
+        "  " + " -> ".join(cycle) for cycle in cycles
+    )
+
+
+def test_the_numeric_core_has_no_web_imports():
+    modules = app_modules()
+    offending = []
+    for name, path in modules.items():
+        if not (name == "app.sim" or name.startswith("app.sim.")):
+            continue
+        for imported in sorted(imported_names(name, path, modules)):
+            if any(imported == w or imported.startswith(w + ".") for w in WEB_IMPORTS):
+                offending.append(f"{name} imports {imported}")
+    assert not offending, "app/sim/ must not import the web stack:\n" + "\n".join(offending)
