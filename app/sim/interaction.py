@@ -19,7 +19,7 @@ from app.sim.frames import ods_states_W
 from app.sim.hand import OperatorHand
 from app.sim.orbital import OrbitalSimulator
 
-__all__ = ["Bodies", "PhysicalInteraction", "actual_bodies", "exact_ods_input", "ods_bodies"]
+__all__ = ["Bodies", "PhysicalInteraction", "actual_bodies", "body_torque_B", "ods_bodies"]
 
 
 class Bodies(NamedTuple):
@@ -56,13 +56,11 @@ def actual_bodies(T_W_R: np.ndarray, ods: OrbitalSimulator, rigs: Sequence) -> B
     return Bodies(T_W_C, v_W, w_W)
 
 
-def exact_ods_input(external_W: np.ndarray, T_W_C: np.ndarray,
-                    R_W_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """External wrenches as the ODS takes them: forces in R (N, 3), torques in body axes
-    (N, 3); what a perfect sensor would hand over (ideal runs, satellites without an arm)."""
-    force_R = external_W[:, :3] @ R_W_R
-    torque_B = np.array([T_W_C[i, :3, :3].T @ external_W[i, 3:] for i in range(len(T_W_C))])
-    return force_R, torque_B
+def body_torque_B(wrench_W: np.ndarray, T_W_C: np.ndarray) -> np.ndarray:
+    """The moment (about the COM) of an external wrench in the body's axes, as the ODS
+    takes it: what a perfect sensor would hand over (ideal runs, satellites without an
+    arm); the force goes to the ODS in R, ``wrench_W[:3] · R_W_R``."""
+    return T_W_C[:3, :3].T @ wrench_W[3:]
 
 
 class PhysicalInteraction:

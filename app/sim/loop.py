@@ -33,7 +33,7 @@ from app.sim.interaction import (
     Bodies,
     PhysicalInteraction,
     actual_bodies,
-    exact_ods_input,
+    body_torque_B,
     ods_bodies,
 )
 from app.sim.orbital import OrbitalSimulator
@@ -73,6 +73,7 @@ class Emulator:
             seeds = np.random.SeedSequence(config.loop.seed).spawn(len(config.robots))
             self.arms = [build_rig(i, robot, config, self.T_W_R, np.random.default_rng(seeds[i]))
                          for i, robot in enumerate(config.robots)]
+        self._uncarried = sorted(set(range(self.n_sat)) - {arm.satellite for arm in self.arms})
         self.coupling = OdsCoupling(config.passivity, self.dt_s,
                                     [arm.satellite for arm in self.arms])
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
@@ -122,7 +123,9 @@ class Emulator:
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
         measured (through the coupling), the others the external wrench exactly."""
-        force_R, torque_B = exact_ods_input(external_W, bodies.T_W_C, self.R_W_R)
+        force_R, torque_B = self.true_force_R.copy(), np.zeros((self.n_sat, 3))
+        for i in self._uncarried:
+            torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
         for arm in self.arms:
             s = arm.satellite
             T_W_C, v_W, w_W = bodies.T_W_C[s], bodies.v_W[s], bodies.w_W[s]
@@ -192,7 +195,7 @@ class Emulator:
         ods.step(zeros, zeros, self.dt_s)
         scratch = Recorder(self.n_sat, len(self.arms), 1, self.T_R_W,
                            self.ods.params.orbit_rate_radps)
-        bodies = ods_bodies(self.T_W_R, ods)
+        ods_bodies(self.T_W_R, ods)
         if not self.arms:
             scratch.record(0.0, ods.y, zeros, zeros, [], zeros)
             return
@@ -204,7 +207,6 @@ class Emulator:
         scratch.record(0.0, ods.y, zeros, zeros,
                        [(T_W_C, v_W, rig.servo.state.q_rad, rig.last_raw_S)] * len(self.arms),
                        zeros)
-        exact_ods_input(np.zeros((self.n_sat, 6)), bodies.T_W_C, self.R_W_R)
 
     # --- views for the web app and the metrics ------------------------------------------------
 
