@@ -4,7 +4,7 @@
     .venv/bin/python -m benchmarks.ik_compare --quick    # short trajectories (smoke test)
 
 Every method drives the same simulated UR10e (UR10eServo, default ServoConfig, 500 Hz,
-1-cycle delay, a safety box too large to matter) with one solve per cycle. Tracking errors
+1-cycle delay, no safety box) with one solve per cycle. Tracking errors
 are of the ACTUAL (servo) TCP against the target, so they include the servo's lag. A
 protective stop ends that run (the errors are then over the cycles before the stop).
 """
@@ -22,8 +22,8 @@ from app.scenarios import load_scenario
 from app.sim.ik import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
 from app.sim.loop import Emulator
 from app.sim.rotations import invert_transform, make_transform, quat_to_matrix
-from app.sim.servo import SafetyBox, UR10eServo
-from app.sim.ur10e import SPEED_LIMITS_RADPS, UR10e, build_model
+from app.sim.servo import UR10eServo
+from app.sim.ur10e import SPEED_LIMITS_RADPS, T_F_C_from_config, tcp_pose_B
 from app.sim.vfdm import Vfdm, pose_error
 
 RATE_HZ = 500.0
@@ -40,6 +40,7 @@ def pink_factory():
         import pinocchio as pin
         import qpsolvers
         from pink.tasks import FrameTask
+        from tests.oracle import build_model  # Pink needs a Pinocchio model of the UR10e
     except Exception as exc:  # noqa: BLE001
         return None, f"import failed: {exc!r}"
     solver = next((s for s in ("daqp", "quadprog", "proxqp") if s in qpsolvers.available_solvers),
@@ -100,23 +101,23 @@ def hold(T: np.ndarray, rate_hz: float) -> np.ndarray:
     return T[k]
 
 
-def fk_path(ur: UR10e, T_F_C, qa, qb, n: int, back: bool = False) -> np.ndarray:
+def fk_path(T_F_C, qa, qb, n: int, back: bool = False) -> np.ndarray:
     """TCP poses along a cosine-profiled joint path qa -> qb (-> qa if back)."""
     s = 0.5 * (1 - np.cos(np.pi * np.linspace(0, 1, n)))
     if back:
         s = np.concatenate([s, s[::-1]])
-    return np.array([ur.tcp_pose(qa + si * (qb - qa), T_F_C) for si in s])
+    return np.array([tcp_pose_B(qa + si * (qb - qa), T_F_C) for si in s])
 
 
-def singular_paths(ur: UR10e, T_F_C, n: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def singular_paths(T_F_C, n: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(label, targets, start q): wrist (q5 through 0), elbow stretched, over the base axis."""
     paths = []
     qa = np.array([0.0, -1.6, 1.6, -1.57, -0.4, 0.0])
     qb = np.array([0.3, -1.5, 1.5, -1.3, 0.4, 0.5])
-    paths.append(("singular/wrist q5=0", fk_path(ur, T_F_C, qa, qb, n), qa))
+    paths.append(("singular/wrist q5=0", fk_path(T_F_C, qa, qb, n), qa))
     qa = np.array([0.0, -1.2, 0.8, -1.2, -1.57, 0.0])
     qb = np.array([0.0, -0.8, 0.0, -0.8, -1.57, 0.0])  # q3 = 0: elbow fully stretched
-    paths.append(("singular/elbow stretched", fk_path(ur, T_F_C, qa, qb, n // 2, back=True), qa))
+    paths.append(("singular/elbow stretched", fk_path(T_F_C, qa, qb, n // 2, back=True), qa))
     # TCP along a line in B passing straight over the base z axis, tool pointing down
     s = 0.5 * (1 - np.cos(np.pi * np.linspace(0, 1, n)))
     R = np.diag([1.0, -1.0, -1.0])
@@ -143,10 +144,8 @@ def start_q(T0: np.ndarray, T_F_C, q_guess) -> np.ndarray:
 
 
 def run_method(solver, T_F_C, q0, targets: np.ndarray) -> dict:
-    ur = UR10e()
     solver.reset(q0)
-    big = 1e3 * np.ones(3)
-    servo = UR10eServo(ServoConfig(), DT_S, q0, SafetyBox(-big, big, lambda q: np.zeros(3)))
+    servo = UR10eServo(ServoConfig(), DT_S, q0, safety=None)
     pos_err, rot_err, qd_frac, qdd, t_ns = [], [], [], [], []
     stop = ""
     for T in targets:
@@ -157,7 +156,7 @@ def run_method(solver, T_F_C, q0, targets: np.ndarray) -> dict:
         if servo.stopped:
             stop = servo.reason
             break
-        e = pose_error(T, ur.tcp_pose(st.q_rad, T_F_C))
+        e = pose_error(T, tcp_pose_B(st.q_rad, T_F_C))
         pos_err.append(np.linalg.norm(e[:3]))
         rot_err.append(np.linalg.norm(e[3:]))
         qd_frac.append(np.max(np.abs(st.qd_radps) / SPEED_LIMITS_RADPS))
@@ -196,7 +195,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"Pink unavailable: {pink_note}")
 
     cases = []  # (label, targets, T_F_C, q0)
-    from app.sim.ur10e import T_F_C_from_config
     for name in ("collision", "free-floating"):
         for label, T, robot in scenario_targets(name, duration):
             T_F_C = T_F_C_from_config(robot)
@@ -206,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
                 cases.append((f"{label} held {f:g} Hz", hold(T, f), T_F_C, q0))
     robot = load_scenario("collision").robots[1]
     T_F_C = T_F_C_from_config(robot)
-    for label, T, q0 in singular_paths(UR10e(), T_F_C, n_sing):
+    for label, T, q0 in singular_paths(T_F_C, n_sing):
         cases.append((label, T, T_F_C, q0))
 
     print("\n| trajectory | method | pos err max / RMS [mm] | rot err max / RMS [deg] "

@@ -1,51 +1,94 @@
-"""Loop speed benchmark: per-stage cycle cost, Python reference vs compiled, real-time factor.
+"""Loop speed benchmark: per-stage cycle cost, real-time factor, VFDM cost per solve.
 
-    .venv/bin/python -m benchmarks.loop_speed               # full
-    .venv/bin/python -m benchmarks.loop_speed --quick       # small sizes (smoke test)
-    .venv/bin/python -m benchmarks.loop_speed --no-kernel   # Python VFDM in the compiled runs
+    .venv/bin/python -m benchmarks.loop_speed                      # full
+    .venv/bin/python -m benchmarks.loop_speed --quick              # small sizes (smoke test)
+    .venv/bin/python -m benchmarks.loop_speed --against /tmp/old   # RTF of this tree vs another
 
-Every stage of ``Emulator.step`` has a compiled (numba) path next to its Python reference
-path, switched by a ``use_kernel`` attribute (``Emulator.set_compiled`` flips them all), and
-every table compares the two in the same run. Stages are timed by wrapping the very
-objects the loop calls (instance attributes shadow the methods, so ``Emulator.step`` runs
-unchanged); "bookkeeping" is the rest of the cycle (command queue, hand wrenches, target
-transforms, Python glue).
+Stages are timed by wrapping the very objects ``Emulator.step`` calls (instance attributes
+shadow the methods, so the loop runs unchanged); "rest (glue)" is everything else in the
+cycle. The real-time factor is the one ``run_scenario`` writes into metrics.json (simulated
+time over the wall time of the run, start-up included).
+
+``--against TREE`` runs the real-time-factor part in a fresh process for this tree and for
+another checkout of the project (e.g. ``git worktree add /tmp/old <commit>``), in turn,
+``--rounds`` times, and prints both and their ratio: a before/after comparison taken under
+the same conditions. It needs only ``app.headless.run_scenario`` and
+``app.scenarios.load_scenario`` in the other tree.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 import time
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
-
-from app.headless import run_scenario
-from app.scenarios import load_scenario
-from app.sim import vfdm as vfdm_module
-from app.sim.loop import Emulator
-from app.sim.rotations import make_transform, rotvec_to_matrix
-from app.sim.ur10e import T_F_C_from_config
-from app.sim.vfdm import Vfdm
 
 VFDM_TARGET_US = 100.0
 RTF_TARGET = 10.0
 CYCLE_US = 2000.0
+HERE = Path(__file__).resolve()
+ROOT = HERE.parents[1]
 
-SWITCHES = {
-    "arm FK + twist (Arm.use_kernel)": lambda em, on: [
-        setattr(a, "use_kernel", on) for a in em.arms],
-    "F/T chain (sensor, processor .use_kernel)": lambda em, on: [
-        setattr(x, "use_kernel", on) for a in em.arms for x in (a.sensor, a.processor)],
-    "servo (UR10eServo.use_kernel)": lambda em, on: [
-        setattr(a.servo, "use_kernel", on) for a in em.arms],
-    "VFDM (Vfdm.use_kernel)": lambda em, on: [
-        setattr(a.vfdm, "use_kernel", on and vfdm_module.vfdm_kernel_available())
-        for a in em.arms],
-    "bookkeeping + telemetry (Emulator, OrbitalSimulator .use_kernel)": lambda em, on: [
-        setattr(x, "use_kernel", on) for x in (em, em.ods)],
-}
-VFDM_SWITCH = "VFDM (Vfdm.use_kernel)"
+
+# --- real-time factor (works against any tree that has run_scenario) ------------------------
+
+
+def realtime_factors(scenario: str, duration_s: float | None, repeats: int) -> list[dict]:
+    """run_scenario's realtime_factor and cycle p50/p99 of `repeats` headless hil runs."""
+    from app.headless import run_scenario
+    from app.scenarios import load_scenario
+
+    out = []
+    for _ in range(repeats):
+        m = run_scenario(load_scenario(scenario), mode="hil", duration_s=duration_s).metrics
+        out.append({"rtf": m["realtime_factor"], "p50": m["cycle_time_us"]["p50"],
+                    "p99": m["cycle_time_us"]["p99"], "status": m["status"],
+                    "simulated_s": m["duration_s"]})
+    return out
+
+
+def _rtf_in_process(tree: Path, scenarios: list[str], duration_s: float | None) -> dict:
+    """realtime_factors of each scenario, one run each, in a fresh Python for `tree`."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    args = [sys.executable, str(HERE), "--rtf-json", *scenarios]
+    if duration_s:
+        args += ["--duration", str(duration_s)]
+    proc = subprocess.run(args, env=env, cwd=tree, capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def compare_trees(other: Path, scenarios: list[str], rounds: int, duration_s: float | None):
+    """Alternate fresh processes of this tree and `other`; print each round and the best."""
+    trees = {"this tree": ROOT, f"{other}": other}
+    runs: dict[str, dict[str, list[dict]]] = {t: defaultdict(list) for t in trees}
+    print(f"\n## Real-time factor, this tree vs {other} ({rounds} rounds, alternating)\n")
+    print("| round | tree | " + " | ".join(f"{s} RTF (p50 µs)" for s in scenarios) + " |")
+    print("|---:|---|" + "---:|" * len(scenarios))
+    for r in range(rounds):
+        for name, tree in trees.items():
+            res = _rtf_in_process(tree, scenarios, duration_s)
+            cells = []
+            for s in scenarios:
+                runs[name][s].append(res[s])
+                cells.append(f"{res[s]['rtf']:.2f} ({res[s]['p50']:.0f})")
+            print(f"| {r + 1} | {name} | " + " | ".join(cells) + " |", flush=True)
+    print("\n| scenario | best RTF, this tree | best RTF, other | ratio | median ratio |")
+    print("|---|---:|---:|---:|---:|")
+    this, that = runs["this tree"], runs[f"{other}"]
+    for s in scenarios:
+        a = [x["rtf"] for x in this[s]]
+        b = [x["rtf"] for x in that[s]]
+        print(f"| {s} | {max(a):.2f} | {max(b):.2f} | {max(a) / max(b):.3f} "
+              f"| {np.median(a) / np.median(b):.3f} |")
+
+
+# --- per-stage breakdown --------------------------------------------------------------------
 
 
 def _timed(fn, acc: dict, key: str):
@@ -59,218 +102,142 @@ def _timed(fn, acc: dict, key: str):
     return wrapper
 
 
-def _prepared(scenario: str, switches_on: set[str]) -> Emulator:
-    """A hil emulator after prepare(), with exactly the named switches on."""
-    em = Emulator(load_scenario(scenario), mode="hil")
-    for name, switch in SWITCHES.items():
-        switch(em, name in switches_on)
-    em.prepare()
-    em.cycle_time_ns.clear()
-    return em
-
-
-def _interleaved(ems: list[Emulator], cycles: int, chunk: int = 20) -> list[int]:
-    """Step the emulators round-robin, `chunk` cycles each in turn, up to `cycles` each,
-    so that background load on the (shared) machine falls on all of them alike; returns
-    the number of cycles each ran."""
-    done = [0] * len(ems)
-    active = set(range(len(ems)))
-    while active:
-        for i in sorted(active):
-            em = ems[i]
-            for _ in range(min(chunk, cycles - done[i])):
-                if em.status != "running":
-                    break
-                em.step()
-                done[i] += 1
-            if done[i] >= cycles or em.status != "running":
-                active.discard(i)
-    return done
-
-
-def _with_stage_timers(em: Emulator) -> dict[str, int]:
+def _with_stage_timers(em) -> dict[str, int]:
     """Wrap every timed stage of `em`; returns the accumulator of ns per stage."""
     acc: dict[str, int] = defaultdict(int)
+    em.bodies_W = _timed(em.bodies_W, acc, "actual mockups (arm FK + twist)")
+    contact = em.interaction.contact
+    contact.compute = _timed(contact.compute, acc, "contact (coal)")
+    em.hand.wrenches_W = _timed(em.hand.wrenches_W, acc, "operator's hand")
+    em.coupling.ods_input = _timed(em.coupling.ods_input, acc, "ODS coupling (passivity)")
+    em._record = _timed(em._record, acc, "telemetry row")
     em.ods.step = _timed(em.ods.step, acc, "ODS step")
-    em.contact.compute = _timed(em.contact.compute, acc, "contact")
-    em._record = _timed(em._record, acc, "telemetry (_record)")
-    em._passivate = _timed(em._passivate, acc, "passivity (PO/PC, both arms)")
     for arm in em.arms:
-        arm.mockup_state_W = _timed(arm.mockup_state_W, acc, "arm FK + twist")
-        arm.sensor.measure = _timed(arm.sensor.measure, acc, "F/T chain (sensor+processing)")
-        arm.processor.process = _timed(
-            arm.processor.process, acc, "F/T chain (sensor+processing)"
-        )
-    for arm in em.arms:
+        arm.sensor.measure = _timed(arm.sensor.measure, acc, "F/T sensor + processing")
+        arm.processor.process = _timed(arm.processor.process, acc, "F/T sensor + processing")
         arm.vfdm.solve = _timed(arm.vfdm.solve, acc, f"VFDM arm {arm.index + 1}")
         arm.servo.step = _timed(arm.servo.step, acc, f"servo arm {arm.index + 1}")
     return acc
 
 
-def stage_breakdown(scenario: str, cycles: int, repeats: int) -> list[tuple[dict, float]]:
-    """[(µs per cycle of each stage, total µs per cycle)] of the reference (every switch
-    off) and of the compiled loop (every switch on), over `cycles` hil cycles after
-    prepare(), the two stepped in turn; of `repeats` such runs, each keeps its fastest."""
-    best: list = [None, None]
+def stage_breakdown(scenario: str, cycles: int, repeats: int) -> tuple[dict, float, int]:
+    """(µs per cycle of each stage, total µs per cycle, cycles run) over `cycles` hil
+    cycles after prepare(); of `repeats` runs, the one with the fastest total."""
+    from app.scenarios import load_scenario
+    from app.sim.loop import Emulator
+
+    best = None
     for _ in range(repeats):
-        ems = [_prepared(scenario, set()), _prepared(scenario, set(SWITCHES))]
-        accs = [_with_stage_timers(em) for em in ems]
-        ran = _interleaved(ems, cycles)
-        for k, (em, acc, n) in enumerate(zip(ems, accs, ran, strict=True)):
-            total = float(np.sum(em.cycle_time_ns)) / n / 1e3
-            out = {key: v / n / 1e3 for key, v in acc.items()}
-            out["bookkeeping (rest)"] = total - sum(out.values())
-            if best[k] is None or total < best[k][1]:
-                best[k] = (out, total)
+        em = Emulator(load_scenario(scenario), mode="hil")
+        em.prepare()
+        acc = _with_stage_timers(em)
+        n = 0
+        while n < cycles and em.status == "running":
+            em.step()
+            n += 1
+        total = float(np.sum(em.cycle_time_ns)) / n / 1e3
+        if best is None or total < best[1]:
+            best = ({k: v / n / 1e3 for k, v in acc.items()}, total, n)
     return best
 
 
-def cycle_costs(scenario: str, cycles: int, configs: dict[str, set[str]],
-                repeats: int) -> dict[str, float]:
-    """Mean µs per whole cycle (no stage timers) of each switch configuration, all
-    stepped in turn; the fastest of `repeats` runs."""
-    best: dict[str, float] = {}
-    for _ in range(repeats):
-        ems = [_prepared(scenario, on) for on in configs.values()]
-        for label, em, n in zip(configs, ems, _interleaved(ems, cycles), strict=True):
-            cost = float(np.sum(em.cycle_time_ns)) / n / 1e3
-            best[label] = min(best.get(label, cost), cost)
-    return best
+def print_breakdown(scenario: str, cycles: int, repeats: int) -> float:
+    stages, total, n = stage_breakdown(scenario, cycles, repeats)
+    print(f"\n## Cycle breakdown: {scenario}, hil, {n} cycles after prepare() "
+          f"(best of {repeats})\n")
+    print("| stage | µs / cycle | share |")
+    print("|---|---:|---:|")
+    for k, v in stages.items():
+        print(f"| {k} | {v:.1f} | {100 * v / total:.0f}% |")
+    rest = total - sum(stages.values())
+    print(f"| rest (glue) | {rest:.1f} | {100 * rest / total:.0f}% |")
+    print(f"| **total cycle** | **{total:.1f}** | 100% |")
+    print(f"\nloop-only real-time factor from this: {CYCLE_US / total:.1f}x "
+          f"(cycle = {CYCLE_US:.0f} µs; stage timers included)")
+    return total
 
 
-def realtime_factor(scenario: str, duration_s: float | None,
-                    compiled: bool) -> tuple[float, float, float]:
-    """(realtime_factor incl. prepare, loop-only factor, simulated s) of a headless hil run.
-
-    compiled=True is run_scenario itself (its metrics); compiled=False times the same
-    thing, Emulator.run from prepare() to the end, with every switch off.
-    """
-    cfg = load_scenario(scenario)
-    if compiled:
-        res = run_scenario(cfg, mode="hil", duration_s=duration_s)
-        em, rtf = res.emulator, float(res.metrics["realtime_factor"])
-    else:
-        em = Emulator(cfg, mode="hil")
-        em.set_compiled(False)
-        t0 = time.perf_counter()
-        em.run(duration_s or cfg.loop.duration_s)
-        rtf = em.t_s / (time.perf_counter() - t0)
-    sim_s = em.cycles * em.dt_s
-    loop_s = float(np.sum(em.cycle_time_ns)) / 1e9
-    return rtf, sim_s / loop_s, sim_s
+# --- VFDM -----------------------------------------------------------------------------------
 
 
-def vfdm_cost(iterations: int, cycles: int, kernel: bool) -> float:
-    """Mean µs per VFDM solve (one arm, one cycle) tracking a moving target.
+def vfdm_cost(iterations: int, cycles: int) -> float:
+    """µs per Vfdm.solve at `iterations`, tracking a moving target from the collision arm."""
+    from app.config import VfdmConfig
+    from app.scenarios import load_scenario
+    from app.sim.rotations import make_transform, rotvec_to_matrix
+    from app.sim.ur10e import T_F_C_from_config
+    from app.sim.vfdm import Vfdm
 
-    kernel=False forces the Python/pinocchio reference path (``Vfdm.use_kernel``).
-    """
-    cfg = load_scenario("collision")
-    robot = cfg.robots[1]
-    vcfg = cfg.vfdm.model_copy(update={"iterations": iterations})
+    robot = load_scenario("collision").robots[0]
     T_F_C = T_F_C_from_config(robot)
-    q0 = np.array(robot.q_home_rad)
-    v = Vfdm(vcfg, T_F_C, q0)
-    v.use_kernel = kernel and vfdm_module._solve_compiled is not None
-    T0 = v.tcp_pose().copy()
-    targets = []
-    for k in range(cycles):
-        s = k / 500.0
-        T = T0 @ make_transform(rotvec_to_matrix(np.array([0.0, 0.0, 0.1 * s])), np.zeros(3))
-        T[:3, 3] = T0[:3, 3] + np.array([0.05 * np.sin(s), 0.03 * s, 0.0])
-        targets.append(T)
-    v.solve(targets[0])  # warm-up (and JIT compile, if any)
-    t0 = time.perf_counter_ns()
-    for T in targets:
-        v.solve(T)
-    return (time.perf_counter_ns() - t0) / cycles / 1e3
+    cfg = VfdmConfig(iterations=iterations)
+    v = Vfdm(cfg, T_F_C, np.array(robot.q_home_rad))
+    T0 = v.tcp_pose()
+    v.solve(T0)
+    best = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter_ns()
+        for k in range(cycles):
+            s = k / cycles
+            T = make_transform(rotvec_to_matrix([0.0, 0.0, 0.2 * s]) @ T0[:3, :3],
+                               T0[:3, 3] + [0.05 * s, 0.02 * s, 0.0])
+            v.solve(T)
+        best = min(best, (time.perf_counter_ns() - t0) / cycles / 1e3)
+    return best
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
     ap.add_argument("--cycles", type=int, default=None, help="cycles for the breakdown")
-    ap.add_argument("--no-kernel", action="store_true",
-                    help="the Python VFDM path also in the compiled runs (numba kernel off)")
+    ap.add_argument("--against", type=Path, default=None,
+                    help="another checkout: compare real-time factors, this tree vs that")
+    ap.add_argument("--rounds", type=int, default=5, help="rounds of --against")
+    ap.add_argument("--duration", type=float, default=None, help="simulated s of RTF runs")
+    ap.add_argument("--rtf-json", nargs="+", metavar="SCENARIO", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.no_kernel:
-        vfdm_module._solve_compiled = None
-    print(f"VFDM path in the compiled runs: "
-          f"{'kernel' if vfdm_module.vfdm_kernel_available() else 'Python'}\n")
+
+    if args.rtf_json:  # one round for compare_trees, in a fresh process
+        res = {s: realtime_factors(s, args.duration, 1)[0] for s in args.rtf_json}
+        print(json.dumps(res))
+        return 0
+    if args.against is not None:
+        compare_trees(args.against.resolve(), ["collision", "free-floating"], args.rounds,
+                      args.duration)
+        return 0
+
     cycles = args.cycles or (300 if args.quick else 3000)
+    repeats = 1 if args.quick else 3
     duration = 1.0 if args.quick else None
-    vfdm_cycles = 100 if args.quick else 2000
-    repeats = 1 if args.quick else 2
+    total = print_breakdown("collision", cycles, repeats)
+    print_breakdown("free-floating", cycles, repeats)
 
-    print(f"## Cycle breakdown: collision, hil, {cycles} cycles after prepare()\n")
-    print("Every switch off (Python reference) vs every switch on, the same cycles, the two "
-          f"emulators stepped in turn (best of {repeats}).\n")
-    (ref, ref_total), (fast, total) = stage_breakdown("collision", cycles, repeats)
-    print("| stage | reference µs / cycle | compiled µs / cycle | speed-up | compiled share |")
-    print("|---|---:|---:|---:|---:|")
-    for k, v in fast.items():
-        print(f"| {k} | {ref[k]:.1f} | {v:.1f} | {ref[k] / v:.1f}x | {100 * v / total:.0f}% |")
-    print(f"| **total cycle** | **{ref_total:.1f}** | **{total:.1f}** | "
-          f"**{ref_total / total:.1f}x** | 100% |")
-    print(f"\nloop-only real-time factor from this: reference {CYCLE_US / ref_total:.1f}x, "
-          f"compiled {CYCLE_US / total:.1f}x (cycle = {CYCLE_US:.0f} µs)\n")
-
-    n_sw = max(100, cycles // 3)
-    print(f"## Whole cycle by switch: collision, hil, {n_sw} cycles after prepare()\n")
-    print("No stage timers; each row turns one optimisation off (or on) against the others; "
-          f"all rows stepped in turn (best of {repeats}).\n")
-    configs = {"every switch off (Python reference)": set(),
-               "only the VFDM kernel on (the loop before issue 6)": {VFDM_SWITCH}}
-    configs |= {f"all on but {name}": set(SWITCHES) - {name} for name in SWITCHES}
-    configs["every switch on (default)"] = set(SWITCHES)
-    costs = cycle_costs("collision", n_sw, configs, repeats)
-    best = costs["every switch on (default)"]
-    print("| configuration | µs / cycle | vs all on | loop-only real-time factor |")
-    print("|---|---:|---:|---:|")
-    for label, c in costs.items():
-        print(f"| {label} | {c:.1f} | {c / best:.2f}x | {CYCLE_US / c:.1f} |")
-
-    rtf_repeats = 1 if args.quick else 3
-    print("\n## Real-time factor, headless hil\n")
-    print(f"Compiled: run_scenario's metrics, best of {rtf_repeats}; reference: "
-          "Emulator.run timed the same way, one run.\n")
-    print("| scenario | simulated s | path | realtime_factor (incl. prepare) | loop only |")
-    print("|---|---:|---|---:|---:|")
+    print(f"\n## Real-time factor, headless hil (run_scenario's metric, best of {repeats})\n")
+    print("| scenario | simulated s | realtime_factor | cycle p50 / p99 µs | status |")
+    print("|---|---:|---:|---:|---|")
     rtf = {}
-    for name in ("collision", "free-floating"):
-        for compiled in (True, False):
-            runs = [realtime_factor(name, duration, compiled)
-                    for _ in range(rtf_repeats if compiled else 1)]
-            r_metrics, r_loop, sim_s = max(runs)
-            if compiled:
-                rtf[name] = r_metrics
-            path = "compiled (run_scenario)" if compiled else "reference"
-            print(f"| {name} | {sim_s:.1f} | {path} | {r_metrics:.2f} | {r_loop:.2f} |")
+    for scenario in ("collision", "free-floating"):
+        runs = realtime_factors(scenario, duration, repeats)
+        r = max(runs, key=lambda x: x["rtf"])
+        rtf[scenario] = r["rtf"]
+        print(f"| {scenario} | {r['simulated_s']:.1f} | {r['rtf']:.2f} | "
+              f"{r['p50']:.0f} / {r['p99']:.0f} | {r['status']} |")
 
-    print("\n## VFDM cost per arm per cycle (same run: Python reference vs compiled kernel)\n")
-    have_kernel = vfdm_module.vfdm_kernel_available()
-    print("| iterations | Python µs / solve | kernel µs / solve | speed-up |")
-    print("|---:|---:|---:|---:|")
-    cost, kernel = {}, {}
+    print("\n## VFDM cost per arm per cycle\n")
+    print("| iterations | µs / solve |")
+    print("|---:|---:|")
+    costs = {}
     for it in (1, 10, 50):
-        n_c = vfdm_cycles if it < 50 else max(50, vfdm_cycles // 4)
-        cost[it] = vfdm_cost(it, n_c, kernel=False)
-        if have_kernel:
-            kernel[it] = vfdm_cost(it, n_c, kernel=True)
-            print(f"| {it} | {cost[it]:.1f} | {kernel[it]:.1f} | {cost[it] / kernel[it]:.1f}x |")
-        else:
-            print(f"| {it} | {cost[it]:.1f} | n/a (kernel off or numba missing) | - |")
+        costs[it] = vfdm_cost(it, 200 if args.quick else 2000)
+        print(f"| {it} | {costs[it]:.1f} |")
 
+    met = "MET" if costs[10] <= VFDM_TARGET_US else "NOT MET"
     print("\n## Targets\n")
-    best_v = kernel.get(10, cost[10])
-    ok_v = best_v <= VFDM_TARGET_US
-    print(f"- VFDM <= {VFDM_TARGET_US:.0f} µs/arm/cycle at 10 iterations "
-          f"({'kernel' if kernel else 'Python'}): {best_v:.1f} µs -> "
-          f"{'MET' if ok_v else 'NOT MET'} (Python reference path: {cost[10]:.1f} µs)")
-    ok_r = rtf["collision"] >= RTF_TARGET
-    print(f"- collision hil realtime_factor >= {RTF_TARGET:.0f}: "
-          f"{rtf['collision']:.2f} -> {'MET' if ok_r else 'NOT MET'} "
-          f"(cycle {best:.1f} µs, {total:.1f} µs with the stage timers)")
+    print(f"- VFDM <= {VFDM_TARGET_US:.0f} µs/arm/cycle at 10 iterations: {costs[10]:.1f} µs "
+          f"-> {met}")
+    met = "MET" if rtf["collision"] >= RTF_TARGET else "NOT MET"
+    print(f"- collision hil realtime_factor >= {RTF_TARGET:.0f}: {rtf['collision']:.2f} -> "
+          f"{met} (cycle {total:.1f} µs with the stage timers)")
     return 0
 
 
