@@ -122,7 +122,7 @@ def log3(R):
     return out
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, fastmath=False, inline="always")
 def _clamp(v, max_norm):
     """Scale the 3-vector v down (in place) to a norm of at most max_norm."""
     n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
@@ -133,10 +133,10 @@ def _clamp(v, max_norm):
         v[2] *= s
 
 
-@njit(cache=True, fastmath=False)
-def clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e):
-    """e (6,) := [p* − p; log(R* Rᵀ)] (the e of Eq. 13), each part clamped in norm."""
-    Rerr = np.empty((3, 3))
+@njit(cache=True, fastmath=False, inline="always")
+def clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr):
+    """e (6,) := [p* − p; log(R* Rᵀ)] (the e of Eq. 13), each part clamped in norm
+    (Rerr: a (3, 3) scratch array)."""
     for a in range(3):
         e[a] = pt[a] - T_B_C[a, 3]
     _clamp(e[:3], max_lin)
@@ -148,20 +148,21 @@ def clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e):
     e[3], e[4], e[5] = w[0], w[1], w[2]
 
 
-@njit(cache=True, fastmath=False)
-def joint_space_inertia(R, p, mass, lever, Icom, H):
+@njit(cache=True, fastmath=False, inline="always")
+def joint_space_inertia(R, p, mass, lever, Icom, H, work):
     """H (6, 6) := the joint-space inertia (composite-rigid-body algorithm, world frame).
 
     Walking from the last link inwards, the composite body of links j..6 (mass, first
     moment, inertia about B's origin) gives ``H[i, j] = S_iᵀ I^c_j S_j`` for i ≤ j, with
-    ``S_i = [p_i × z_i; z_i]`` the motion of joint i at B's origin.
+    ``S_i = [p_i × z_i; z_i]`` the motion of joint i at B's origin. work: a (14, 3)
+    scratch array.
     """
     n = 6
-    s_acc = np.zeros(3)
-    IO = np.zeros((3, 3))
-    vS = np.empty((n, 3))
-    cw = np.empty(3)
-    RI = np.empty((3, 3))
+    vS, IO, RI, cw, s_acc = work[0:6], work[6:9], work[9:12], work[12], work[13]
+    for a in range(3):
+        s_acc[a] = 0.0
+        for b in range(3):
+            IO[a, b] = 0.0
     for i in range(n):  # S_i linear part at the origin: p_i x z_i
         vS[i, 0] = p[i, 1] * R[i, 2, 2] - p[i, 2] * R[i, 1, 2]
         vS[i, 1] = p[i, 2] * R[i, 0, 2] - p[i, 0] * R[i, 2, 2]
@@ -203,12 +204,11 @@ def joint_space_inertia(R, p, mass, lever, Icom, H):
             H[j, i] = hij
 
 
-@njit(cache=True, fastmath=False)
-def cholesky_solve(H, b, x):
-    """x := H⁻¹ b for a symmetric positive definite 6x6 H (H = L Lᵀ, two triangular solves)."""
+@njit(cache=True, fastmath=False, inline="always")
+def cholesky_solve(H, b, x, L, y):
+    """x := H⁻¹ b for a symmetric positive definite 6x6 H (H = L Lᵀ, two triangular solves;
+    L (6, 6) and y (6,) are scratch arrays, L's upper triangle is never read)."""
     n = 6
-    L = np.zeros((n, n))
-    y = np.empty(n)
     for i in range(n):
         for k in range(i + 1):
             s = H[i, k]
@@ -236,8 +236,8 @@ def _joint_acceleration(q, tau, pR, pp, mass, lever, Icom, qdd):
     p = np.empty((6, 3))
     H = np.zeros((6, 6))
     fk_joints(q, pR, pp, R, p)
-    joint_space_inertia(R, p, mass, lever, Icom, H)
-    cholesky_solve(H, tau, qdd)
+    joint_space_inertia(R, p, mass, lever, Icom, H, np.empty((14, 3)))
+    cholesky_solve(H, tau, qdd, np.zeros((6, 6)), np.empty(6))
 
 
 @njit(cache=True, fastmath=False)
@@ -258,12 +258,13 @@ def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
     f = np.empty(6)
     tau = np.empty(n)
     qdd = np.empty(n)
+    Rerr, work, L, y = np.empty((3, 3)), np.empty((14, 3)), np.zeros((n, n)), np.empty(n)
     for _ in range(iterations):
         # 1. forward kinematics of the virtual arm
         fk_joints(q, pR, pp, R, p)
         end_frame(R, p, tR, tp, T_B_C)
         # 2. Eq. 13 on the clamped pose error; the D term on (e - e_prev) / h
-        clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e)
+        clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr)
         for a in range(6):
             f[a] = kp[a] * e[a]
         if use_kd and state[0] > 0.5:
@@ -281,8 +282,8 @@ def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
                 t += J[a, i] * f[a]
             tau[i] = t
         # 4. Eq. 10: qdd = H^-1 tau
-        joint_space_inertia(R, p, mass, lever, Icom, H)
-        cholesky_solve(H, tau, qdd)
+        joint_space_inertia(R, p, mass, lever, Icom, H, work)
+        cholesky_solve(H, tau, qdd, L, y)
         # 5. semi-implicit Euler, velocity damping, joint-limit clamp
         for i in range(n):
             qd[i] += h * qdd[i]
