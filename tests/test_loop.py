@@ -11,7 +11,9 @@ import pytest
 from app.config import merge_overrides
 from app.headless import run_scenario
 from app.scenarios import load_scenario, scenario_descriptions
-from app.sim.loop import Emulator, HandAnchor, Push
+from app.sim.hand import Push
+from app.sim.loop import Emulator
+from app.sim.orbital import OrbitalSimulator
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 
@@ -156,57 +158,71 @@ def test_rest_push_command_and_bad_satellite():
     assert em.ods.velocity_mps[0, 2] == pytest.approx(expected, rel=0.25)
 
 
-# --- compiled paths (set_compiled) vs the Python reference -----------------------------------
+# --- the wiring of one cycle ---------------------------------------------------------------
 
 
-def _bookkeeping_outputs(em):
-    """What the loop's compiled bookkeeping produces from the current state."""
-    T_W = [em.satellite_pose_W(i) for i in range(em.n_sat)]
-    targets = [em.tcp_target_B(arm) for arm in em.arms]
-    p_W = np.array([T[:3, 3] for T in T_W])
-    hand = em.hand_wrenches_W(p_W, [T[:3, :3] for T in T_W])
-    em._record()
-    return [*T_W, *targets, hand, em.telemetry.rows(last=1)[0]]
+def test_step_hands_the_ods_what_the_parts_give_in_the_documented_order():
+    """One hil cycle with an arm's mockup pushed: Emulator.step() gives the ODS the input of
+    bodies_W -> interaction.wrenches_W -> ods_input called by hand, and steps it with that."""
+    push_R = np.array([0.0, 25.0, -10.0])
+    twins = Emulator(load_scenario("free-floating")), Emulator(load_scenario("free-floating"))
+    for em in twins:
+        em.prepare()
+        for _ in range(10):
+            em.step()
+        em.post(Push(satellite=0, force_R_N=tuple(push_R), duration_s=0.1))
+        for _ in range(15):  # through the sensor's delay and the low-pass
+            em.step()
+    stepped, by_hand = twins
+    np.testing.assert_array_equal(stepped.ods.y, by_hand.ods.y)  # deterministic twins
+    y_before = by_hand.ods.y.copy()
+    stepped.step()
+
+    t_s = by_hand.ods.t_s
+    by_hand.hand.update(t_s)
+    bodies = by_hand.bodies_W()
+    external_W = by_hand.interaction.wrenches_W(bodies, t_s)
+    force_R, torque_B = by_hand.ods_input(bodies, external_W)
+
+    np.testing.assert_array_equal(stepped.applied_force_R, force_R)
+    np.testing.assert_array_equal(stepped.applied_torque_B, torque_B)
+    ods = OrbitalSimulator(by_hand.ods.params, y_before)
+    ods.step(force_R, torque_B, by_hand.dt_s)
+    np.testing.assert_array_equal(stepped.ods.y, ods.y)
+    # what the parts did: the bodies are the arm's actual mockup, the push reached it (in W)
+    # and came back through the F/T chain in R, within the sensor's noise
+    np.testing.assert_array_equal(bodies.T_W_C[0], by_hand.arms[0].mockup_state_W()[1])
+    np.testing.assert_allclose(external_W[0], [*by_hand.R_W_R @ push_R, 0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(stepped.true_force_R[0], push_R, atol=1e-12)
+    assert np.linalg.norm(force_R[0] - push_R) < 5.0
+    # the cycle's telemetry row: the state the ODS stepped from, with the input it received
+    row = stepped.telemetry.rows(last=1)[0]
+    col = stepped.telemetry.index
+    assert row[col["t_s"]] == t_s
+    np.testing.assert_array_equal(row[[col[f"sat1_{a}_m"] for a in "xyz"]], y_before[0, :3])
+    np.testing.assert_array_equal(row[[col[f"sat1_f{a}_N"] for a in "xyz"]], force_R[0])
 
 
-def test_compiled_bookkeeping_equals_python_reference_every_cycle():
-    """Satellite poses, TCP targets, hand wrenches (idle, pulses, pushes, gizmo) and the
-    telemetry row agree to 1e-12 on the same state, cycle after cycle."""
-    cfg = merge_overrides(load_scenario("free-floating"), {"loop": {"telemetry_capacity": 5000}})
-    em = Emulator(cfg)
-    em.prepare()
-    em.post(HandAnchor(satellite=0, anchor_W_m=(0.2, 0.1, 1.3)))
-    for k in range(1500):
-        if k == 300:
-            em.post(HandAnchor(satellite=0, anchor_W_m=None))
-            em.post(Push(satellite=0, force_R_N=(0.0, 8.0, -3.0), duration_s=0.3))
+def test_ideal_step_hands_the_ods_the_external_wrench_exactly():
+    """Ideal mode: the same wiring, with the ODS receiving the external wrench itself."""
+    push_R = np.array([5.0, 0.0, -2.0])
+    twins = Emulator(load_scenario("collision"), mode="ideal"), Emulator(
+        load_scenario("collision"), mode="ideal")
+    for em in twins:
+        em.prepare()
         em.step()
-        outputs = {}
-        for on in (False, True):
-            em.use_kernel = on
-            outputs[on] = _bookkeeping_outputs(em)
-        for ref, fast in zip(outputs[False], outputs[True], strict=True):
-            np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-12)
-    assert em.status == "running"
-
-
-@pytest.mark.parametrize(("scenario", "mode"), [("collision", "hil"), ("collision", "ideal"),
-                                                 ("free-floating", "hil")])
-def test_compiled_loop_follows_the_python_reference(scenario, mode):
-    """The whole loop with every compiled path on against all of them off. The stages agree
-    to rounding (see the per-module tests); in closed loop the mockup accelerations
-    (Δv / dt) and contact amplify that rounding, measured ~1e-10 after 7 s."""
-    runs = {}
-    for on in (False, True):
-        em = Emulator(load_scenario(scenario), mode=mode)
-        em.set_compiled(on)
-        em.run(3.5)  # the collision's contact starts at ~2.5 s
-        runs[on] = em
-    ref, fast = runs[False], runs[True]
-    assert (fast.status, fast.safety_stop, fast.cycles) == (ref.status, ref.safety_stop, ref.cycles)
-    np.testing.assert_allclose(fast.telemetry.rows(), ref.telemetry.rows(), rtol=0, atol=1e-9)
-    if scenario == "collision":
-        assert ref.telemetry.column("sat1_fx_N").min() < -1.0  # the impact is in the run
+        em.post(Push(satellite=0, force_R_N=tuple(push_R), duration_s=0.1))
+    stepped, by_hand = twins
+    stepped.step()
+    t_s = by_hand.ods.t_s
+    by_hand.hand.update(t_s)
+    bodies = by_hand.bodies_W()
+    external_W = by_hand.interaction.wrenches_W(bodies, t_s)
+    force_R, torque_B = by_hand.ods_input(bodies, external_W)
+    np.testing.assert_array_equal(stepped.applied_force_R, force_R)
+    np.testing.assert_array_equal(stepped.applied_torque_B, torque_B)
+    np.testing.assert_allclose(force_R, [push_R, np.zeros(3)], atol=1e-12)
+    np.testing.assert_array_equal(force_R, stepped.true_force_R)
 
 
 def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):

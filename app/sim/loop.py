@@ -123,9 +123,12 @@ class Emulator:
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
         measured (through the coupling), the others the external wrench exactly."""
-        force_R, torque_B = self.true_force_R.copy(), np.zeros((self.n_sat, 3))
-        for i in self._uncarried:
-            torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
+        force_R, torque_B = np.zeros((self.n_sat, 3)), np.zeros((self.n_sat, 3))
+        if self._uncarried:
+            exact_R = external_W[:, :3] @ self.R_W_R
+            for i in self._uncarried:
+                force_R[i] = exact_R[i]
+                torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
         for arm in self.arms:
             s = arm.satellite
             T_W_C, v_W, w_W = bodies.T_W_C[s], bodies.v_W[s], bodies.w_W[s]

@@ -118,13 +118,13 @@ class ArmRig:
         """(q, position error m): joint positions that put the TCP at the target, found by
         the VFDM run on its virtual model only until converged (q None if it does not)."""
         vfdm = Vfdm(self.vfdm.cfg, self.T_F_C, self.vfdm.q_rad)
-        err = vfdm.last_error
         for _ in range(max_steps):
             q = vfdm.solve(T_B_C_target)
             err = vfdm.last_error
             if np.linalg.norm(err[:3]) < 1e-5 and np.linalg.norm(err[3:]) < 1e-4:
                 return q, float(np.linalg.norm(err[:3]))
-        return None, float(np.linalg.norm(err[:3]))
+        # the error the VFDM sees is clamped: report the true distance left
+        return None, float(np.linalg.norm(T_B_C_target[:3, 3] - vfdm.tcp_pose()[:3, 3]))
 
     def move_to(self, q_goal_rad: np.ndarray, dt_s: float) -> None:
         """Cosine-profiled joint move, peak speed at most half of each joint's limit, then

@@ -1,0 +1,223 @@
+"""The operator's hand (app/sim/hand.py): scripted pulses, pushes and the gizmo's spring."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.config import EmulatorConfig, HandConfig, LabConfig, PulseConfig, SatelliteConfig
+from app.sim.hand import HandAnchor, OperatorHand, Push, pulse_wrenches
+from app.sim.rotations import quat_to_matrix, rotvec_to_matrix, rotvec_to_quat
+
+DT = 0.002
+HAND = HandConfig(stiffness_Npm=200.0, max_force_N=60.0)
+R_ATTITUDE = rotvec_to_quat(np.array([0.3, -0.5, 0.8]))  # a non-trivial R in W
+
+
+def _config(pulses=()) -> EmulatorConfig:
+    return EmulatorConfig(
+        satellites=[SatelliteConfig(name="alpha"), SatelliteConfig(name="beta")],
+        pulses=list(pulses),
+        lab=LabConfig(r_attitude_wxyz=tuple(R_ATTITUDE)),
+        hand=HAND,
+    )
+
+
+PULSES = (
+    PulseConfig(satellite="beta", start_s=1.0, end_s=1.5, force_N=(1.0, 2.0, 3.0)),
+    PulseConfig(satellite="beta", start_s=1.2, end_s=2.0, force_N=(0.0, 0.0, 4.0),
+                torque_Nm=(0.0, 0.0, 1.0)),
+    PulseConfig(satellite="alpha", start_s=0.5, end_s=1.0, torque_Nm=(0.5, 0.0, 0.0)),
+)
+# COM poses of the two mockups: positions and non-trivial attitudes in W
+P_W_C = np.array([[0.1, -0.2, 1.0], [0.4, 0.3, 1.2]])
+R_W_C = np.array([rotvec_to_matrix([0.0, 0.0, np.pi / 2]), rotvec_to_matrix([0.4, 0.2, -0.7])])
+
+
+def _hand(pulses=()) -> tuple[OperatorHand, np.ndarray]:
+    cfg = _config(pulses)
+    R_W_R = quat_to_matrix(cfg.lab.r_attitude_wxyz)
+    assert not np.allclose(R_W_R, np.eye(3))
+    return OperatorHand(cfg, R_W_R), R_W_R
+
+
+# --- scripted pulses -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("t_s", "force", "torque"),
+    [
+        # (t, force on [alpha, beta] in R, torque on [alpha, beta] in body axes)
+        (0.4999, [[0, 0, 0], [0, 0, 0]], [[0, 0, 0], [0, 0, 0]]),
+        (0.5, [[0, 0, 0], [0, 0, 0]], [[0.5, 0, 0], [0, 0, 0]]),  # start is inclusive
+        (0.9999, [[0, 0, 0], [0, 0, 0]], [[0.5, 0, 0], [0, 0, 0]]),
+        (1.0, [[0, 0, 0], [1, 2, 3]], [[0, 0, 0], [0, 0, 0]]),  # alpha's ends, beta's starts
+        (1.2, [[0, 0, 0], [1, 2, 7]], [[0, 0, 0], [0, 0, 1]]),  # two pulses on beta add up
+        (1.4999, [[0, 0, 0], [1, 2, 7]], [[0, 0, 0], [0, 0, 1]]),
+        (1.5, [[0, 0, 0], [0, 0, 4]], [[0, 0, 0], [0, 0, 1]]),  # end is exclusive
+        (2.0, [[0, 0, 0], [0, 0, 0]], [[0, 0, 0], [0, 0, 0]]),
+    ],
+)
+def test_pulses_act_on_start_end_interval_summed_per_named_satellite(t_s, force, torque):
+    f, tq = pulse_wrenches(_config(PULSES), t_s)
+    assert f.shape == tq.shape == (2, 3)
+    np.testing.assert_array_equal(f, force)
+    np.testing.assert_array_equal(tq, torque)
+
+
+def test_pulse_force_is_rotated_from_R_into_W_and_torque_from_body_axes():
+    hand, R_W_R = _hand(PULSES)
+    t = 1.2
+    hand.update(t)
+    w = hand.wrenches_W(t, P_W_C, R_W_C)
+    np.testing.assert_allclose(w[1, :3], R_W_R @ [1.0, 2.0, 7.0], atol=1e-12)
+    np.testing.assert_allclose(w[1, 3:], R_W_C[1] @ [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_array_equal(w[0], np.zeros(6))
+    # alpha's torque pulse: body x of a body turned 90 deg about z is W's y
+    hand.update(0.7)
+    w = hand.wrenches_W(0.7, P_W_C, R_W_C)
+    np.testing.assert_allclose(w[0], [0, 0, 0, 0.0, 0.5, 0.0], atol=1e-12)
+    # the force magnitude is that of the pulse: a rotation, nothing else
+    w = hand.wrenches_W(1.0, P_W_C, R_W_C)
+    assert np.linalg.norm(w[1, :3]) == pytest.approx(np.sqrt(14.0))
+
+
+# --- pushes --------------------------------------------------------------------------------
+
+
+def test_push_acts_from_the_next_update_for_exactly_its_duration():
+    hand, R_W_R = _hand()
+    push = Push(satellite=1, force_R_N=(3.0, -4.0, 12.0), duration_s=0.01)  # 5 cycles
+    t, active, posted_at = 0.0, [], 7
+    for k in range(30):
+        hand.update(t)
+        w = hand.wrenches_W(t, P_W_C, R_W_C)
+        if w.any():
+            active.append(k)
+            np.testing.assert_allclose(w[1, :3], R_W_R @ push.force_R_N, atol=1e-12)
+            assert np.linalg.norm(w[1, :3]) == pytest.approx(13.0)
+            np.testing.assert_array_equal(w[1, 3:], 0.0)  # through the COM
+            np.testing.assert_array_equal(w[0], 0.0)  # the other satellite untouched
+        if k == posted_at:  # between cycles, as the web app does
+            hand.post(push)
+            np.testing.assert_array_equal(hand.wrenches_W(t, P_W_C, R_W_C), 0.0)
+        t += DT  # the ODS clock: accumulated, with its rounding
+    assert active == list(range(posted_at + 1, posted_at + 6))
+
+
+def test_overlapping_pushes_add_and_end_independently():
+    hand, R_W_R = _hand()
+    hand.post(Push(0, (1.0, 0.0, 0.0), 0.004))  # 2 cycles
+    hand.post(Push(0, (0.0, 2.0, 0.0), 0.008))  # 4 cycles
+    forces_R = []
+    t = 0.0
+    for _ in range(6):
+        hand.update(t)
+        forces_R.append(R_W_R.T @ hand.wrenches_W(t, P_W_C, R_W_C)[0, :3])
+        t += DT
+    expected = [[1, 2, 0], [1, 2, 0], [0, 2, 0], [0, 2, 0], [0, 0, 0], [0, 0, 0]]
+    np.testing.assert_allclose(forces_R, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("command", "message"),
+    [
+        (Push(satellite=2, force_R_N=(1.0, 0.0, 0.0), duration_s=0.1),
+         "satellite must be between 1 and 2, got 3"),
+        (Push(satellite=-1, force_R_N=(1.0, 0.0, 0.0), duration_s=0.1),
+         "satellite must be between 1 and 2, got 0"),
+        (HandAnchor(satellite=5, anchor_W_m=(0.0, 0.0, 1.0)),
+         "satellite must be between 1 and 2, got 6"),
+    ],
+)
+def test_bad_satellite_index_raises_and_changes_nothing(command, message):
+    hand, _ = _hand()
+    with pytest.raises(ValueError) as err:
+        hand.post(command)
+    assert str(err.value) == message
+    hand.update(0.0)
+    assert hand.idle(0.0)
+    np.testing.assert_array_equal(hand.wrenches_W(0.0, P_W_C, R_W_C), 0.0)
+
+
+# --- the gizmo -------------------------------------------------------------------------------
+
+
+def test_gizmo_is_a_spring_from_the_anchor_to_the_com():
+    hand, _ = _hand()
+    offset = np.array([0.05, -0.1, 0.02])  # k |offset| = 22.9 N, under the saturation
+    hand.post(HandAnchor(satellite=1, anchor_W_m=tuple(P_W_C[1] + offset)))
+    hand.update(0.0)
+    w = hand.wrenches_W(0.0, P_W_C, R_W_C)
+    np.testing.assert_allclose(w[1, :3], HAND.stiffness_Npm * offset, atol=1e-12)
+    np.testing.assert_array_equal(w[1, 3:], 0.0)
+    np.testing.assert_array_equal(w[0], 0.0)
+    # the mockup moves towards the anchor: the spring relaxes, same law
+    p = P_W_C.copy()
+    p[1] += 0.5 * offset
+    w = hand.wrenches_W(0.0, p, R_W_C)
+    np.testing.assert_allclose(w[1, :3], HAND.stiffness_Npm * 0.5 * offset, atol=1e-12)
+
+
+def test_gizmo_force_saturates_at_max_force_keeping_its_direction():
+    hand, _ = _hand()
+    offset = np.array([0.6, 0.8, 0.0])  # 1 m: k |offset| = 200 N > 60 N
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(P_W_C[0] + offset)))
+    hand.update(0.0)
+    f = hand.wrenches_W(0.0, P_W_C, R_W_C)[0, :3]
+    assert np.linalg.norm(f) == pytest.approx(HAND.max_force_N)
+    np.testing.assert_allclose(f, HAND.max_force_N * offset, atol=1e-12)  # |offset| = 1
+
+
+def test_gizmo_adds_to_a_push_on_the_same_satellite():
+    hand, R_W_R = _hand()
+    offset = np.array([0.0, 0.0, 0.1])
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(P_W_C[0] + offset)))
+    hand.post(Push(0, (5.0, 0.0, 0.0), 1.0))
+    hand.update(0.0)
+    f = hand.wrenches_W(0.0, P_W_C, R_W_C)[0, :3]
+    np.testing.assert_allclose(f, R_W_R @ [5.0, 0.0, 0.0] + HAND.stiffness_Npm * offset,
+                               atol=1e-12)
+
+
+def test_anchor_none_lets_go_and_a_new_anchor_replaces_the_old():
+    hand, _ = _hand()
+    hand.post(HandAnchor(satellite=1, anchor_W_m=(0.0, 0.0, 0.0)))
+    hand.update(0.0)
+    assert not hand.idle(0.0)
+    hand.post(HandAnchor(satellite=1, anchor_W_m=tuple(P_W_C[1] + [0.1, 0.0, 0.0])))
+    hand.update(DT)
+    np.testing.assert_allclose(hand.wrenches_W(DT, P_W_C, R_W_C)[1, :3], [20.0, 0.0, 0.0])
+    hand.post(HandAnchor(satellite=1, anchor_W_m=None))
+    assert not hand.idle(DT)  # posted, not yet applied
+    hand.update(2 * DT)
+    assert hand.idle(2 * DT)
+    np.testing.assert_array_equal(hand.wrenches_W(2 * DT, P_W_C, R_W_C), 0.0)
+    hand.post(HandAnchor(satellite=0, anchor_W_m=None))  # letting go of nothing is harmless
+    hand.update(3 * DT)
+    assert hand.idle(3 * DT)
+
+
+# --- idle ------------------------------------------------------------------------------------
+
+
+def test_idle_means_no_pulse_push_or_gizmo_acts():
+    hand, _ = _hand(PULSES)
+    assert hand.idle(0.0) and hand.idle(0.4999)
+    assert not hand.idle(0.5)  # a torque-only pulse counts
+    assert not hand.idle(1.9999)
+    assert hand.idle(2.0)  # end exclusive
+    np.testing.assert_array_equal(hand.wrenches_W(2.0, P_W_C, R_W_C), 0.0)
+    hand.post(Push(0, (1.0, 0.0, 0.0), 0.004))
+    assert hand.idle(3.0)  # posted, not applied until update
+    hand.update(3.0)
+    assert not hand.idle(3.0)
+    hand.update(3.0 + DT)
+    assert not hand.idle(3.0 + DT)
+    hand.update(3.0 + 2 * DT)
+    assert hand.idle(3.0 + 2 * DT)
+    # an anchor counts even where its spring is relaxed (the hand holds the mockup)
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(P_W_C[0])))
+    hand.update(4.0)
+    assert not hand.idle(4.0)
+    np.testing.assert_array_equal(hand.wrenches_W(4.0, P_W_C, R_W_C), 0.0)
