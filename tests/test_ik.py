@@ -8,17 +8,24 @@ reverses (oscillation).
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from app.config import VfdmConfig
 from app.sim.ik import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
 from app.sim.rotations import matrix_to_rotvec, rotvec_to_matrix
-from app.sim.ur10e import SPEED_LIMITS_RADPS, UR10e
+from app.sim.ur10e import (
+    SPEED_LIMITS_RADPS,
+    fk_joints,
+    joint_placements,
+    tcp_jacobian_B,
+    tcp_pose_B,
+)
 from app.sim.vfdm import Vfdm, pose_error
+from tests import oracle
 
 DT = 0.002
 Q0 = np.array([0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])
-UR = UR10e()
 T_F_C = np.eye(4)
 T_F_C[:3, 3] = (0.0, 0.0, 0.07)
 
@@ -30,7 +37,7 @@ def run(solver, q_start, path):
     for T in path:
         q = solver.solve(T)
         qs.append(q)
-        err.append(np.linalg.norm(T[:3, 3] - UR.tcp_pose(q, T_F_C)[:3, 3]))
+        err.append(np.linalg.norm(T[:3, 3] - tcp_pose_B(q, T_F_C)[:3, 3]))
     return np.array(qs), np.array(err)
 
 
@@ -52,7 +59,7 @@ def reversals(qs):
 def newton_ik(T, q_guess, n=50):
     q = np.array(q_guess, dtype=float)
     for _ in range(n):
-        q += np.linalg.solve(UR.tcp_jacobian(q, T_F_C), pose_error(T, UR.tcp_pose(q, T_F_C)))
+        q += np.linalg.solve(tcp_jacobian_B(q, T_F_C), pose_error(T, tcp_pose_B(q, T_F_C)))
     return q
 
 
@@ -68,12 +75,12 @@ def wrist_near_miss_path(w_radps=0.1, miss_rad=0.002, duration_s=4.0):
     ``miss / w`` seconds: peak speed ~ w / miss (50 rad/s here).
     """
     q_sing = np.array([0.2, -1.3, 1.6, -1.8, 0.0, 0.3])
-    UR.fk(q_sing)
-    z4 = UR.data.oMi[4].rotation[:, 2]
-    z5 = UR.data.oMi[5].rotation[:, 2]
+    R, p = np.empty((6, 3, 3)), np.empty((6, 3))
+    fk_joints(q_sing, *joint_placements(), R, p)
+    z4, z5 = R[3][:, 2], R[4][:, 2]  # the axes of joints 4 and 5
     b = np.cross(z5, z4)
     b /= np.linalg.norm(b)
-    T_mid = UR.tcp_pose(q_sing, T_F_C)
+    T_mid = tcp_pose_B(q_sing, T_F_C)
     path = []
     n = int(duration_s / DT)
     for k in range(n + 1):
@@ -90,7 +97,7 @@ def elbow_overreach_path(speed_mps=0.05, beyond_m=0.02, hold_s=0.5):
     q_start = np.array([0.2, -1.2, 0.3, -1.2, -1.57, 0.0])
     q_stretched = q_start.copy()
     q_stretched[2] = 0.0
-    Ta, Tb = UR.tcp_pose(q_start, T_F_C), UR.tcp_pose(q_stretched, T_F_C)
+    Ta, Tb = tcp_pose_B(q_start, T_F_C), tcp_pose_B(q_stretched, T_F_C)
     d = Tb[:3, 3] - Ta[:3, 3]
     length = np.linalg.norm(d) + beyond_m
     d *= length / np.linalg.norm(d)
@@ -124,20 +131,43 @@ def elbow():
 )
 def test_baselines_converge_on_reachable_target(make):
     q_goal = Q0 + np.array([0.2, -0.1, 0.15, 0.1, -0.2, 0.3])
-    T_goal = UR.tcp_pose(q_goal, T_F_C)
+    T_goal = tcp_pose_B(q_goal, T_F_C)
     solver = make(T_F_C, Q0)
     for _ in range(400):
         q = solver.solve(T_goal)
-    e = pose_error(T_goal, UR.tcp_pose(q, T_F_C))
+    e = pose_error(T_goal, tcp_pose_B(q, T_F_C))
     assert np.linalg.norm(e) < 1e-4
 
 
 def test_pseudo_inverse_is_newton_step():
     q_goal = Q0 + 0.05
-    T_goal = UR.tcp_pose(q_goal, T_F_C)
+    T_goal = tcp_pose_B(q_goal, T_F_C)
     q1 = PseudoInverseIK(T_F_C, Q0).solve(T_goal)
     assert np.abs(q1 - q_goal).max() < 1e-2  # one full step lands close
     assert np.abs(q1 - Q0).max() > 0.04
+
+
+def test_baseline_updates_are_the_textbook_formulas():
+    """One solve against the formulas on the Pinocchio oracle's TCP Jacobian and pose error
+    (pin.log3), over random postures. Same maths on inputs 1e-16 apart: 1e-12 for J^T and
+    DLS (whose 6x6 system has condition ≤ σ_max²/λ² ≈ 2e3); the pseudo-inverse amplifies
+    input rounding by up to cond(J), so its bound is 100·cond(J)·eps relative."""
+    arm = oracle.PinArm(T_F_C)
+    rng = np.random.default_rng(0)
+    eps = np.finfo(float).eps
+    for q in rng.uniform(-2 * np.pi, 2 * np.pi, (300, 6)):
+        T_goal = tcp_pose_B(q + rng.normal(scale=0.05, size=6), T_F_C)
+        J, T = arm.tcp_jacobian(q), arm.tcp_pose(q)
+        e = np.concatenate([T_goal[:3, 3] - T[:3, 3], pin.log3(T_goal[:3, :3] @ T[:3, :3].T)])
+        dq = JacobianTransposeIK(T_F_C, q, alpha=0.3).solve(T_goal) - q
+        np.testing.assert_allclose(dq, 0.3 * J.T @ e, rtol=0, atol=1e-12)
+        dq = DampedLeastSquaresIK(T_F_C, q, damping=0.05).solve(T_goal) - q
+        np.testing.assert_allclose(dq, J.T @ np.linalg.solve(J @ J.T + 0.0025 * np.eye(6), e),
+                                   rtol=0, atol=1e-12)
+        dq = PseudoInverseIK(T_F_C, q, gain=0.7).solve(T_goal) - q
+        want = 0.7 * np.linalg.pinv(J) @ e
+        bound = 100 * np.linalg.cond(J) * eps * np.linalg.norm(want) + 1e-12
+        assert np.linalg.norm(dq - want) <= bound
 
 
 # --- singular paths -------------------------------------------------------------------------

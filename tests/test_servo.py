@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from app.config import RobotConfig, ServoConfig
-from app.sim.servo import SafetyBox, UR10eServo, safety_box_for_robot
-from app.sim.ur10e import SPEED_LIMITS_RADPS, UR10e
+from app.sim.servo import SafetyBox, UR10eServo, reason_of, safety_box_for_robot
+from app.sim.ur10e import SPEED_LIMITS_RADPS, T_F_C_from_config, T_W_B_from_config, tcp_pose_B
+from tests import oracle
 
 DT = 0.002
 Q0 = np.array([0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])
@@ -91,12 +92,11 @@ def test_position_limit_stop_names_the_joint():
 
 
 def test_tcp_safety_volume_stop():
-    ur = UR10e()
     robot = RobotConfig(name="r", satellite="s", base_position_m=(0.0, 0.0, 0.5))
-    box = safety_box_for_robot(robot, ur)
+    box = safety_box_for_robot(robot)
     p0 = box.tcp_position_W(Q0)
     assert box.contains(Q0)
-    tight = SafetyBox(p0 - 0.05, p0 + 0.05, box.tcp_position_W)
+    tight = SafetyBox(p0 - 0.05, p0 + 0.05, box.chain)
     servo = UR10eServo(ServoConfig(delay_cycles=0), DT, Q0, safety=tight)
     sp = Q0.copy()
     accepted = 0
@@ -107,21 +107,31 @@ def test_tcp_safety_volume_stop():
         accepted += 1
     assert servo.reason == "TCP left safety volume"
     assert np.linalg.norm(tight.tcp_position_W(sp) - p0, ord=np.inf) > 0.05
+    assert not tight.contains(sp)
     assert accepted > 10  # the earlier set-points were inside and accepted
 
 
 def test_safety_box_uses_base_pose_and_mounting():
-    ur = UR10e()
     robot = RobotConfig(name="r", satellite="s", base_position_m=(0.3, -0.2, 1.0),
-                        mockup_offset_m=(0.0, 0.0, 0.1))
-    box = safety_box_for_robot(robot, ur)
-    T_F_C = np.eye(4)
-    T_F_C[2, 3] = 0.1
-    assert np.allclose(box.tcp_position_W(Q0), ur.tcp_pose(Q0, T_F_C)[:3, 3] + (0.3, -0.2, 1.0))
+                        base_attitude_wxyz=(0.0, 1.0, 0.0, 0.0),
+                        mockup_offset_m=(0.01, 0.02, 0.1),
+                        mockup_attitude_wxyz=(0.9, 0.1, -0.3, 0.2))
+    box = safety_box_for_robot(robot)
+    np.testing.assert_array_equal(box.p_min_W_m, robot.safety_box_min_m)
+    np.testing.assert_array_equal(box.p_max_W_m, robot.safety_box_max_m)
+    T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
+    arm = oracle.PinArm(T_F_C)
+    rng = np.random.default_rng(0)
+    for q in [Q0, *rng.uniform(-2 * math.pi, 2 * math.pi, (300, 6))]:
+        np.testing.assert_allclose(box.tcp_position_W(q), (T_W_B @ tcp_pose_B(q, T_F_C))[:3, 3],
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(box.tcp_position_W(q), (T_W_B @ arm.tcp_pose(q))[:3, 3],
+                                   rtol=0, atol=1e-12)
     floor = RobotConfig(name="r", satellite="s", safety_box_min_m=(-1.5, -1.5, 0.5))
     q_low = Q0.copy()
     q_low[1] = 0.3  # upper arm tilted down: TCP below z = 0.5 m
-    assert not safety_box_for_robot(floor, ur).contains(q_low)
+    assert safety_box_for_robot(floor).contains(Q0)
+    assert not safety_box_for_robot(floor).contains(q_low)
 
 
 def test_stopped_arm_decelerates_and_stays_halted_until_reset():
@@ -157,21 +167,30 @@ def test_stopped_arm_decelerates_and_stays_halted_until_reset():
     assert np.allclose(s.q_rad, q_halt + 0.001, atol=1e-6)
 
 
-# --- the compiled servo (app.sim.servo_kernel) equals the Python reference ------------------
 
 
-def _twin_servos(cfg, q0, safety):
-    ref, fast = UR10eServo(cfg, DT, q0, safety), UR10eServo(cfg, DT, q0, safety)
-    ref.use_kernel, fast.use_kernel = False, True
-    return ref, fast
+def test_stop_codes_name_the_reason():
+    assert reason_of(0) == ""
+    for j in range(1, 7):
+        assert reason_of(j) == f"joint {j} position limit"
+        assert reason_of(6 + j) == f"joint {j} speed limit"
+    assert reason_of(13) == "TCP left safety volume"
 
 
-def _assert_same(ref, fast):
-    a, b = ref.state, fast.state
-    for name in ("q_rad", "qd_radps", "qdd_radps2"):
-        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-12)
-    assert (a.stopped, a.reason) == (b.stopped, b.reason)
-    np.testing.assert_array_equal(fast._sp_prev, ref._sp_prev)
+# --- the compiled servo against the reference servo (tests/oracle.py) ------------------------
+#
+# Same arithmetic in the same order (the kernel spells out np.clip/np.sign as branches);
+# only the safety-box TCP comes from a different FK (Pinocchio), ~1e-16 apart, far from
+# any box face on these runs. State compared at 1e-12 (measured: identical).
+
+
+def _assert_same(fast, ref):
+    s = fast.state
+    np.testing.assert_allclose(s.q_rad, ref.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(s.qd_radps, ref.qd, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(s.qdd_radps2, ref.qdd, rtol=0, atol=1e-12)
+    assert (s.stopped, s.reason) == (ref.stopped, ref.reason)
+    assert (fast.stopped, fast.reason) == (ref.stopped, ref.reason)
 
 
 def _episodes():
@@ -197,52 +216,57 @@ def _episodes():
 
 
 @pytest.mark.parametrize("delay", [0, 1, 3])
-def test_compiled_step_equals_python_reference(delay):
-    """Same state every cycle over saturation, braking, stops of every kind, resets, and
-    the delay ring wrapping round."""
+def test_step_equals_the_reference_servo(delay):
+    """Same state every cycle over saturation, braking, all 13 kinds of stop, a NaN, the
+    delay ring wrapping round, and resets (in place and to another posture) after which
+    both carry on."""
     robot = RobotConfig(name="r", satellite="s", base_position_m=(0.0, 0.0, 0.5))
-    box = safety_box_for_robot(robot, UR10e())
+    T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
+    box = safety_box_for_robot(robot)
     p0 = box.tcp_position_W(Q0)
-    tight = SafetyBox(p0 - 0.05, p0 + 0.05, box.tcp_position_W, chain=box.chain)
+    tight = SafetyBox(p0 - 0.05, p0 + 0.05, box.chain)
     cfg = ServoConfig(delay_cycles=delay, accel_limit_radps2=5.0)
     reasons, saturated = set(), set()
+    after_reset = aggressive_setpoints(100, seed=11)
     for name, setpoints in _episodes():
         q0, safety = Q0, box
         if "position" in name:  # postures far from home: no box in the way
             q0, safety = setpoints[0], None
         elif name.startswith("TCP"):
             safety = tight
-        ref, fast = _twin_servos(cfg, q0, safety)
+        ref_box = None if safety is None else (safety.p_min_W_m, safety.p_max_W_m, T_W_B, T_F_C)
+        fast, ref = UR10eServo(cfg, DT, q0, safety), oracle.RefServo(cfg, DT, q0, ref_box)
         for sp in setpoints:
-            ref.step(sp)
             fast.step(sp)
-            _assert_same(ref, fast)
-            s = ref.state
-            if np.any(np.abs(s.qd_radps) == SPEED_LIMITS_RADPS):
+            ref.step(sp)
+            _assert_same(fast, ref)
+            if np.any(np.abs(ref.qd) == SPEED_LIMITS_RADPS):
                 saturated.add("speed")
-            if np.any(np.abs(s.qdd_radps2) >= cfg.accel_limit_radps2 - 1e-9):
+            if np.any(np.abs(ref.qdd) >= cfg.accel_limit_radps2 - 1e-9):
                 saturated.add("accel")
         reasons.add(ref.reason)
         assert ref.reason == ("" if "saturation" in name else name.split(" (")[0]), name
-        fast.reset()
+        fast.reset()  # where it is
         ref.reset()
-        _assert_same(ref, fast)
+        _assert_same(fast, ref)
+        for _ in range(20):  # hold still
+            fast.step(fast.state.q_rad)
+            ref.step(ref.q)
+            _assert_same(fast, ref)
+        fast.reset(Q0)  # to another posture
+        ref.reset(Q0)
+        for sp in after_reset:
+            fast.step(sp)
+            ref.step(sp)
+            _assert_same(fast, ref)
     assert saturated == {"speed", "accel"}
     assert len(reasons - {""}) == 13  # 6 speed, 6 position limits and the safety box
 
 
-def test_compiled_step_without_a_box_and_fallback_for_a_plain_box():
-    ref, fast = _twin_servos(ServoConfig(delay_cycles=2), Q0, None)
-    for sp in aggressive_setpoints(300, seed=9):
-        ref.step(sp)
+def test_step_without_a_box_equals_the_reference_servo():
+    cfg = ServoConfig(delay_cycles=2, bandwidth_hz=20.0, damping_ratio=0.7)
+    fast, ref = UR10eServo(cfg, DT, Q0), oracle.RefServo(cfg, DT, Q0)
+    for sp in aggressive_setpoints(1000, seed=9):
         fast.step(sp)
-        _assert_same(ref, fast)
-    # a box that only knows its Python TCP map runs the reference path (same answer)
-    ur = UR10e()
-    box = safety_box_for_robot(RobotConfig(name="r", satellite="s"), ur)
-    plain = SafetyBox(box.p_min_W_m, box.p_max_W_m, box.tcp_position_W)
-    ref, fast = _twin_servos(ServoConfig(), Q0, plain)
-    for sp in aggressive_setpoints(100, seed=2):
         ref.step(sp)
-        fast.step(sp)
-        _assert_same(ref, fast)
+        _assert_same(fast, ref)
