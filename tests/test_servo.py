@@ -270,3 +270,19 @@ def test_step_without_a_box_equals_the_reference_servo():
         fast.step(sp)
         ref.step(sp)
         _assert_same(fast, ref)
+
+
+def test_step_hands_out_new_state_arrays_and_leaves_the_old_ones_alone():
+    """Callers (the rig's FK cache) rely on it: a step never writes into the arrays that an
+    earlier state handed out."""
+    servo = UR10eServo(ServoConfig(), DT, Q0)
+    before = servo.state
+    q, qd, qdd = before.q_rad, before.qd_radps, before.qdd_radps2
+    kept = q.copy(), qd.copy(), qdd.copy()
+    servo.step(Q0 + 0.001)
+    servo.step(Q0 + 0.002)  # the first acts on the delayed (initial) set-point
+    after = servo.state
+    assert after.q_rad is not q and after.qd_radps is not qd and after.qdd_radps2 is not qdd
+    for old, copy in zip((q, qd, qdd), kept, strict=True):
+        np.testing.assert_array_equal(old, copy)
+    assert not np.array_equal(after.q_rad, q)

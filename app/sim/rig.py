@@ -73,15 +73,16 @@ class ArmRig:
         """(T_W_F, T_W_C, v_W, ω_W): actual flange and mockup poses, mockup COM velocity
         and angular velocity, in the lab, from the servo's joint state.
 
-        Kept until that state changes, so the cycle's interaction and its telemetry row
-        share one forward kinematics.
+        Kept until that state changes, so the cycle's interaction, its F/T reading and its
+        telemetry row share one forward kinematics. The servo hands out new arrays with
+        every step or reset (never writing into the old ones), so their identity is the key.
         """
         state = self.servo.state
-        key = (id(state), state.q_rad.tobytes(), state.qd_radps.tobytes())
-        if self._state_key != key:
+        key = self._state_key
+        if key is None or key[0] is not state.q_rad or key[1] is not state.qd_radps:
             out = (np.empty((4, 4)), np.empty((4, 4)), np.empty(3), np.empty(3))
             mockup_state(state.q_rad, state.qd_radps, *self.chain, *out)
-            self._state, self._state_key = out, key
+            self._state, self._state_key = out, (state.q_rad, state.qd_radps)
         return self._state
 
     def sense(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,

@@ -205,7 +205,11 @@ class UR10eServo:
         return self.state.reason
 
     def step(self, q_setpoint_rad: np.ndarray) -> ServoState:
-        """Advance one cycle ``dt_s`` with a new set-point; returns the (live) state."""
+        """Advance one cycle ``dt_s`` with a new set-point; returns the (live) state.
+
+        The state's q, q̇, q̈ are new arrays after every step (the old ones are never
+        written), so a caller may keep them as a snapshot, or key a cache on them.
+        """
         s, box, cfg = self.state, self.safety, self.cfg
         chain = _NO_CHAIN if box is None else box.chain
         lo, hi = (_NO_BOX, _NO_BOX) if box is None else (box.p_min_W_m, box.p_max_W_m)
