@@ -9,11 +9,13 @@ shadow the methods, so the loop runs unchanged); "rest (glue)" is everything els
 cycle. The real-time factor is the one ``run_scenario`` writes into metrics.json (simulated
 time over the wall time of the run, start-up included).
 
-``--against TREE`` runs the real-time-factor part in a fresh process for this tree and for
-another checkout of the project (e.g. ``git worktree add /tmp/old <commit>``), in turn,
-``--rounds`` times, and prints both and their ratio: a before/after comparison taken under
-the same conditions. It needs only ``app.headless.run_scenario`` and
-``app.scenarios.load_scenario`` in the other tree.
+``--against TREE`` compares this tree with another checkout of the project (e.g.
+``git worktree add /tmp/old <commit>``) in two ways: (1) the real-time factor, in a fresh
+process for each tree in turn, ``--rounds`` times; (2) the cost of ``Emulator.step`` of both
+trees in ONE process, stepped in turn in chunks of 100 cycles, so that both see the same
+machine (the other tree's ``app`` package is copied under another name for that). On a
+shared machine (2) is the steadier figure. It needs ``run_scenario``, ``load_scenario`` and
+``Emulator`` (``prepare``, ``step``) in the other tree.
 """
 
 from __future__ import annotations
@@ -21,8 +23,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -86,6 +91,52 @@ def compare_trees(other: Path, scenarios: list[str], rounds: int, duration_s: fl
         b = [x["rtf"] for x in that[s]]
         print(f"| {s} | {max(a):.2f} | {max(b):.2f} | {max(a) / max(b):.3f} "
               f"| {np.median(a) / np.median(b):.3f} |")
+
+
+def _import_other_app(tree: Path, tmp: Path):
+    """The other tree's ``app`` package, copied to tmp as ``other_app`` with its imports
+    renamed, so that both trees' emulators can live in one process."""
+    dest = tmp / "other_app"
+    shutil.copytree(tree / "app", dest, ignore=shutil.ignore_patterns("__pycache__"))
+    for py in dest.rglob("*.py"):
+        text = py.read_text()
+        text = re.sub(r"\b(from|import) app(\.|\b)", r"\1 other_app\2", text)
+        py.write_text(text)
+    sys.path.insert(0, str(tmp))
+    import importlib
+
+    return (importlib.import_module("other_app.sim.loop").Emulator,
+            importlib.import_module("other_app.scenarios").load_scenario)
+
+
+def compare_steps(other: Path, scenarios: list[str], chunks: int) -> None:
+    """µs per Emulator.step of both trees in one process, stepped in turn."""
+    from app.scenarios import load_scenario
+    from app.sim.loop import Emulator
+
+    with tempfile.TemporaryDirectory() as tmp:
+        OtherEmulator, other_load = _import_other_app(other, Path(tmp))  # noqa: N806
+        print(f"\n## Emulator.step, this tree vs {other}, one process, {chunks} chunks of "
+              "100 cycles each in turn\n")
+        print("| scenario | this tree µs (min / median) | other µs (min / median) "
+              "| ratio of minima | median of chunk ratios |")
+        print("|---|---:|---:|---:|---:|")
+        for scenario in scenarios:
+            ems = [Emulator(load_scenario(scenario)), OtherEmulator(other_load(scenario))]
+            for em in ems:
+                em.prepare()
+                for _ in range(300):
+                    em.step()
+            us = [[], []]
+            for _ in range(chunks):
+                for k, em in enumerate(ems):
+                    t0 = time.perf_counter_ns()
+                    for _ in range(100):
+                        em.step()
+                    us[k].append((time.perf_counter_ns() - t0) / 100 / 1e3)
+            a, b = np.array(us[0]), np.array(us[1])
+            print(f"| {scenario} | {a.min():.1f} / {np.median(a):.1f} | {b.min():.1f} / "
+                  f"{np.median(b):.1f} | {a.min() / b.min():.3f} | {np.median(a / b):.3f} |")
 
 
 # --- per-stage breakdown --------------------------------------------------------------------
@@ -174,13 +225,14 @@ def vfdm_cost(iterations: int, cycles: int) -> float:
     v = Vfdm(cfg, T_F_C, np.array(robot.q_home_rad))
     T0 = v.tcp_pose()
     v.solve(T0)
+    targets = [make_transform(rotvec_to_matrix([0.0, 0.0, 0.2 * k / cycles]) @ T0[:3, :3],
+                              T0[:3, 3] + np.array([0.05, 0.02, 0.0]) * k / cycles)
+               for k in range(cycles)]
     best = float("inf")
     for _ in range(3):
+        v.reset(np.array(robot.q_home_rad))
         t0 = time.perf_counter_ns()
-        for k in range(cycles):
-            s = k / cycles
-            T = make_transform(rotvec_to_matrix([0.0, 0.0, 0.2 * s]) @ T0[:3, :3],
-                               T0[:3, 3] + [0.05 * s, 0.02 * s, 0.0])
+        for T in targets:
             v.solve(T)
         best = min(best, (time.perf_counter_ns() - t0) / cycles / 1e3)
     return best
@@ -202,6 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(res))
         return 0
     if args.against is not None:
+        compare_steps(args.against.resolve(), ["collision", "free-floating"], 200)
         compare_trees(args.against.resolve(), ["collision", "free-floating"], args.rounds,
                       args.duration)
         return 0
