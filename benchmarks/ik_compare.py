@@ -40,6 +40,7 @@ def pink_factory():
         import pinocchio as pin
         import qpsolvers
         from pink.tasks import FrameTask
+
         from tests.oracle import build_model  # Pink needs a Pinocchio model of the UR10e
     except Exception as exc:  # noqa: BLE001
         return None, f"import failed: {exc!r}"
