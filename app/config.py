@@ -190,6 +190,11 @@ class VfdmConfig(_Model):
     velocity_mode: Literal["damped", "reset"] = "damped"
     damping: Annotated[float, AfterValidator(_finite), Field(ge=0.0, lt=1.0)] = 0.1
     """Fraction of virtual joint velocity removed per internal step (mode 'damped')."""
+    limit_fraction: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1.0)] = 0.95
+    """The set-points ask each joint for at most this fraction of the servo's speed and
+    acceleration limits: a cycle's joint step beyond the speed limit is scaled down as a
+    whole (its direction kept, as the UR controller's speed scaling does), and its change
+    from the last step is then held within the acceleration limit."""
 
 
 UR10E_SPEED_LIMITS_RADPS = (

@@ -12,6 +12,7 @@ protective stop ends that run (the errors are then over the cycles before the st
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import numpy as np
@@ -23,7 +24,14 @@ from app.sim.ik import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseI
 from app.sim.loop import Emulator
 from app.sim.rotations import invert_transform, make_transform, quat_to_matrix
 from app.sim.servo import UR10eServo
-from app.sim.ur10e import SPEED_LIMITS_RADPS, T_F_C_from_config, tcp_pose_B
+from app.sim.ur10e import (
+    DH_D_M,
+    SPEED_LIMITS_RADPS,
+    T_F_C_from_config,
+    fk_joints,
+    joint_placements,
+    tcp_pose_B,
+)
 from app.sim.vfdm import Vfdm, pose_error
 
 RATE_HZ = 500.0
@@ -74,9 +82,11 @@ def pink_factory():
 # --- trajectories -----------------------------------------------------------------------
 
 
-def scenario_targets(name: str, duration_s: float | None) -> list[tuple[str, np.ndarray, object]]:
-    """(label, targets (N,4,4) in B, robot config) per arm, from an ideal run's telemetry."""
-    cfg = load_scenario(name)
+def scenario_targets(scenario, duration_s: float | None) -> list[tuple[str, np.ndarray, object]]:
+    """(label, targets (N,4,4) in B, robot config) per arm, from an ideal run's telemetry
+    of a scenario (its name, or its configuration)."""
+    cfg = load_scenario(scenario) if isinstance(scenario, str) else scenario
+    name = cfg.name
     res = run_scenario(cfg, mode="ideal", duration_s=duration_s)
     ideal = res.emulator
     rows, idx = ideal.telemetry.rows(), ideal.telemetry.index
@@ -110,29 +120,75 @@ def fk_path(T_F_C, qa, qb, n: int, back: bool = False) -> np.ndarray:
     return np.array([tcp_pose_B(qa + si * (qb - qa), T_F_C) for si in s])
 
 
-def singular_paths(T_F_C, n: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """(label, targets, start q): wrist (q5 through 0), elbow stretched, over the base axis."""
+SINGULAR_NEIGHBOURHOOD_RAD = 0.01
+"""The singular region: the cycles where the arm's singularity measure is below 10 mrad."""
+
+
+def wrist_measure(q: np.ndarray) -> float:
+    """|sin q5|: zero when the axes of joints 4 and 6 line up (wrist singularity)."""
+    return abs(math.sin(q[4]))
+
+
+def elbow_measure(q: np.ndarray) -> float:
+    """|sin q3|: zero with the elbow fully stretched (or folded)."""
+    return abs(math.sin(q[2]))
+
+
+def shoulder_measure(q: np.ndarray) -> float:
+    """acos(d4 / r) of the UR's closed-form IK, r the distance of the wrist centre (origin
+    of joint 6's frame) from the base axis: zero when the wrist centre is on the cylinder
+    of radius d4 about it, where the two shoulder solutions meet (shoulder singularity)."""
+    R, p = np.empty((6, 3, 3)), np.empty((6, 3))
+    fk_joints(np.asarray(q, dtype=float), *joint_placements(), R, p)
+    r = math.hypot(p[5, 0], p[5, 1])
+    return math.acos(min(1.0, DH_D_M[3] / r)) if r > 0 else math.pi / 2
+
+
+def wrist_elbow_measure(q: np.ndarray) -> float:
+    return min(wrist_measure(q), elbow_measure(q))
+
+
+def singular_paths(T_F_C, n: int) -> list[tuple[str, np.ndarray, np.ndarray, object]]:
+    """(label, targets, start q, singularity measure) of the floor arm's singular paths."""
     paths = []
     qa = np.array([0.0, -1.6, 1.6, -1.57, -0.4, 0.0])
-    qb = np.array([0.3, -1.5, 1.5, -1.3, 0.4, 0.5])
-    paths.append(("singular/wrist q5=0", fk_path(T_F_C, qa, qb, n), qa))
+    qb = np.array([0.3, -1.5, 1.5, -1.3, 0.4, 0.5])  # q5 through 0 at full speed
+    paths.append(("singular/wrist q5=0", fk_path(T_F_C, qa, qb, n), qa, wrist_measure))
     qa = np.array([0.0, -1.2, 0.8, -1.2, -1.57, 0.0])
     qb = np.array([0.0, -0.8, 0.0, -0.8, -1.57, 0.0])  # q3 = 0: elbow fully stretched
-    paths.append(("singular/elbow stretched", fk_path(T_F_C, qa, qb, n // 2, back=True), qa))
+    paths.append(("singular/elbow stretched", fk_path(T_F_C, qa, qb, n // 2, back=True), qa,
+                  elbow_measure))
     # TCP along a line in B passing straight over the base z axis, tool pointing down
     s = 0.5 * (1 - np.cos(np.pi * np.linspace(0, 1, n)))
     R = np.diag([1.0, -1.0, -1.0])
     T = np.array([make_transform(R, np.array([-0.35 + 0.7 * si, -0.174, 0.9])) for si in s])
-    v = Vfdm(load_scenario("collision").vfdm, T_F_C, np.array([2.5, -1.2, 1.4, -1.8, -1.57, 0.0]))
-    for _ in range(5000):
-        v.solve(T[0])
-    paths.append(("singular/shoulder (over base)", T, v.q_rad.copy()))
+    q0 = start_q(T[0], T_F_C, np.array([2.5, -1.2, 1.4, -1.8, -1.57, 0.0]))
+    paths.append(("singular/shoulder (over base)", T, q0, shoulder_measure))
+    # wrist and elbow at once: q5 through 0 at full speed as the elbow stretches to q3 = 0
+    s = 0.5 * (1 - np.cos(np.pi * np.linspace(0, 1, n)))
+    qa = np.array([0.0, -1.2, 0.8, -1.2, -0.4, 0.0])
+    qb = np.array([0.3, -0.8, 0.8, -0.8, 0.4, 0.5])
+    qs = qa + s[:, None] * (qb - qa)
+    qs[:, 2] = 0.8 * (1.0 - np.sin(np.pi * s))  # 0.8 -> 0 (at s = 0.5) -> 0.8
+    T = np.array([tcp_pose_B(q, T_F_C) for q in qs])
+    paths.append(("singular/wrist+elbow", T, qs[0], wrist_elbow_measure))
     return paths
+
+
+def spin_through_wrist(duration_s: float) -> tuple[str, np.ndarray, object]:
+    """The free-floating satellite spinning at 0.2 rad/s about its body x axis (no pushes):
+    a quarter turn lines the ceiling arm's wrist up (q5 through -π). Targets from the
+    ideal run, in the ceiling arm's base frame."""
+    base = load_scenario("free-floating")
+    sat = base.satellites[0].model_copy(update={"omega_radps": (0.2, 0.0, 0.0)})
+    cfg = base.model_copy(update={"pulses": [], "satellites": [sat]})
+    (label, T, robot), = scenario_targets(cfg, duration_s)
+    return "free-floating spin through the wrist", T, robot
 
 
 def start_q(T0: np.ndarray, T_F_C, q_guess) -> np.ndarray:
     """A joint start posture at T0 (the VFDM run to convergence, as Emulator.prepare does)."""
-    v = Vfdm(load_scenario("collision").vfdm, T_F_C, q_guess)
+    v = Vfdm(load_scenario("collision").vfdm, T_F_C, q_guess, limits=None)
     for _ in range(5000):
         v.solve(T0)
         e = v.last_error
@@ -144,10 +200,12 @@ def start_q(T0: np.ndarray, T_F_C, q_guess) -> np.ndarray:
 # --- one run ----------------------------------------------------------------------------
 
 
-def run_method(solver, T_F_C, q0, targets: np.ndarray) -> dict:
+def run_method(solver, T_F_C, q0, targets: np.ndarray, measure=None) -> dict:
+    """Drive the servo with `solver` along `targets`; errors of the actual TCP. With a
+    singularity `measure` of the actual joints, also the figures of the singular region."""
     solver.reset(q0)
     servo = UR10eServo(ServoConfig(), DT_S, q0, safety=None)
-    pos_err, rot_err, qd_frac, qdd, t_ns = [], [], [], [], []
+    pos_err, rot_err, qd_frac, qdd, t_ns, sing = [], [], [], [], [], []
     stop = ""
     for T in targets:
         t0 = time.perf_counter_ns()
@@ -162,9 +220,11 @@ def run_method(solver, T_F_C, q0, targets: np.ndarray) -> dict:
         rot_err.append(np.linalg.norm(e[3:]))
         qd_frac.append(np.max(np.abs(st.qd_radps) / SPEED_LIMITS_RADPS))
         qdd.append(st.qdd_radps2.copy())
+        if measure is not None:
+            sing.append(measure(st.q_rad))
     pos, rot = np.array(pos_err or [np.nan]), np.array(rot_err or [np.nan])
     jerk = np.diff(np.array(qdd), axis=0) / DT_S if len(qdd) > 2 else np.zeros((1, 6))
-    return {
+    out = {
         "pos_max_mm": 1e3 * pos.max(), "pos_rms_mm": 1e3 * np.sqrt(np.mean(pos**2)),
         "rot_max_deg": np.degrees(rot.max()), "rot_rms_deg": np.degrees(np.sqrt(np.mean(rot**2))),
         "qd_peak": max(qd_frac) if qd_frac else np.nan,
@@ -172,6 +232,30 @@ def run_method(solver, T_F_C, q0, targets: np.ndarray) -> dict:
         "stop": stop, "cycles": len(pos_err), "of": len(targets),
         "us": float(np.mean(t_ns)) / 1e3,
     }
+    if measure is not None:
+        out.update(singular_region(pos, np.array(sing)))
+    return out
+
+
+def singular_region(pos_err_m: np.ndarray, measure: np.ndarray) -> dict:
+    """Error inside and outside the singular region, closest approach, and the time from
+    leaving the region until the position error is back under 1 mm."""
+    inside = measure < SINGULAR_NEIGHBOURHOOD_RAD
+    out = {"closest_mrad": 1e3 * measure.min() if len(measure) else np.nan,
+           "in_max_mm": np.nan, "out_max_mm": np.nan, "recover_ms": None}
+    if len(measure) == 0:
+        return out
+    if (~inside).any():
+        out["out_max_mm"] = 1e3 * pos_err_m[~inside].max()
+    if inside.any():
+        out["in_max_mm"] = 1e3 * pos_err_m[inside].max()
+        last = int(np.nonzero(inside)[0][-1])
+        after = np.nonzero(pos_err_m[last + 1:] < 1e-3)[0]
+        if pos_err_m[last] < 1e-3:
+            out["recover_ms"] = 0.0
+        elif len(after):
+            out["recover_ms"] = 1e3 * (after[0] + 1) * DT_S
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -185,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     PinkIK, pink_note = pink_factory()  # noqa: N806
     methods = {
         "VFDM": lambda T_F_C, q0: Vfdm(vcfg, T_F_C, q0),
+        "VFDM, no joint limits (before)": lambda T_F_C, q0: Vfdm(vcfg, T_F_C, q0, limits=None),
         "pseudo-inverse": lambda T_F_C, q0: PseudoInverseIK(T_F_C, q0),
         "DLS (λ=0.05)": lambda T_F_C, q0: DampedLeastSquaresIK(T_F_C, q0),
         "J transpose (α=0.2)": lambda T_F_C, q0: JacobianTransposeIK(T_F_C, q0),
@@ -203,12 +288,9 @@ def main(argv: list[str] | None = None) -> int:
             cases.append((label + " 500 Hz", T, T_F_C, q0))
             for f in (10.0, 2.0):
                 cases.append((f"{label} held {f:g} Hz", hold(T, f), T_F_C, q0))
-    robot = load_scenario("collision").robots[1]
-    T_F_C = T_F_C_from_config(robot)
-    for label, T, q0 in singular_paths(T_F_C, n_sing):
-        cases.append((label, T, T_F_C, q0))
 
-    print("\n| trajectory | method | pos err max / RMS [mm] | rot err max / RMS [deg] "
+    print("\n## Scenario trajectories\n")
+    print("| trajectory | method | pos err max / RMS [mm] | rot err max / RMS [deg] "
           "| peak qd / limit | RMS jerk [rad/s³] | protective stop | µs / cycle |")
     print("|---|---|---:|---:|---:|---:|---|---:|")
     for label, T, T_F_C, q0 in cases:
@@ -218,6 +300,33 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {label} | {mname} | {r['pos_max_mm']:.2f} / {r['pos_rms_mm']:.2f} "
                   f"| {r['rot_max_deg']:.2f} / {r['rot_rms_deg']:.2f} | {r['qd_peak']:.2f} "
                   f"| {r['jerk_rms']:.3g} | {stop} | {r['us']:.0f} |", flush=True)
+
+    singular = []  # (label, targets, T_F_C, q0, measure)
+    robot = load_scenario("collision").robots[1]
+    T_F_C = T_F_C_from_config(robot)
+    for label, T, q0, measure in singular_paths(T_F_C, n_sing):
+        singular.append((label, T, T_F_C, q0, measure))
+    label, T, robot = spin_through_wrist(3.0 if args.quick else 15.0)
+    T_F_C = T_F_C_from_config(robot)
+    singular.append((label, T, T_F_C, start_q(T[0], T_F_C, np.array(robot.q_home_rad)),
+                     wrist_measure))
+
+    print(f"\n## Singular paths (singular region: measure < "
+          f"{1e3 * SINGULAR_NEIGHBOURHOOD_RAD:.0f} mrad)\n")
+    print("| path | method | protective stop | peak qd / limit | pos err max / RMS [mm] "
+          "| max err outside / inside the region [mm] | closest [mrad] "
+          "| recovery to < 1 mm [ms] | µs / cycle |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
+    for label, T, T_F_C, q0, measure in singular:
+        for mname, make in methods.items():
+            r = run_method(make(T_F_C, q0), T_F_C, q0, T, measure)
+            stop = f"at {r['cycles']}/{r['of']}: {r['stop']}" if r["stop"] else "none"
+            rec = "-" if np.isnan(r["in_max_mm"]) else (
+                "never" if r["recover_ms"] is None else f"{r['recover_ms']:.0f}")
+            print(f"| {label} | {mname} | {stop} | {r['qd_peak']:.2f} "
+                  f"| {r['pos_max_mm']:.2f} / {r['pos_rms_mm']:.2f} "
+                  f"| {r['out_max_mm']:.2f} / {r['in_max_mm']:.2f} | {r['closest_mrad']:.1f} "
+                  f"| {rec} | {r['us']:.0f} |", flush=True)
     return 0
 
 

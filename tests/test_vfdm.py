@@ -13,15 +13,25 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from app.config import VfdmConfig
+from app.config import ServoConfig, VfdmConfig
+from app.scenarios import load_scenario
 from app.sim.rotations import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from app.sim.ur10e import T_J6_F, fk_joints, tcp_jacobian_B, tcp_pose_B
+from app.sim.servo import UR10eServo
+from app.sim.ur10e import (
+    SPEED_LIMITS_RADPS,
+    T_J6_F,
+    T_F_C_from_config,
+    fk_joints,
+    tcp_jacobian_B,
+    tcp_pose_B,
+)
 from app.sim.vfdm import (
     Vfdm,
     cholesky_solve,
     clamped_pose_error,
     joint_acceleration,
     joint_space_inertia,
+    limit_joint_step,
     log3,
     pose_error,
     virtual_arm,
@@ -248,7 +258,7 @@ def test_solve_equals_the_pinocchio_reference_cycle_by_cycle(name):
     if name == "joint limit":
         q_start[0] = 2 * math.pi - 0.05  # the target is reached turning past +2π
     T0 = tcp_pose_B(q_start, T_F_C_TILTED)
-    fast = Vfdm(cfg, T_F_C_TILTED, q_start)
+    fast = Vfdm(cfg, T_F_C_TILTED, q_start, limits=None)  # Eqs. 10-13 alone, as the oracle
     ref = oracle.RefVfdm(cfg, T_F_C_TILTED, q_start)
     clamped = limited = 0
     speed = 1e-2  # rad/s: the floor of the q̇ scale
@@ -350,8 +360,8 @@ def per_cycle_steps(v, T, n=3):
 def test_damped_mode_keeps_velocity_reset_mode_starts_at_rest():
     T = tcp_pose_B(Q0, T_F_C)
     T[:3, 3] += (0.05, 0.0, 0.0)
-    damped = Vfdm(VfdmConfig(velocity_mode="damped", iterations=1), T_F_C, Q0)
-    reset = Vfdm(VfdmConfig(velocity_mode="reset", iterations=1), T_F_C, Q0)
+    damped = Vfdm(VfdmConfig(velocity_mode="damped", iterations=1), T_F_C, Q0, limits=None)
+    reset = Vfdm(VfdmConfig(velocity_mode="reset", iterations=1), T_F_C, Q0, limits=None)
     d = per_cycle_steps(damped, T)
     r = per_cycle_steps(reset, T)
     # damped: velocity carries over, so the virtual arm speeds up from cycle to cycle;
@@ -385,3 +395,96 @@ def test_reset_clips_to_the_joint_limits_and_rests():
     v.reset(np.array([7.0, -7.0, 0.1, 0.2, 0.3, 0.4]))
     np.testing.assert_array_equal(v.q_rad, [2 * math.pi, -2 * math.pi, 0.1, 0.2, 0.3, 0.4])
     np.testing.assert_array_equal(v.qd_radps, np.zeros(6))
+
+
+# --- joint limits of the set-points (singular regions) -------------------------------------
+
+
+def test_limit_joint_step_scales_a_too_fast_step_as_a_whole():
+    q0 = np.zeros(6)
+    q = np.array([0.02, -0.01, 0.0, 0.005, 0.0, 0.0])
+    qd = np.ones(6)
+    step_prev = q - q0  # as fast as now: the acceleration limit does not act
+    max_step, max_change = np.full(6, 0.004), np.full(6, 1.0)
+    s = limit_joint_step(q, qd, q0, step_prev, max_step, max_change, 7.0)
+    assert s == pytest.approx(0.2)
+    np.testing.assert_allclose(q, 0.2 * np.array([0.02, -0.01, 0.0, 0.005, 0.0, 0.0]))
+    assert np.abs(q - q0).max() == pytest.approx(0.004)  # the fastest joint at its limit
+    np.testing.assert_allclose(qd[[0, 1, 3]], 0.2)  # the virtual arm does not wind up
+    np.testing.assert_array_equal(step_prev, q - q0)
+
+
+def test_limit_joint_step_holds_the_change_of_step_within_the_acceleration_limit():
+    q0 = np.full(6, 0.1)
+    q = q0 + np.array([0.003, -0.003, 0.0, 0.0, 0.0, 0.001])
+    step_prev = np.zeros(6)  # at rest last cycle
+    s = limit_joint_step(q, np.zeros(6), q0, step_prev, np.full(6, 0.01), np.full(6, 1e-3),
+                         7.0)
+    assert s == 1.0  # the speed limit did not act
+    np.testing.assert_allclose(q - q0, [1e-3, -1e-3, 0.0, 0.0, 0.0, 1e-3], atol=1e-15)
+
+
+def test_limit_joint_step_leaves_a_step_within_the_limits_bit_for_bit():
+    rng = np.random.default_rng(3)
+    q0 = rng.uniform(-1, 1, 6)
+    q = q0 + rng.uniform(-1e-3, 1e-3, 6)
+    qd = rng.normal(size=6)
+    q_in, qd_in = q.copy(), qd.copy()
+    step_prev = q - q0
+    assert limit_joint_step(q, qd, q0, step_prev, np.full(6, 2e-3), np.full(6, 1e-4),
+                            7.0) == 1.0
+    assert q.tobytes() == q_in.tobytes() and qd.tobytes() == qd_in.tobytes()
+
+
+def _singular_paths():
+    from benchmarks.ik_compare import singular_paths
+
+    T_F_C = T_F_C_from_config(load_scenario("collision").robots[1])
+    return T_F_C, singular_paths(T_F_C, 2000)
+
+
+@pytest.fixture(scope="module")
+def singular():
+    return _singular_paths()
+
+
+# measured bounds of the position error (benchmarks/README.md, "Singular paths"), with margin
+SINGULAR_BOUND_MM = {"singular/wrist q5=0": 30.0, "singular/elbow stretched": 1.5,
+                     "singular/shoulder (over base)": 4.0, "singular/wrist+elbow": 30.0}
+
+
+@pytest.mark.parametrize("k", range(4))
+def test_vfdm_rides_through_each_singular_path_within_the_joint_limits(singular, k):
+    """The set-points never ask more than the speed limit, the servo never stops, the
+    error stays bounded and is made up by the end of the path."""
+    T_F_C, paths = singular
+    label, targets, q0, measure = paths[k]
+    cfg = load_scenario("collision").vfdm
+    v = Vfdm(cfg, T_F_C, q0)
+    servo = UR10eServo(ServoConfig(), 0.002, q0)
+    sp_prev, err_mm, closest = q0.copy(), [], np.inf
+    for T in targets:
+        sp = v.solve(T)
+        assert np.all(np.abs(sp - sp_prev) <= SPEED_LIMITS_RADPS * 0.002 * (1 + 1e-12)), label
+        sp_prev = sp
+        st = servo.step(sp)
+        assert not st.stopped, f"{label}: {st.reason}"
+        assert np.all(np.abs(st.qd_radps) <= SPEED_LIMITS_RADPS)
+        err_mm.append(1e3 * np.linalg.norm(pose_error(T, tcp_pose_B(st.q_rad, T_F_C))[:3]))
+        closest = min(closest, measure(st.q_rad))
+    assert max(err_mm) < SINGULAR_BOUND_MM[label], label
+    assert err_mm[-1] < 1.0, label  # made up by the end
+    if label != "singular/elbow stretched":  # the arm really went through the singularity
+        assert closest < 0.005, label
+
+
+def test_without_the_joint_limits_the_wrist_path_trips_a_speed_stop(singular):
+    """The same path with the limits off (the VFDM before): a protective stop."""
+    T_F_C, paths = singular
+    label, targets, q0, _ = paths[0]
+    v = Vfdm(load_scenario("collision").vfdm, T_F_C, q0, limits=None)
+    servo = UR10eServo(ServoConfig(), 0.002, q0)
+    for T in targets:
+        if servo.step(v.solve(T)).stopped:
+            break
+    assert servo.reason == "joint 4 speed limit"

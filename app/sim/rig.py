@@ -31,7 +31,7 @@ from app.sim.ur10e import (
     mockup_state,
     tcp_chain,
 )
-from app.sim.vfdm import Vfdm
+from app.sim.vfdm import JointLimits, Vfdm
 
 __all__ = ["ArmRig", "build_rig"]
 
@@ -118,7 +118,7 @@ class ArmRig:
                             max_steps: int) -> tuple[np.ndarray | None, float]:
         """(q, position error m): joint positions that put the TCP at the target, found by
         the VFDM run on its virtual model only until converged (q None if it does not)."""
-        vfdm = Vfdm(self.vfdm.cfg, self.T_F_C, self.vfdm.q_rad)
+        vfdm = Vfdm(self.vfdm.cfg, self.T_F_C, self.vfdm.q_rad, limits=None)
         for _ in range(max_steps):
             q = vfdm.solve(T_B_C_target)
             err = vfdm.last_error
@@ -171,7 +171,7 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
         satellite=sat,
         chain=tcp_chain(T_W_B, T_F_C),
         T_B_R=invert_transform(T_W_B) @ T_W_R,
-        vfdm=Vfdm(config.vfdm, T_F_C, q_home),
+        vfdm=Vfdm(config.vfdm, T_F_C, q_home, JointLimits.of_servo(config.servo, dt_s)),
         servo=UR10eServo(config.servo, dt_s, q_home, safety_box_for_robot(robot)),
         sensor=VirtualFTSensor(config.sensor, mass, gravity_W, rng),
         processor=WrenchProcessor(config.wrench, config.loop.rate_hz, gravity_W),

@@ -21,6 +21,14 @@ One internal step (:func:`vfdm_steps` runs ``iterations`` of them in machine cod
 4. Eq. 10: ``q̈ = H(q)⁻¹ τ``, H from the composite-rigid-body algorithm, solved by Cholesky;
 5. semi-implicit Euler with the velocity damping (or the per-cycle reset of Eq. 11), and
    the joint-limit clamp.
+
+After the iterations, the cycle's joint step is held within the servo's speed and
+acceleration limits (:func:`limit_joint_step`): near a singularity the virtual arm, light
+as it is, would ask some joints for more than the real arm may do, and the real
+controller answers that with a protective stop. The step is scaled down as a whole, so the
+motion keeps its direction (the UR controller's own speed scaling), the virtual arm is
+put where the set-point sends the real one, and the Cartesian error left over is made up
+in the next cycles, once out of the singular region.
 """
 
 from __future__ import annotations
@@ -31,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from app.config import VfdmConfig
+from app.config import ServoConfig, VfdmConfig
 from app.sim.ur10e import (
     N_JOINTS,
     POSITION_LIMIT_RAD,
@@ -43,7 +51,16 @@ from app.sim.ur10e import (
     tcp_pose_B,
 )
 
-__all__ = ["VirtualArm", "Vfdm", "joint_acceleration", "log3", "pose_error", "virtual_arm"]
+__all__ = [
+    "JointLimits",
+    "VirtualArm",
+    "Vfdm",
+    "joint_acceleration",
+    "limit_joint_step",
+    "log3",
+    "pose_error",
+    "virtual_arm",
+]
 
 
 class VirtualArm(NamedTuple):
@@ -63,6 +80,24 @@ class VirtualArm(NamedTuple):
     """(3, 3) rotation of the TCP in the frame of joint 6."""
     tp: np.ndarray
     """(3,) position of the TCP in the frame of joint 6."""
+
+
+class JointLimits(NamedTuple):
+    """What the set-points may ask of the real arm: the servo's limits and the cycle time."""
+
+    speed_radps: np.ndarray
+    """(6,) joint speed limits."""
+    accel_radps2: float
+    cycle_s: float
+
+    @classmethod
+    def of_servo(cls, cfg: ServoConfig, cycle_s: float) -> JointLimits:
+        return cls(np.array(cfg.speed_limits_radps, dtype=float), cfg.accel_limit_radps2,
+                   float(cycle_s))
+
+
+UR10E_LIMITS_500HZ = JointLimits.of_servo(ServoConfig(), 1.0 / 500.0)
+"""The UR10e's data-sheet speeds, the default servo's 40 rad/s², the RTDE's 500 Hz."""
 
 
 def virtual_arm(cfg: VfdmConfig, T_F_C: np.ndarray) -> VirtualArm:
@@ -243,10 +278,13 @@ def _joint_acceleration(q, tau, pR, pp, mass, lever, Icom, qdd):
 @njit(cache=True, fastmath=False)
 def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
                pR, pp, mass, lever, Icom, tR, tp, kp, kdh, use_kd, keep, h, qlim,
-               max_lin, max_rot):
+               max_lin, max_rot, max_dq):
     """Run ``iterations`` internal VFDM steps in place on q, qd, e_prev, last_e.
 
     state[0] is 1.0 when e_prev holds a previous error (the D term is active), else 0.0.
+    max_dq (6,): the largest move of each virtual joint in one internal step (the real
+    joint's speed limit spread over the cycle's steps): the virtual joint's velocity is
+    saturated there, and the following steps make up for it with the other joints.
     """
     n = 6
     R = np.empty((n, 3, 3))
@@ -288,11 +326,63 @@ def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
         for i in range(n):
             qd[i] += h * qdd[i]
             qd[i] *= keep
+            if abs(h * qd[i]) > max_dq[i]:  # the real joint's speed limit
+                qd[i] = max_dq[i] / h if qd[i] > 0.0 else -max_dq[i] / h
             q[i] += h * qd[i]
         for i in range(n):
             if abs(q[i]) > qlim:
                 q[i] = qlim if q[i] > 0 else -qlim
                 qd[i] = 0.0
+
+
+@njit(cache=True, fastmath=False)
+def limit_joint_step(q, qd, q0, step_prev, max_step, max_change, qlim):
+    """Hold the cycle's joint step ``q − q0`` within the speed and acceleration limits.
+
+    max_step (6,): the largest step a joint may make in one cycle (speed limit × cycle);
+    max_change (6,): the largest change of a joint's step from the last one, step_prev
+    (acceleration limit × cycle²). A step beyond max_step is scaled down as a whole
+    (direction kept); each joint's step is then clamped to step_prev ± max_change. q and the
+    virtual velocity qd are changed in place only when a limit acts (qd in proportion to
+    its joint's step, so that the virtual arm does not wind up); step_prev becomes the step
+    commanded; no joint is taken beyond ±qlim (where its virtual velocity stops). Returns
+    the uniform scale applied (1.0: no speed limit acted).
+    """
+    n = 6
+    s = 1.0
+    for j in range(n):
+        d = abs(q[j] - q0[j])
+        if d * s > max_step[j]:
+            s = max_step[j] / d
+    acts = s < 1.0
+    for j in range(n):
+        d = (q[j] - q0[j]) * s
+        if d < step_prev[j] - max_change[j] or d > step_prev[j] + max_change[j]:
+            acts = True
+    if not acts:
+        for j in range(n):
+            step_prev[j] = q[j] - q0[j]
+        return 1.0
+    for j in range(n):
+        d = q[j] - q0[j]
+        dc = d * s
+        lo, hi = step_prev[j] - max_change[j], step_prev[j] + max_change[j]
+        if dc < lo:
+            dc = lo
+        elif dc > hi:
+            dc = hi
+        if dc > max_step[j]:
+            dc = max_step[j]
+        elif dc < -max_step[j]:
+            dc = -max_step[j]
+        ratio = dc / d if d != 0.0 else 0.0
+        qd[j] *= min(max(ratio, 0.0), 1.0)
+        q[j] = q0[j] + dc
+        if abs(q[j]) > qlim:
+            q[j] = qlim if q[j] > 0.0 else -qlim
+            qd[j] = 0.0
+        step_prev[j] = q[j] - q0[j]
+    return s
 
 
 # --- the solver ---------------------------------------------------------------------------
@@ -315,12 +405,33 @@ def joint_acceleration(arm: VirtualArm, q_rad: np.ndarray, tau: np.ndarray) -> n
 
 
 class Vfdm:
-    """One robot's VFDM solver: ``reset(q)`` once, then ``solve(T_B_C_target)`` per cycle."""
+    """One robot's VFDM solver: ``reset(q)`` once, then ``solve(T_B_C_target)`` per cycle.
+
+    ``limits``: the servo's joint speed and acceleration limits and the control cycle that
+    the set-points must respect (default: the UR10e's at 500 Hz; None: no limits, for a
+    search on the virtual model only).
+    """
 
     def __init__(
-        self, cfg: VfdmConfig, T_F_C: np.ndarray, q0_rad: np.ndarray | None = None
+        self,
+        cfg: VfdmConfig,
+        T_F_C: np.ndarray,
+        q0_rad: np.ndarray | None = None,
+        limits: JointLimits | None = UR10E_LIMITS_500HZ,
     ) -> None:
         self.cfg = cfg
+        self.limits = limits
+        if limits is None:  # a virtual-only search (e.g. for a start posture): no limits
+            self._max_step = self._max_change = np.full(N_JOINTS, np.inf)
+        else:
+            f, dt = cfg.limit_fraction, limits.cycle_s
+            self._max_step = f * np.asarray(limits.speed_radps, dtype=float) * dt
+            self._max_change = np.full(N_JOINTS, f * limits.accel_radps2 * dt * dt)
+        self._max_dq = self._max_step / cfg.iterations
+        self._step_prev = np.zeros(N_JOINTS)
+        self._q0 = np.zeros(N_JOINTS)
+        self.last_scale = 1.0
+        """Uniform scale the speed limit put on the last cycle's joint step (1.0: none)."""
         self.T_F_C = np.array(T_F_C, dtype=float)
         self.arm = virtual_arm(cfg, self.T_F_C)
         h = cfg.internal_dt_s
@@ -345,6 +456,7 @@ class Vfdm:
                              POSITION_LIMIT_RAD)
         self.qd_radps[:] = 0.0
         self._has_prev[0] = 0.0
+        self._step_prev[:] = 0.0
 
     def tcp_pose(self) -> np.ndarray:
         """Virtual TCP pose ``T_B_C`` at the current virtual ``q``."""
@@ -357,10 +469,13 @@ class Vfdm:
             self.qd_radps[:] = 0.0  # the paper's "each cycle starts at rest" (Eq. 11)
         T = np.asarray(T_B_C_target, dtype=float)
         last_e = np.empty(6)
+        self._q0[:] = self.q_rad
         vfdm_steps(self.q_rad, self.qd_radps, self._e_prev, self._has_prev, last_e,
                    np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
                    cfg.iterations, *self.arm, self._kp, self._kd_over_h, self._use_kd,
                    self._keep, self._h, POSITION_LIMIT_RAD, cfg.max_error_lin_m,
-                   cfg.max_error_rot_rad)
+                   cfg.max_error_rot_rad, self._max_dq)
+        self.last_scale = limit_joint_step(self.q_rad, self.qd_radps, self._q0, self._step_prev,
+                                           self._max_step, self._max_change, POSITION_LIMIT_RAD)
         self.last_error = last_e
         return self.q_rad.copy()
