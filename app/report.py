@@ -33,26 +33,33 @@ def write_json(path: str | Path, data: dict) -> None:
 
 def run_summary(metrics: dict) -> str:
     """The table a headless run prints: timing, tracking errors per satellite, events."""
+    rtf, ct = metrics["realtime_factor"], metrics["cycle_time_us"]
+
+    def num(v, spec):
+        return "-" if v is None else format(v, spec)
+
     lines = [
         f"scenario {metrics['scenario']}  mode {metrics['mode']}  status {metrics['status']}",
         f"simulated {metrics['duration_s']:.2f} s in {metrics['cycles']} cycles, "
-        f"real-time factor {metrics['realtime_factor']:.2f}, cycle p50 "
-        f"{metrics['cycle_time_us']['p50']:.0f} us / p99 {metrics['cycle_time_us']['p99']:.0f} us",
+        f"real-time factor {num(rtf, '.2f')}, cycle p50 {num(ct['p50'], '.0f')} us / p99 "
+        f"{num(ct['p99'], '.0f')} us",
         f"force scale {metrics['force_scale']:g}, torque scale {metrics['torque_scale']:g}",
         "",
         f"{'sat':>3} {'name':12s} {'pos err max':>12} {'pos err rms':>12} {'vel err rms':>12} "
-        f"{'att err max':>12} {'delta v':>10}",
+        f"{'att err max':>12} {'delta v':>12}",
     ]
 
-    def fmt(v, scale=1.0, unit=""):
-        return f"{v * scale:10.3f}{unit}" if v is not None else f"{'-':>12}"
+    def cell(v, scale, unit):
+        text = "-" if v is None else f"{v * scale:.3f} {unit}"
+        return f"{text:>12}"
 
     for s in metrics["satellites"]:
         lines.append(
-            f"{s['id']:>3} {s['name']:12s} {fmt(s['position_error_max_m'], 1e3, 'mm')} "
-            f"{fmt(s['position_error_rms_m'], 1e3, 'mm')} "
-            f"{fmt(s['velocity_error_rms_mps'], 1e3, 'mm/s')[:-2]:>12} "
-            f"{fmt(s['attitude_error_max_rad'], 1e3, 'mr')} {s['delta_v_mps']:8.4f}m/s"
+            f"{s['id']:>3} {s['name']:12s} {cell(s['position_error_max_m'], 1e3, 'mm')} "
+            f"{cell(s['position_error_rms_m'], 1e3, 'mm')} "
+            f"{cell(s['velocity_error_rms_mps'], 1e3, 'mm/s')} "
+            f"{cell(s['attitude_error_max_rad'], 1e3, 'mrad')} "
+            f"{cell(s['delta_v_mps'], 1.0, 'm/s')}"
         )
     coll = metrics.get("collision")
     if coll:

@@ -145,3 +145,16 @@ def test_the_numeric_core_has_no_web_imports():
             if any(imported == w or imported.startswith(w + ".") for w in WEB_IMPORTS):
                 offending.append(f"{name} imports {imported}")
     assert not offending, "app/sim/ must not import the web stack:\n" + "\n".join(offending)
+
+
+def test_one_implementation_per_stage_and_pinocchio_only_in_the_tests():
+    """No compiled twins, no switches between a reference and a compiled path, and no
+    Pinocchio in app/: its paths live on in tests/oracle.py only."""
+    modules = app_modules()
+    assert not [p.name for p in APP.rglob("*_kernel.py")]
+    for name, path in modules.items():
+        text = path.read_text()
+        for word in ("use_kernel", "set_compiled"):
+            assert word not in text, f"{name} mentions {word}"
+        imported = imported_names(name, path, modules)
+        assert not [m for m in imported if m == "pinocchio" or m.startswith("pinocchio.")], name

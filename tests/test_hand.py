@@ -124,8 +124,6 @@ def test_overlapping_pushes_add_and_end_independently():
     [
         (Push(satellite=2, force_R_N=(1.0, 0.0, 0.0), duration_s=0.1),
          "satellite must be between 1 and 2, got 3"),
-        (Push(satellite=-1, force_R_N=(1.0, 0.0, 0.0), duration_s=0.1),
-         "satellite must be between 1 and 2, got 0"),
         (HandAnchor(satellite=5, anchor_W_m=(0.0, 0.0, 1.0)),
          "satellite must be between 1 and 2, got 6"),
     ],
@@ -221,3 +219,38 @@ def test_idle_means_no_pulse_push_or_gizmo_acts():
     hand.update(4.0)
     assert not hand.idle(4.0)
     np.testing.assert_array_equal(hand.wrenches_W(4.0, P_W_C, R_W_C), 0.0)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"satellite": 0, "force_R_N": (1.0, 2.0, float("nan")), "duration_s": 0.1},
+     "force_R_N: must be 3 finite numbers"),
+    ({"satellite": 0, "force_R_N": (1.0, 2.0), "duration_s": 0.1},
+     "force_R_N: must be 3 finite numbers"),
+    ({"satellite": 0, "force_R_N": "abc", "duration_s": 0.1}, "force_R_N: must be 3 numbers"),
+    ({"satellite": 0.5, "force_R_N": (1.0, 2.0, 3.0), "duration_s": 0.1},
+     "satellite: must be an index >= 0"),
+    ({"satellite": True, "force_R_N": (1.0, 2.0, 3.0), "duration_s": 0.1},
+     "satellite: must be an index >= 0"),
+    ({"satellite": 0, "force_R_N": (1.0, 2.0, 3.0), "duration_s": -1.0},
+     "duration_s: must be a finite number of seconds > 0"),
+    ({"satellite": 0, "force_R_N": (1.0, 2.0, 3.0), "duration_s": float("inf")},
+     "duration_s: must be a finite number of seconds > 0"),
+])
+def test_a_bad_push_is_refused_where_it_is_made(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        Push(**kwargs)
+
+
+def test_a_bad_anchor_is_refused_and_none_lets_go():
+    with pytest.raises(ValueError, match="anchor_W_m: must be 3 finite numbers"):
+        HandAnchor(satellite=0, anchor_W_m=(0.1, float("inf"), 0.0))
+    assert HandAnchor(satellite=0, anchor_W_m=None).anchor_W_m is None
+    assert HandAnchor(satellite=0, anchor_W_m=[1, 2, 3]).anchor_W_m == (1.0, 2.0, 3.0)
+
+
+def test_posting_something_else_is_refused_and_changes_nothing():
+    hand, _ = _hand()
+    with pytest.raises(TypeError, match="not a Push or HandAnchor"):
+        hand.post(("push", 0))
+    hand.update(0.0)
+    assert hand.idle(0.0)

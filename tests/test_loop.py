@@ -225,6 +225,15 @@ def test_ideal_step_hands_the_ods_the_external_wrench_exactly():
     np.testing.assert_array_equal(force_R, stepped.true_force_R)
 
 
+def test_running_a_finished_run_again_adds_no_row():
+    em = Emulator(load_scenario("free-floating"), mode="ideal")
+    em.run(0.02)
+    rows = em.telemetry.count
+    em.run(0.02)
+    em.run(0.02)
+    assert em.status == "finished" and em.telemetry.count == rows == em.cycles + 1
+
+
 def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):
     out = tmp_path / "run"
     result = subprocess.run(

@@ -120,6 +120,19 @@ def test_recorder_without_arms_and_each_record_is_a_new_row():
     np.testing.assert_array_equal(rec.buffer.column("sat1_wz_radps"), 0.0)
 
 
+def test_recorder_refuses_a_state_of_the_wrong_shape_and_records_nothing():
+    """The row kernels write without bounds checks: a wrong call must not reach them."""
+    rec = Recorder(1, 0, 1, np.eye(4), OMEGA)
+    y, z = np.zeros((1, 13)), np.zeros((1, 3))
+    y[0, 6] = 1.0
+    arm = (np.eye(4), np.zeros(3), np.zeros(6), np.zeros(6))
+    for bad in ((np.zeros((2, 13)), z, z, [], z), (y, np.zeros((2, 3)), z, [], z),
+                (y, z, z, [arm], z), (y, z, z, [], np.zeros((2, 3)))):
+        with pytest.raises(ValueError, match="recorder of 1 satellites and 0 arms"):
+            rec.record(0.0, *bad)
+    assert rec.buffer.count == 0
+
+
 # --- the ring buffer ---------------------------------------------------------------------------
 
 

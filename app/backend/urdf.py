@@ -11,11 +11,11 @@ the URDF keeps that as the fixed joint ``base -> base_link``.
 from __future__ import annotations
 
 import math
+import site
+import sys
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
-
-import pinocchio as pin
 
 from app.sim.ur10e import (
     DH_A_M,
@@ -48,8 +48,10 @@ _URDF_ORIGINS_M = {
 
 
 def ur10_urdf_path() -> Path:
-    """example-robot-data's UR10 URDF, found next to the installed pinocchio (cmeel prefix)."""
-    candidates = [Path(pin.__file__).resolve().parents[4] / _UR10_URDF_REL]
+    """example-robot-data's UR10 URDF, in the cmeel prefix of site-packages (where the
+    example-robot-data wheel puts its share/ folder) or from its own module."""
+    roots = [*site.getsitepackages(), *(p for p in sys.path if p.endswith("site-packages"))]
+    candidates = [Path(root) / "cmeel.prefix" / _UR10_URDF_REL for root in dict.fromkeys(roots)]
     try:  # a non-cmeel install exposes its own module
         from example_robot_data.path import EXAMPLE_ROBOT_DATA_MODEL_DIR  # type: ignore
 

@@ -2,8 +2,8 @@
 
 Implements DESIGN.md, "The simulated UR10e" (built-in F/T sensor: range 100 N / 10 N·m,
 noise, bias, delay, the mockup's weight and inertial load m·(g − a)) and "The loop"
-(payload compensation, filter, deadband, torque scaling, shift to the satellite COM,
-rotation into R).
+(payload compensation, filter, deadband, shift to the satellite COM, rotation into R; the
+force and torque scales are the ODS's).
 
 Conventions
 -----------

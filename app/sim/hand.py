@@ -15,6 +15,7 @@ cycle, so the loop stays the only owner of its state.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,21 +25,57 @@ from app.config import EmulatorConfig
 __all__ = ["Command", "HandAnchor", "OperatorHand", "Push", "pulse_wrenches"]
 
 
+def _satellite_index(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+        raise ValueError(f"satellite: must be an index >= 0, got {value!r}")
+    return int(value)
+
+
+def _finite_vector3(name: str, value) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be 3 numbers, got {value!r}") from None
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise ValueError(f"{name}: must be 3 finite numbers, got {value!r}")
+    return v
+
+
 @dataclass(frozen=True)
 class Push:
-    """A hand pushing satellite `satellite` (0-based) with force_R_N (in R) for duration_s."""
+    """A hand pushing satellite `satellite` (0-based) with force_R_N (in R) for duration_s.
+
+    Checked on creation: an index, three finite force components, a finite duration > 0.
+    """
 
     satellite: int
     force_R_N: tuple[float, float, float]
     duration_s: float
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "satellite", _satellite_index(self.satellite))
+        object.__setattr__(self, "force_R_N", _finite_vector3("force_R_N", self.force_R_N))
+        d = self.duration_s
+        if isinstance(d, bool) or not isinstance(d, int | float) or not (
+                math.isfinite(d) and d > 0.0):
+            raise ValueError(f"duration_s: must be a finite number of seconds > 0, got {d!r}")
+
 
 @dataclass(frozen=True)
 class HandAnchor:
-    """The operator's hand (gizmo) at anchor_W_m, spring-coupled to the mockup; None lets go."""
+    """The operator's hand (gizmo) at anchor_W_m, spring-coupled to the mockup; None lets go.
+
+    Checked on creation: an index, and None or three finite coordinates.
+    """
 
     satellite: int
     anchor_W_m: tuple[float, float, float] | None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "satellite", _satellite_index(self.satellite))
+        if self.anchor_W_m is not None:
+            object.__setattr__(self, "anchor_W_m", _finite_vector3("anchor_W_m",
+                                                                   self.anchor_W_m))
 
 
 Command = Push | HandAnchor
@@ -70,6 +107,8 @@ class OperatorHand:
 
     def post(self, command: Command) -> None:
         """Queue a command; it takes effect at the next :meth:`update`."""
+        if not isinstance(command, Push | HandAnchor):
+            raise TypeError(f"not a Push or HandAnchor: {command!r}")
         if not 0 <= command.satellite < self.n_sat:
             raise ValueError(
                 f"satellite must be between 1 and {self.n_sat}, got {command.satellite + 1}"

@@ -41,13 +41,15 @@ from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.telemetry import Recorder
 
-__all__ = ["STATUSES", "Emulator"]
-
-STATUSES = ("idle", "running", "finished", "safety_stop", "stopped")
+__all__ = ["Emulator"]
 
 
 class Emulator:
-    """Dual-arm (any number of arms) on-orbit emulation loop."""
+    """Dual-arm (any number of arms) on-orbit emulation loop.
+
+    ``status``: "idle" (before :meth:`prepare`), "running", "finished", "safety_stop"
+    (see ``safety_stop``) or "stopped" (set by the one who stopped it).
+    """
 
     def __init__(self, config: EmulatorConfig, mode: str | None = None) -> None:
         self.config = config
@@ -87,6 +89,7 @@ class Emulator:
         self.applied_force_R = np.zeros((self.n_sat, 3))
         self.applied_torque_B = np.zeros((self.n_sat, 3))
         self.true_force_R = np.zeros((self.n_sat, 3))
+        self._final_recorded_at = -1
         self._load_kernels()
 
     # --- the cycle ------------------------------------------------------------------------
@@ -247,5 +250,6 @@ class Emulator:
                 progress(k, n)
         if self.status == "running":
             self.status = "finished"
-        if self.cycles:
-            self._record()  # the final state, whatever ended the run
+        if self.cycles and self._final_recorded_at != self.cycles:
+            self._record()  # the final state, whatever ended the run (once)
+            self._final_recorded_at = self.cycles

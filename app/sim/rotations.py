@@ -3,7 +3,7 @@
 Conventions used everywhere in orbit-emulator:
 
 * quaternions are stored scalar-first, ``q = [w, x, y, z]`` (as in the configuration
-  files and the telemetry); Pinocchio stores ``[x, y, z, w]``, convert at that boundary;
+  files and the telemetry; the tests' Pinocchio oracles convert from its ``[x, y, z, w]``);
 * ``R_A_B`` is the rotation matrix that maps coordinates in frame B to frame A, and a
   quaternion named ``q_A_B`` represents the same rotation;
 * ``T_A_B`` is the 4x4 homogeneous transform with ``R_A_B`` and the origin of B in A.
@@ -39,12 +39,6 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     )
-
-
-def quat_conj(q: np.ndarray) -> np.ndarray:
-    """Conjugate (the inverse of a unit quaternion)."""
-    q = np.asarray(q, dtype=float)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -120,12 +114,6 @@ def rotvec_to_quat(v: np.ndarray) -> np.ndarray:
     if theta < 1e-12:
         return quat_normalize(np.concatenate([[1.0], 0.5 * v]))
     return np.concatenate([[np.cos(theta / 2)], np.sin(theta / 2) * v / theta])
-
-
-def quat_angle(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle in rad of the rotation that takes attitude a to attitude b."""
-    d = abs(float(np.dot(a, b)) / (np.linalg.norm(a) * np.linalg.norm(b)))
-    return 2.0 * float(np.arccos(min(1.0, d)))
 
 
 def make_transform(R: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -153,13 +153,25 @@ class Recorder:
     def __init__(self, n_sat: int, n_arms: int, capacity: int, T_R_W: np.ndarray,
                  orbit_rate_radps: float) -> None:
         self.buffer = TelemetryBuffer(loop_columns(n_sat, n_arms), capacity)
+        self.n_sat, self.n_arms = n_sat, n_arms
         self.T_R_W = np.ascontiguousarray(T_R_W, dtype=float)
         self.orbit_rate_radps = float(orbit_rate_radps)
 
     def record(self, t_s: float, y: np.ndarray, force_R: np.ndarray, torque_B: np.ndarray,
                arms, true_force_R: np.ndarray) -> None:
         """One row: time, ODS state y (N, 13) with the wrench (N, 3) + (N, 3) it receives,
-        each arm's ``(T_W_C, v_W, q_rad, raw_S)`` and the true force on each mockup (N, 3)."""
+        each arm's ``(T_W_C, v_W, q_rad, raw_S)`` and the true force on each mockup (N, 3).
+
+        The kernels write without bounds checks: the shapes are checked here first, so that
+        a wrong call raises and records nothing."""
+        n = self.n_sat
+        if (y.shape != (n, 13) or force_R.shape != (n, 3) or torque_B.shape != (n, 3)
+                or true_force_R.shape != (n, 3) or len(arms) != self.n_arms):
+            raise ValueError(
+                f"recorder of {n} satellites and {self.n_arms} arms got a state {y.shape}, "
+                f"wrenches {force_R.shape} {torque_B.shape} {true_force_R.shape}, "
+                f"{len(arms)} arms"
+            )
         row = self.buffer.next_row()
         k = record_satellites(t_s, y, self.orbit_rate_radps, force_R, torque_B, row)
         for T_W_C, v_W, q_rad, raw_S in arms:
