@@ -287,6 +287,11 @@ class LoopConfig(_Model):
     seed: Annotated[int, Field(ge=0)] = 0
     telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 200_000
     approach_timeout_s: Positive = 20.0
+    max_tracking_error_m: Positive = 0.05
+    """A mockup this far from its satellite's ODS position stops the run (hil): the arm
+    can no longer show the orbit (the paper's lab tracked within 0.01 m)."""
+    max_tracking_error_rad: Positive = 0.25
+    """The same for the attitude."""
 
 
 class EmulatorConfig(_Model):

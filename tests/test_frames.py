@@ -9,12 +9,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from app.sim.frames import matrix_to_quat_into, ods_states_W, satellite_pose
 from app.sim.rotations import (
     invert_transform,
     make_transform,
     matrix_to_quat,
+    matrix_to_rotvec,
     quat_mul,
     quat_to_matrix,
     rotvec_to_matrix,
@@ -137,3 +139,23 @@ def test_matrix_to_quat_into_round_trips_quaternions():
         matrix_to_quat_into(quat_to_matrix(p) @ quat_to_matrix(q), out, 0)
         pq = quat_mul(p, q)
         np.testing.assert_allclose(out, pq if pq[0] >= 0 else -pq, rtol=0, atol=ATOL)
+
+
+def test_pose_distance_and_tracking_error_against_numpy():
+    from app.sim.frames import pose_distance, tracking_error
+
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        Ta = make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3))
+        Tb = make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3))
+        d, a = pose_distance(Ta, Tb)
+        assert d == pytest.approx(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3]), abs=1e-12)
+        assert a == pytest.approx(np.linalg.norm(matrix_to_rotvec(Ta[:3, :3].T @ Tb[:3, :3])),
+                                  abs=1e-6)
+    y = np.zeros((2, 13))
+    y[:, 6] = 1.0
+    y[1, :3] = [0.1, 0.2, 0.3]
+    T_W_R = make_transform(np.eye(3), np.array([1.0, 0.0, 0.0]))
+    T = make_transform(np.eye(3), np.array([1.1, 0.2, 0.3 + 0.04]))
+    d, a = tracking_error(T_W_R, y, 1, T)
+    assert d == pytest.approx(0.04, abs=1e-12) and a == 0.0

@@ -234,6 +234,20 @@ def test_running_a_finished_run_again_adds_no_row():
     assert em.status == "finished" and em.telemetry.count == rows == em.cycles + 1
 
 
+def test_a_mockup_that_no_longer_shows_its_satellite_stops_the_run():
+    """[loop] max_tracking_error_m: beyond it the arm cannot show the orbit: a stop, named."""
+    cfg = merge_overrides(load_scenario("free-floating"),
+                          {"loop": {"max_tracking_error_m": 1e-4}})
+    em = Emulator(cfg)
+    em.run(3.0)  # the first push (1.0-1.3 s) makes the arm lag by more than 0.1 mm
+    assert em.status == "safety_stop"
+    assert em.safety_stop["reason"].startswith("tracking error ")
+    assert "beyond 0 mm / 250 mrad" in em.safety_stop["reason"]
+    assert 1.0 < em.safety_stop["t_s"] < 1.4
+    rows = em.telemetry.rows()
+    assert rows[-1, 0] == pytest.approx(em.safety_stop["t_s"])  # kept up to the stop
+
+
 def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):
     out = tmp_path / "run"
     result = subprocess.run(

@@ -11,9 +11,16 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
-__all__ = ["matrix_to_quat_into", "ods_states_W", "satellite_pose"]
+__all__ = [
+    "matrix_to_quat_into",
+    "ods_states_W",
+    "pose_distance",
+    "satellite_pose",
+    "tracking_error",
+]
 
 
 @njit(cache=True, fastmath=False)
@@ -69,3 +76,24 @@ def matrix_to_quat_into(R, out, k):
         q0, q1, q2, q3 = -q0, -q1, -q2, -q3
     n = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     out[k], out[k + 1], out[k + 2], out[k + 3] = q0 / n, q1 / n, q2 / n, q3 / n
+
+
+@njit(cache=True, fastmath=False)
+def pose_distance(T_a, T_b):
+    """(distance m, angle rad) between two poses: |p_a − p_b| and the angle of R_aᵀ R_b."""
+    dx, dy, dz = T_a[0, 3] - T_b[0, 3], T_a[1, 3] - T_b[1, 3], T_a[2, 3] - T_b[2, 3]
+    tr = 0.0
+    for a in range(3):
+        for b in range(3):
+            tr += T_a[b, a] * T_b[b, a]
+    c = 0.5 * (tr - 1.0)
+    c = 1.0 if c > 1.0 else (-1.0 if c < -1.0 else c)
+    return math.sqrt(dx * dx + dy * dy + dz * dz), math.acos(c)
+
+
+@njit(cache=True, fastmath=False)
+def tracking_error(T_W_R, y, i, T_W_C):
+    """(distance m, angle rad) of the pose T_W_C from satellite i's ODS pose in the lab."""
+    T = np.empty((4, 4))
+    satellite_pose(T_W_R, y, i, T)
+    return pose_distance(T_W_C, T)

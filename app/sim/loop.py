@@ -27,7 +27,7 @@ import numpy as np
 from app.config import EmulatorConfig
 from app.sim.contact import BoxContactModel
 from app.sim.coupling import OdsCoupling
-from app.sim.frames import satellite_pose
+from app.sim.frames import satellite_pose, tracking_error
 from app.sim.hand import Command, OperatorHand
 from app.sim.interaction import (
     Bodies,
@@ -104,6 +104,8 @@ class Emulator:
         t_s = self.ods.t_s
         self.hand.update(t_s)
         bodies = self.bodies_W()  # hil: the actual mockups (arm FK); ideal: the ODS poses
+        if not self._tracking(bodies):
+            return
         external_W = self.interaction.wrenches_W(bodies, t_s)  # contact + operator's hand
         self.true_force_R = external_W[:, :3] @ self.R_W_R
         force_R, torque_B = self.ods_input(bodies, external_W)  # F/T chains + coupling
@@ -122,6 +124,20 @@ class Emulator:
         if self.mode == "hil":
             return actual_bodies(self.T_W_R, self.ods, self.arms)
         return ods_bodies(self.T_W_R, self.ods)
+
+    def _tracking(self, bodies: Bodies) -> bool:
+        """Whether every arm still shows its satellite: the actual mockup within
+        ``[loop] max_tracking_error_m`` / ``_rad`` of the ODS pose; if not, a stop."""
+        loop = self.config.loop
+        for arm in self.arms:
+            s = arm.satellite
+            d_m, d_rad = tracking_error(self.T_W_R, self.ods.y, s, bodies.T_W_C[s])
+            if d_m > loop.max_tracking_error_m or d_rad > loop.max_tracking_error_rad:
+                self._safety_stop(arm, f"tracking error {1e3 * d_m:.0f} mm / {1e3 * d_rad:.0f} "
+                                       f"mrad beyond {1e3 * loop.max_tracking_error_m:.0f} mm / "
+                                       f"{1e3 * loop.max_tracking_error_rad:.0f} mrad")
+                return False
+        return True
 
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
@@ -201,7 +217,8 @@ class Emulator:
         ods.step(zeros, zeros, self.dt_s)
         scratch = Recorder(self.n_sat, len(self.arms), 1, self.T_R_W,
                            self.ods.params.orbit_rate_radps)
-        ods_bodies(self.T_W_R, ods)
+        bodies = ods_bodies(self.T_W_R, ods)
+        tracking_error(self.T_W_R, ods.y, 0, bodies.T_W_C[0])
         if not self.arms:
             scratch.record(0.0, ods.y, zeros, zeros, [], zeros)
             return
