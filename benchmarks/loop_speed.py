@@ -162,7 +162,8 @@ def _with_stage_timers(em) -> dict[str, int]:
     em.hand.wrenches_W = _timed(em.hand.wrenches_W, acc, "operator's hand")
     em.coupling.ods_input = _timed(em.coupling.ods_input, acc, "ODS coupling (passivity)")
     em._record = _timed(em._record, acc, "telemetry row")
-    em.ods.step = _timed(em.ods.step, acc, "ODS step")
+    em.ods_advance = _timed(em.ods_advance, acc, "ODS step")
+    em._tracking = _timed(em._tracking, acc, "tracking watchdog")
     for arm in em.arms:
         arm.sensor.measure = _timed(arm.sensor.measure, acc, "F/T sensor + processing")
         arm.processor.process = _timed(arm.processor.process, acc, "F/T sensor + processing")

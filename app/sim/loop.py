@@ -37,6 +37,7 @@ from app.sim.interaction import (
     ods_bodies,
 )
 from app.sim.orbital import OrbitalSimulator
+from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.telemetry import Recorder
@@ -109,9 +110,10 @@ class Emulator:
         external_W = self.interaction.wrenches_W(bodies, t_s)  # contact + operator's hand
         self.true_force_R = external_W[:, :3] @ self.R_W_R
         force_R, torque_B = self.ods_input(bodies, external_W)  # F/T chains + coupling
+        y_next, force_R, torque_B = self.ods_advance(force_R, torque_B)  # the ODS step
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
         self._record()
-        self.ods.step(force_R, torque_B, self.dt_s)
+        self.ods.commit(y_next, self.dt_s)
         for arm in self.arms:  # TCP target -> VFDM -> servo
             arm.command(arm.tcp_target_B(self.ods.y))
             if arm.servo.stopped:
@@ -157,6 +159,26 @@ class Emulator:
                 s, measured, self.ods, v_W, w_W, T_W_C[:3, :3], self.R_W_R
             )
         return force_R, torque_B
+
+    def ods_advance(self, force_R: np.ndarray,
+                    torque_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(next ODS state, force, torque the ODS received over the cycle): Eqs. 1-7 by
+        RK4 under the cycle's input; in an ideal run, a cycle that starts or ends in
+        contact has the contact law integrated within it (:mod:`app.sim.reference`)."""
+        y_next = self.ods.advance(force_R, torque_B, self.dt_s)
+        if self.mode == "hil" or not (self.interaction.contact_active
+                                      or self._overlap(y_next)):
+            return y_next, force_R, torque_B
+        y_next, force_R, torque_B = substepped_advance(
+            self.ods, self.interaction, self.T_W_R, self.ods.t_s, self.dt_s,
+            self.config.loop.reference_substeps)
+        self.true_force_R = force_R  # no sensor in an ideal run: the ODS gets the truth
+        return y_next, force_R, torque_B
+
+    def _overlap(self, y: np.ndarray) -> bool:
+        """Whether any two bodies overlap in the ODS state y."""
+        bodies = ods_bodies(self.T_W_R, OrbitalSimulator(self.ods.params, y))
+        return bool(self.interaction.contact.compute(*bodies).contacts)
 
     def _record(self) -> None:
         """Append the telemetry row of the current state."""

@@ -234,7 +234,16 @@ class OrbitalSimulator:
 
     def step(self, force_R_N: np.ndarray, torque_B_Nm: np.ndarray, dt_s: float) -> None:
         """Advance all satellites by dt_s under wrenches held constant over the step."""
-        self.y = rk4_step(self.params, self.y, force_R_N, torque_B_Nm, dt_s)
+        self.commit(self.advance(force_R_N, torque_B_Nm, dt_s), dt_s)
+
+    def advance(self, force_R_N: np.ndarray, torque_B_Nm: np.ndarray,
+                dt_s: float) -> np.ndarray:
+        """The state dt_s later under wrenches held constant (nothing changes here)."""
+        return rk4_step(self.params, self.y, force_R_N, torque_B_Nm, dt_s)
+
+    def commit(self, y: np.ndarray, dt_s: float) -> None:
+        """Take the state y as the one dt_s later."""
+        self.y = y
         self.t_s += dt_s
 
     @property
