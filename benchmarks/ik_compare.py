@@ -20,7 +20,6 @@ import numpy as np
 from app.config import ServoConfig
 from app.headless import run_scenario
 from app.scenarios import load_scenario
-from app.sim.ik import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
 from app.sim.loop import Emulator
 from app.sim.rotations import invert_transform, make_transform, quat_to_matrix
 from app.sim.servo import UR10eServo
@@ -33,6 +32,7 @@ from app.sim.ur10e import (
     tcp_pose_B,
 )
 from app.sim.vfdm import Vfdm, pose_error
+from benchmarks.baselines import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
 
 RATE_HZ = 500.0
 DT_S = 1.0 / RATE_HZ

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.backend.testing import LiveServer
+from tests.live_server import LiveServer
 
 playwright = pytest.importorskip("playwright.sync_api")
 PIL = pytest.importorskip("PIL.Image")

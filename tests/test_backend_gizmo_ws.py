@@ -19,7 +19,7 @@ import viser
 import websockets
 from viser import _messages
 
-from app.backend.testing import LiveServer
+from tests.live_server import LiveServer
 
 GIZMO = "/gizmo/sat1"
 

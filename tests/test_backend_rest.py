@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from app.backend.testing import LiveServer
+from tests.live_server import LiveServer
 
 
 @pytest.fixture(scope="module")

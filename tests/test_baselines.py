@@ -12,7 +12,6 @@ import pinocchio as pin
 import pytest
 
 from app.config import VfdmConfig
-from app.sim.ik import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
 from app.sim.rotations import matrix_to_rotvec, rotvec_to_matrix
 from app.sim.ur10e import (
     SPEED_LIMITS_RADPS,
@@ -22,6 +21,7 @@ from app.sim.ur10e import (
     tcp_pose_B,
 )
 from app.sim.vfdm import Vfdm, pose_error
+from benchmarks.baselines import DampedLeastSquaresIK, JacobianTransposeIK, PseudoInverseIK
 from tests import oracle
 
 DT = 0.002
