@@ -121,14 +121,20 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int) -> None:
         print("| scenario | this tree µs (min / median) | other µs (min / median) "
               "| ratio of minima | median of chunk ratios |")
         print("|---|---:|---:|---:|---:|")
-        for scenario in scenarios:
+        def fresh(scenario):  # both emulators, prepared and past their first cycles
             ems = [Emulator(load_scenario(scenario)), OtherEmulator(other_load(scenario))]
             for em in ems:
                 em.prepare()
                 for _ in range(300):
                     em.step()
+            return ems
+
+        for scenario in scenarios:
+            ems = fresh(scenario)
             us = [[], []]
             for _ in range(chunks):
+                if any(em.status != "running" for em in ems):  # a run ended: both anew
+                    ems = fresh(scenario)
                 for k, em in enumerate(ems):
                     t0 = time.perf_counter_ns()
                     for _ in range(100):

@@ -20,6 +20,7 @@ __all__ = [
     "pose_distance",
     "satellite_pose",
     "tracking_error",
+    "tracking_errors",
 ]
 
 
@@ -97,3 +98,17 @@ def tracking_error(T_W_R, y, i, T_W_C):
     T = np.empty((4, 4))
     satellite_pose(T_W_R, y, i, T)
     return pose_distance(T_W_C, T)
+
+
+@njit(cache=True, fastmath=False)
+def tracking_errors(T_W_R, y, satellites, T_W_C, max_m, max_rad, out):
+    """out (k, 2) := :func:`tracking_error` of each satellite in ``satellites`` (k,), the
+    body poses T_W_C (N, 4, 4) indexed by satellite; returns the first k beyond max_m or
+    max_rad, or -1."""
+    first = -1
+    for k in range(satellites.shape[0]):
+        d_m, d_rad = tracking_error(T_W_R, y, satellites[k], T_W_C[satellites[k]])
+        out[k, 0], out[k, 1] = d_m, d_rad
+        if first < 0 and (d_m > max_m or d_rad > max_rad):
+            first = k
+    return first

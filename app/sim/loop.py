@@ -27,7 +27,7 @@ import numpy as np
 from app.config import EmulatorConfig
 from app.sim.contact import BoxContactModel
 from app.sim.coupling import OdsCoupling
-from app.sim.frames import satellite_pose, tracking_error
+from app.sim.frames import satellite_pose, tracking_error, tracking_errors
 from app.sim.hand import Command, OperatorHand
 from app.sim.interaction import (
     Bodies,
@@ -77,6 +77,8 @@ class Emulator:
             self.arms = [build_rig(i, robot, config, self.T_W_R, np.random.default_rng(seeds[i]))
                          for i, robot in enumerate(config.robots)]
         self._uncarried = sorted(set(range(self.n_sat)) - {arm.satellite for arm in self.arms})
+        self._carried = np.array([arm.satellite for arm in self.arms], dtype=np.int64)
+        self._tracking_out = np.zeros((len(self.arms), 2))
         self.coupling = OdsCoupling(config.passivity, self.dt_s,
                                     [arm.satellite for arm in self.arms])
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
@@ -130,16 +132,19 @@ class Emulator:
     def _tracking(self, bodies: Bodies) -> bool:
         """Whether every arm still shows its satellite: the actual mockup within
         ``[loop] max_tracking_error_m`` / ``_rad`` of the ODS pose; if not, a stop."""
-        loop = self.config.loop
-        for arm in self.arms:
-            s = arm.satellite
-            d_m, d_rad = tracking_error(self.T_W_R, self.ods.y, s, bodies.T_W_C[s])
-            if d_m > loop.max_tracking_error_m or d_rad > loop.max_tracking_error_rad:
-                self._safety_stop(arm, f"tracking error {1e3 * d_m:.0f} mm / {1e3 * d_rad:.0f} "
-                                       f"mrad beyond {1e3 * loop.max_tracking_error_m:.0f} mm / "
-                                       f"{1e3 * loop.max_tracking_error_rad:.0f} mrad")
-                return False
-        return True
+        if not self.arms:
+            return True
+        loop, errors = self.config.loop, self._tracking_out
+        k = tracking_errors(self.T_W_R, self.ods.y, self._carried, bodies.T_W_C,
+                            loop.max_tracking_error_m, loop.max_tracking_error_rad, errors)
+        if k < 0:
+            return True
+        d_m, d_rad = errors[k]
+        self._safety_stop(self.arms[k], f"tracking error {1e3 * d_m:.0f} mm / "
+                                        f"{1e3 * d_rad:.0f} mrad beyond "
+                                        f"{1e3 * loop.max_tracking_error_m:.0f} mm / "
+                                        f"{1e3 * loop.max_tracking_error_rad:.0f} mrad")
+        return False
 
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
@@ -241,6 +246,9 @@ class Emulator:
                            self.ods.params.orbit_rate_radps)
         bodies = ods_bodies(self.T_W_R, ods)
         tracking_error(self.T_W_R, ods.y, 0, bodies.T_W_C[0])
+        if self.arms:
+            tracking_errors(self.T_W_R, ods.y, self._carried, bodies.T_W_C, 1.0, 1.0,
+                            np.zeros((len(self.arms), 2)))
         if not self.arms:
             scratch.record(0.0, ods.y, zeros, zeros, [], zeros)
             return

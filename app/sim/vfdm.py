@@ -57,6 +57,7 @@ __all__ = [
     "Vfdm",
     "joint_acceleration",
     "limit_joint_step",
+    "vfdm_cycle",
     "log3",
     "pose_error",
     "virtual_arm",
@@ -276,6 +277,18 @@ def _joint_acceleration(q, tau, pR, pp, mass, lever, Icom, qdd):
 
 
 @njit(cache=True, fastmath=False)
+def vfdm_cycle(q, qd, e_prev, state, last_e, Rt, pt, iterations,
+               pR, pp, mass, lever, Icom, tR, tp, kp, kdh, use_kd, keep, h, qlim,
+               max_lin, max_rot, max_dq, step_prev, max_step, max_change):
+    """One control cycle: :func:`vfdm_steps`, then :func:`limit_joint_step` on the cycle's
+    joint step; returns the uniform scale the speed limit put on it."""
+    q0 = q.copy()
+    vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations, pR, pp, mass, lever, Icom,
+               tR, tp, kp, kdh, use_kd, keep, h, qlim, max_lin, max_rot, max_dq)
+    return limit_joint_step(q, qd, q0, step_prev, max_step, max_change, qlim)
+
+
+@njit(cache=True, fastmath=False)
 def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
                pR, pp, mass, lever, Icom, tR, tp, kp, kdh, use_kd, keep, h, qlim,
                max_lin, max_rot, max_dq):
@@ -429,7 +442,6 @@ class Vfdm:
             self._max_change = np.full(N_JOINTS, f * limits.accel_radps2 * dt * dt)
         self._max_dq = self._max_step / cfg.iterations
         self._step_prev = np.zeros(N_JOINTS)
-        self._q0 = np.zeros(N_JOINTS)
         self.last_scale = 1.0
         """Uniform scale the speed limit put on the last cycle's joint step (1.0: none)."""
         self.T_F_C = np.array(T_F_C, dtype=float)
@@ -469,13 +481,11 @@ class Vfdm:
             self.qd_radps[:] = 0.0  # the paper's "each cycle starts at rest" (Eq. 11)
         T = np.asarray(T_B_C_target, dtype=float)
         last_e = np.empty(6)
-        self._q0[:] = self.q_rad
-        vfdm_steps(self.q_rad, self.qd_radps, self._e_prev, self._has_prev, last_e,
-                   np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
-                   cfg.iterations, *self.arm, self._kp, self._kd_over_h, self._use_kd,
-                   self._keep, self._h, POSITION_LIMIT_RAD, cfg.max_error_lin_m,
-                   cfg.max_error_rot_rad, self._max_dq)
-        self.last_scale = limit_joint_step(self.q_rad, self.qd_radps, self._q0, self._step_prev,
-                                           self._max_step, self._max_change, POSITION_LIMIT_RAD)
+        self.last_scale = vfdm_cycle(
+            self.q_rad, self.qd_radps, self._e_prev, self._has_prev, last_e,
+            np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), cfg.iterations,
+            *self.arm, self._kp, self._kd_over_h, self._use_kd, self._keep, self._h,
+            POSITION_LIMIT_RAD, cfg.max_error_lin_m, cfg.max_error_rot_rad, self._max_dq,
+            self._step_prev, self._max_step, self._max_change)
         self.last_error = last_e
         return self.q_rad.copy()
