@@ -20,12 +20,11 @@ class RunResult:
     files: list[Path]
 
 
-def ideal_restitution(config: EmulatorConfig, duration_s: float) -> float | None:
-    """Restitution of the same scenario run in ideal mode (the reference)."""
+def ideal_collision(config: EmulatorConfig, duration_s: float) -> dict | None:
+    """The collision metrics of the same scenario run in ideal mode (the reference)."""
     em = Emulator(config, mode="ideal")
     em.run(duration_s)
-    coll = collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s)
-    return None if coll is None else coll["restitution"]
+    return collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s)
 
 
 def run_scenario(
@@ -50,10 +49,10 @@ def run_scenario(
         em.run(duration_s, progress=progress)
     finally:
         wall_s = time.perf_counter() - t0
-        e_ideal = None
+        ideal = None
         if em.mode == "hil" and len(config.satellites) >= 2:
-            e_ideal = ideal_restitution(config, duration_s)
-        metrics = compute_metrics(em, wall_s, restitution_ideal=e_ideal)
+            ideal = ideal_collision(config, duration_s)
+        metrics = compute_metrics(em, wall_s, ideal_collision=ideal)
         files = []
         if out_dir is not None:
             out = Path(out_dir)
@@ -61,6 +60,7 @@ def run_scenario(
             write_json(out / "metrics.json", metrics)
             files = [out / "telemetry.csv", out / "metrics.json"]
             files += plot_run(
-                em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms)
+                em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms),
+                metrics.get("collision"),
             )
     return RunResult(em, metrics, files)

@@ -45,8 +45,32 @@ def plot_free_floating(rows, index, out_dir: Path, sat: int = 1) -> list[Path]:
     return [path]
 
 
-def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int) -> list[Path]:
-    """Figs. 8-11: forces in R, desired vs actual velocity and position, position error."""
+def _collision_box(ax, coll: dict) -> None:
+    """The collision metrics as a text box: what the mockups went through, and vs ideal."""
+    e, ei, err = coll["restitution"], coll.get("restitution_ideal"), coll.get("restitution_error")
+    ratio = coll.get("true_impulse_ratio") or {}
+    lines = [
+        "restitution " + ("-" if e is None else f"{e:.3f}")
+        + ("" if ei is None else f" (ideal {ei:.3f}"
+           + ("" if err is None else f", error {100 * err:+.1f} %") + ")"),
+        "true impulse " + ", ".join(
+            f"{n} {np.linalg.norm(j):.3f} N s" + (f" ({ratio[n]:.2f}x ideal)" if n in ratio
+                                                   else "")
+            for n, j in coll["true_impulse_Ns"].items()),
+        f"peak force {coll['peak_force_N']:.1f} N, contact {1e3 * coll['contact_duration_s']:.0f}"
+        f" ms, energy absorbed {1e3 * coll['contact_energy_J']:.2f} mJ",
+        *(f"! {w}" for w in coll.get("warnings", [])),
+    ]
+    ax.text(0.01, 0.97, "\n".join(lines), transform=ax.transAxes, va="top", fontsize=7,
+            bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "0.7"})
+
+
+def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
+                   collision: dict | None = None) -> list[Path]:
+    """Figs. 8-11: forces in R, desired vs actual velocity and position, position error.
+
+    Fig. 8 zooms on the contact (its window ± 0.1 s) when ``collision`` (the metrics) is
+    given, and shows them."""
     t = rows[:, 0]
     sats = list(range(1, n_sat + 1))
     paths = []
@@ -58,6 +82,10 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int) -> list[P
                "true", "force [N]", ":")
         ax.set_title(f"Satellite {s}: force received by the ODS (solid) and true contact (dotted)")
         ax.legend(loc="upper right", fontsize=7, ncol=2)
+        if collision is not None:
+            ax.set_xlim(collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1)
+    if collision is not None:
+        _collision_box(axes[0, 0], collision)
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     paths.append(out_dir / "fig8_forces.png")
@@ -101,11 +129,13 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int) -> list[P
     return paths
 
 
-def plot_run(rows: np.ndarray, index: dict, out_dir: Path, n_sat: int, n_rob: int) -> list[Path]:
-    """The paper's figures for a run: Fig. 6 style with one satellite, Figs. 8-11 with more."""
+def plot_run(rows: np.ndarray, index: dict, out_dir: Path, n_sat: int, n_rob: int,
+             collision: dict | None = None) -> list[Path]:
+    """The paper's figures for a run: Fig. 6 style with one satellite, Figs. 8-11 with more
+    (``collision``: the run's collision metrics, shown on Fig. 8)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     if len(rows) == 0:
         return []
     if n_sat == 1:
         return plot_free_floating(rows, index, out_dir)
-    return plot_collision(rows, index, out_dir, n_sat, n_rob)
+    return plot_collision(rows, index, out_dir, n_sat, n_rob, collision)

@@ -64,11 +64,22 @@ def run_summary(metrics: dict) -> str:
     coll = metrics.get("collision")
     if coll:
         e, ei = coll["restitution"], coll["restitution_ideal"]
+        err, ratio = coll.get("restitution_error"), coll.get("true_impulse_ratio")
+        true_j = ", ".join(f"{name} {np.linalg.norm(j):.4f}"
+                           for name, j in coll["true_impulse_Ns"].items())
         lines += [
             "",
-            f"collision at {coll['contact_start_s']:.3f} s: impulse balance "
-            f"{coll['impulse_balance']:.3f}, restitution "
-            f"{'-' if e is None else f'{e:.3f}'} (ideal {'-' if ei is None else f'{ei:.3f}'})",
+            f"collision at {coll['contact_start_s']:.3f} s: restitution "
+            f"{'-' if e is None else f'{e:.3f}'} (ideal {'-' if ei is None else f'{ei:.3f}'}, "
+            f"error {'-' if err is None else f'{100 * err:+.1f} %'}); the ODS's impulse "
+            f"balance {coll['impulse_balance']:.3f}",
+            f"what the mockups went through: impulse {true_j} N s"
+            + ("" if not ratio else " (x ideal: " + ", ".join(
+                f"{name} {r:.2f}" for name, r in ratio.items()) + ")")
+            + f", peak force {coll['peak_force_N']:.1f} N, contact "
+            f"{1e3 * coll['contact_duration_s']:.0f} ms, energy absorbed "
+            f"{1e3 * coll['contact_energy_J']:.2f} mJ",
+            *(f"WARNING: {w}" for w in coll.get("warnings", [])),
         ]
     pc = metrics.get("passivity")
     if pc:
