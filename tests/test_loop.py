@@ -161,6 +161,16 @@ def test_rest_push_command_and_bad_satellite():
 # --- the wiring of one cycle ---------------------------------------------------------------
 
 
+def _cycle_by_hand(em: Emulator):
+    """(t, bodies, external wrenches, ODS force, ODS torque) of em's next cycle, its parts
+    called one by one in the order Emulator.step documents."""
+    t_s = em.ods.t_s
+    em.hand.update(t_s)
+    bodies = em.bodies_W()
+    external_W = em.interaction.wrenches_W(bodies, t_s)
+    return (t_s, bodies, external_W, *em.ods_input(bodies, external_W))
+
+
 def test_step_hands_the_ods_what_the_parts_give_in_the_documented_order():
     """One hil cycle with an arm's mockup pushed: Emulator.step() gives the ODS the input of
     bodies_W -> interaction.wrenches_W -> ods_input called by hand, and steps it with that."""
@@ -178,11 +188,7 @@ def test_step_hands_the_ods_what_the_parts_give_in_the_documented_order():
     y_before = by_hand.ods.y.copy()
     stepped.step()
 
-    t_s = by_hand.ods.t_s
-    by_hand.hand.update(t_s)
-    bodies = by_hand.bodies_W()
-    external_W = by_hand.interaction.wrenches_W(bodies, t_s)
-    force_R, torque_B = by_hand.ods_input(bodies, external_W)
+    t_s, bodies, external_W, force_R, torque_B = _cycle_by_hand(by_hand)
 
     np.testing.assert_array_equal(stepped.applied_force_R, force_R)
     np.testing.assert_array_equal(stepped.applied_torque_B, torque_B)
@@ -214,11 +220,7 @@ def test_ideal_step_hands_the_ods_the_external_wrench_exactly():
         em.post(Push(satellite=0, force_R_N=tuple(push_R), duration_s=0.1))
     stepped, by_hand = twins
     stepped.step()
-    t_s = by_hand.ods.t_s
-    by_hand.hand.update(t_s)
-    bodies = by_hand.bodies_W()
-    external_W = by_hand.interaction.wrenches_W(bodies, t_s)
-    force_R, torque_B = by_hand.ods_input(bodies, external_W)
+    _, _, _, force_R, torque_B = _cycle_by_hand(by_hand)
     np.testing.assert_array_equal(stepped.applied_force_R, force_R)
     np.testing.assert_array_equal(stepped.applied_torque_B, torque_B)
     np.testing.assert_allclose(force_R, [push_R, np.zeros(3)], atol=1e-12)
