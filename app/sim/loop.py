@@ -27,7 +27,7 @@ import numpy as np
 from app.config import EmulatorConfig
 from app.sim.contact import BoxContactModel
 from app.sim.coupling import OdsCoupling
-from app.sim.frames import satellite_pose, tracking_error, tracking_errors
+from app.sim.frames import satellite_pose, tracking_errors
 from app.sim.hand import Command, OperatorHand
 from app.sim.interaction import (
     Bodies,
@@ -245,13 +245,11 @@ class Emulator:
         scratch = Recorder(self.n_sat, len(self.arms), 1, self.T_R_W,
                            self.ods.params.orbit_rate_radps)
         bodies = ods_bodies(self.T_W_R, ods)
-        tracking_error(self.T_W_R, ods.y, 0, bodies.T_W_C[0])
-        if self.arms:
-            tracking_errors(self.T_W_R, ods.y, self._carried, bodies.T_W_C, 1.0, 1.0,
-                            np.zeros((len(self.arms), 2)))
         if not self.arms:
             scratch.record(0.0, ods.y, zeros, zeros, [], zeros)
             return
+        tracking_errors(self.T_W_R, ods.y, self._carried, bodies.T_W_C, 1.0, 1.0,
+                        np.zeros((len(self.arms), 2)))
         rig = build_rig(0, self.config.robots[0], self.config, self.T_W_R,
                         np.random.default_rng(0))
         T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
