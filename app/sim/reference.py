@@ -26,14 +26,14 @@ __all__ = ["exact_input", "substepped_advance"]
 
 
 def exact_input(interaction: PhysicalInteraction, ods: OrbitalSimulator, T_W_R: np.ndarray,
-                t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(force in R, torque in body axes, external wrench in W) on the ODS's bodies."""
+                t_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(force in R, torque in body axes) of the external wrenches on the ODS's bodies."""
     bodies = ods_bodies(T_W_R, ods)
     external_W = interaction.wrenches_W(bodies, t_s)
     force_R = external_W[:, :3] @ T_W_R[:3, :3]
     torque_B = np.array([body_torque_B(external_W[i], bodies.T_W_C[i])
                          for i in range(len(external_W))])
-    return force_R, torque_B, external_W
+    return force_R, torque_B
 
 
 def substepped_advance(ods: OrbitalSimulator, interaction: PhysicalInteraction,
@@ -45,9 +45,9 @@ def substepped_advance(ods: OrbitalSimulator, interaction: PhysicalInteraction,
     sub = OrbitalSimulator(ods.params, ods.y.copy(), ods.t_s)
     force_sum, torque_sum = np.zeros_like(ods.y[:, :3]), np.zeros_like(ods.y[:, :3])
     for _ in range(n):
-        f0, t0, _ = exact_input(interaction, sub, T_W_R, t_s)
+        f0, t0 = exact_input(interaction, sub, T_W_R, t_s)
         predicted = OrbitalSimulator(ods.params, sub.advance(f0, t0, h), sub.t_s + h)
-        f1, t1, _ = exact_input(interaction, predicted, T_W_R, t_s)
+        f1, t1 = exact_input(interaction, predicted, T_W_R, t_s)
         f, t = 0.5 * (f0 + f1), 0.5 * (t0 + t1)
         sub.commit(sub.advance(f, t, h), h)
         force_sum += f
