@@ -190,6 +190,10 @@ class VfdmConfig(_Model):
     velocity_mode: Literal["damped", "reset"] = "damped"
     damping: Annotated[float, AfterValidator(_finite), Field(ge=0.0, lt=1.0)] = 0.1
     """Fraction of virtual joint velocity removed per internal step (mode 'damped')."""
+    sync_to_measured: bool = False
+    """Each cycle, start the virtual arm from the measured joint positions (as FZI's
+    cartesian_controllers can): the set-points then never drift from the real arm, at the
+    cost of the servo's lag entering the virtual model."""
     limit_fraction: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1.0)] = 0.95
     """The set-points ask each joint for at most this fraction of the servo's speed and
     acceleration limits: a cycle's joint step beyond the speed limit is scaled down as a
@@ -236,10 +240,39 @@ class WrenchProcessingConfig(_Model):
     inertial_compensation: bool = True
     lowpass_hz: Positive = 30.0
     deadband_force_N: NonNegative = 4.0
-    deadband_torque_Nm: NonNegative = 0.16
+    deadband_torque_Nm: NonNegative = 0.25
+    """On the torque about the COM, which carries the sensor's torque noise and the lever
+    arm of its force noise (std ≈ 0.06 N·m per axis after the low-pass, for the 0.07 m
+    mockup offset): about 4 σ."""
     deadband_mode: Literal["hard", "soft"] = "hard"
     """'hard': zero below the threshold, unchanged above (keeps the size of real pushes);
     'soft': zero below, magnitude reduced by the threshold above (continuous)."""
+    contact_gate: bool = False
+    """Contact-aware deadband (app/sim/contact_gate.py): while the lab's geometry (the
+    mockups' boxes at their measured poses) has a mockup touching another body, or within
+    ``contact_gate_margin_m`` of one and closing in, its deadbands are lifted, so that a
+    contact below the noise threshold reaches the ODS whole. Off: the deadband always
+    applies (the paper)."""
+    contact_gate_margin_m: NonNegative = 0.001
+    fuse_pair_contact: bool = False
+    """With the contact gate: while two carried mockups touch only each other, hand both
+    satellites the one estimate ±(F_b − F_a)/2 of the two sensors (app/sim/contact_gate.py):
+    the exchanged momentum balances exactly, the noise per satellite drops by √2."""
+
+
+class CompensationConfig(_Model):
+    """Lag compensation of the emulation loop (app/sim/compensation.py).
+
+    The arm is commanded to where the ODS predicts its satellite will be ``lead_s``
+    later, the lag from an ODS pose to the mockup pose plus the lag from a contact on the
+    mockup to the ODS's input: the contact then happens, and its measured force arrives,
+    in step with the virtual satellites. Off by default (the paper has none).
+    """
+
+    enabled: bool = False
+    lead_s: NonNegative | None = None
+    """None: the loop's own lag model (servo delay and bandwidth, VFDM, sensor delay,
+    filter, zero-order hold)."""
 
 
 class PassivityConfig(_Model):
@@ -255,6 +288,9 @@ class PassivityConfig(_Model):
     enabled: bool = False
     idle_reset_s: NonNegative = 0.1
     """The balance is forgotten once the measured wrench has been zero this long."""
+    tank_max_J: NonNegative = 1e-3
+    """Cap of the force ports' energy tank: energy the contact dissipated early is not
+    handed back to the satellites later beyond this."""
 
 
 class ContactMaterial(_Model):
@@ -315,6 +351,7 @@ class EmulatorConfig(_Model):
     sensor: SensorConfig = SensorConfig()
     wrench: WrenchProcessingConfig = WrenchProcessingConfig()
     passivity: PassivityConfig = PassivityConfig()
+    compensation: CompensationConfig = CompensationConfig()
     materials: dict[str, ContactMaterial] = DEFAULT_MATERIALS
     hand: HandConfig = HandConfig()
     loop: LoopConfig = LoopConfig()

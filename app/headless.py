@@ -33,11 +33,14 @@ def run_scenario(
     duration_s: float | None = None,
     out_dir: str | Path | None = None,
     progress=None,
+    with_ideal: bool = True,
 ) -> RunResult:
     """Run a scenario headless; with out_dir, write its telemetry, metrics and plots.
 
     The telemetry buffer is sized to hold the whole run, so nothing recorded is dropped;
-    on a safety stop the run ends there and everything up to it is written.
+    on a safety stop the run ends there and everything up to it is written. A hil run
+    with two or more satellites is compared with its ideal run unless ``with_ideal`` is
+    False.
     """
     duration_s = duration_s or config.loop.duration_s
     cycles = int(round(duration_s * config.loop.rate_hz)) + 2
@@ -50,7 +53,7 @@ def run_scenario(
     finally:
         wall_s = time.perf_counter() - t0
         ideal = None
-        if em.mode == "hil" and len(config.satellites) >= 2:
+        if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
             ideal = ideal_collision(config, duration_s)
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal)
         files = []

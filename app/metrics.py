@@ -43,9 +43,11 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
                       bodies: dict[int, str] | None = None):
     """Impulses the ODS received, their balance, and the coefficient of restitution.
 
-    The contact window runs from the first touch until neither the true contact force nor
-    the force the ODS receives (filtered, delayed) has acted for 50 ms; impulses are the
-    ODS's received force integrated over it. Restitution
+    The contact lasts from the first touch until the true contact force has been zero for
+    50 ms; the window adds 50 ms on either side for the loop's lag (what the ODS receives
+    comes filtered and delayed), and the impulses are the ODS's received force integrated
+    over it. The window closes whatever the ODS keeps receiving (e.g. noise through a zero
+    deadband). Restitution
     e = -(v_b - v_a)_after . n / (v_b - v_a)_before . n, with n the line of centres at
     first contact. None if no impact, or if the run ended before the satellites separated.
 
@@ -60,27 +62,25 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     applied = {
         s: _cols(rows, index, f"sat{s}", ("fx_N", "fy_N", "fz_N")) for s in (a, b)
     }
-    touching = np.nonzero(np.linalg.norm(true_a, axis=1) > 0)[0]
-    if len(touching) == 0:
+    touching = np.linalg.norm(true_a, axis=1) > 0
+    if not touching.any():
         return None
-    first = int(touching[0])
-    acting = np.linalg.norm(true_a, axis=1) > 0
-    for s_ in (a, b):
-        acting |= np.linalg.norm(applied[s_], axis=1) > 0
-    # the contact window: from first touch until nothing acts for `quiet` seconds
+    first = int(np.argmax(touching))
+    # the contact: from the first touch until the bodies have been apart for `quiet`
     quiet = int(round(0.05 / dt_s))
     last = first
-    k = first
-    while k < len(rows) and k - last <= quiet:
-        if acting[k]:
+    for k in range(first, len(rows)):
+        if touching[k]:
             last = k
-        k += 1
-    window = slice(max(0, first - quiet), last + 1)
+        elif k - last > quiet:
+            break
+    # the window adds `quiet` on both sides, for the loop's lag (filtered, delayed force)
+    window = slice(max(0, first - quiet), min(len(rows), last + quiet + 1))
     impulse = {s_: applied[s_][window].sum(axis=0) * dt_s for s_ in (a, b)}
     ja, jb = impulse[a], impulse[b]
     biggest = max(np.linalg.norm(ja), np.linalg.norm(jb))
     balance = float(np.linalg.norm(ja + jb) / biggest) if biggest > 0 else None
-    after = last + int(round(0.02 / dt_s))
+    after = window.stop - 1 + int(round(0.02 / dt_s))
     pos = {s: _cols(rows, index, f"sat{s}", ("x_m", "y_m", "z_m")) for s in (a, b)}
     vel = {s: _cols(rows, index, f"sat{s}", ("vx_mps", "vy_mps", "vz_mps")) for s in (a, b)}
     n = pos[b][first] - pos[a][first]
@@ -111,6 +111,7 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         "restitution": restitution,
         "contact_start_s": float(rows[first, 0]),
         "contact_end_s": float(rows[last, 0]),
+        "window_s": [float(rows[window.start, 0]), float(rows[window.stop - 1, 0])],
     }
 
 
@@ -140,7 +141,9 @@ def passivity_metrics(em: Emulator) -> dict | None:
     removed = em.coupling.dissipated_J()
     if removed is None:
         return None
-    return {"dissipated_J": {f"sat{s + 1}": ports for s, ports in removed.items()}}
+    return {"dissipated_J": {
+        "force": removed["force"],
+        "torque": {f"sat{s + 1}": e for s, e in removed["torque"].items()}}}
 
 
 def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None) -> dict:

@@ -83,8 +83,9 @@ def run_summary(metrics: dict) -> str:
         ]
     pc = metrics.get("passivity")
     if pc:
-        removed = sum(d["force"] + d["torque"] for d in pc["dissipated_J"].values())
-        lines.append(f"passivity controller removed {removed * 1e3:.2f} mJ")
+        d = pc["dissipated_J"]
+        lines.append(f"passivity layer removed {d['force'] * 1e3:.2f} mJ (force ports), "
+                     f"{sum(d['torque'].values()) * 1e3:.3f} mJ (torque ports)")
     stop = metrics.get("safety_stop")
     if stop:
         lines.append(

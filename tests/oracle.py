@@ -375,17 +375,22 @@ def deadband(v: np.ndarray, threshold: float, mode: str) -> np.ndarray:
 class RefProcessor:
     """The lab's processing chain: bias removal, payload compensation ``m g`` and (optional)
     inertial compensation ``−m a`` in S with the moment ``c × f`` → first-order low-pass →
-    force and torque deadbands → moment shifted from S to the COM → force into R, torque into
-    the body axes. ``calibration``: an app.sim.ft_sensor.Calibration (bias, mass, COM in F).
+    force deadband → moment shifted from S to the COM by the force that passed → deadband
+    of the torque about the COM → force into R, torque into the body axes. Poses and
+    acceleration are those of the cycle the reading was taken in (``delay_cycles`` ago).
+    ``calibration``: an app.sim.ft_sensor.Calibration (bias, mass, COM in F).
     """
 
-    def __init__(self, config, alpha: float, gravity_W: np.ndarray, calibration):
+    def __init__(self, config, alpha: float, gravity_W: np.ndarray, calibration,
+                 delay_cycles: int = 0):
         self.config, self.alpha, self.gravity_W = config, alpha, np.asarray(gravity_W)
         self.cal = calibration
-        self.state = np.zeros(6)
+        self.delay_cycles = delay_cycles
+        self.reset()
 
     def reset(self) -> None:
         self.state = np.zeros(6)
+        self.past = []
 
     def compensate(self, wrench_S, R_W_F, accel_W) -> np.ndarray:
         cfg, cal = self.config, self.cal
@@ -402,16 +407,19 @@ class RefProcessor:
         self.state = self.state + self.alpha * (w - self.state)
         return self.state.copy()
 
-    def process(self, wrench_S, T_W_F, T_W_C, R_W_R, accel_W=None):
-        """(force in R, torque about the COM in body axes, processed wrench in S)."""
+    def process(self, wrench_S, T_W_F, T_W_C, R_W_R, accel_W=None, gate_open=False):
+        """(force in R, torque about the COM in body axes, processed wrench in S axes with
+        the moment about the COM)."""
+        self.past.append((T_W_F, T_W_C, np.zeros(3) if accel_W is None else accel_W))
+        T_W_F, T_W_C, accel_W = self.past[max(0, len(self.past) - 1 - self.delay_cycles)]
         cfg, R_W_F = self.config, T_W_F[:3, :3]
+        db_f, db_t = (0.0, 0.0) if gate_open else (cfg.deadband_force_N, cfg.deadband_torque_Nm)
         w = self.filter(self.compensate(wrench_S, R_W_F, accel_W))
-        f_S = deadband(w[:3], cfg.deadband_force_N, cfg.deadband_mode)
-        t_S = deadband(w[3:], cfg.deadband_torque_Nm, cfg.deadband_mode)
+        f_S = deadband(w[:3], db_f, cfg.deadband_mode)
         r_FC_S = R_W_F.T @ (T_W_C[:3, 3] - T_W_F[:3, 3])
-        t_C_S = t_S - np.cross(r_FC_S, f_S)  # moment about C = moment about S − r_SC × f
+        t_C_S = deadband(w[3:] - np.cross(r_FC_S, f_S), db_t, cfg.deadband_mode)
         return (R_W_R.T @ (R_W_F @ f_S), T_W_C[:3, :3].T @ (R_W_F @ t_C_S),
-                np.concatenate([f_S, t_S]))
+                np.concatenate([f_S, t_C_S]))
 
 
 # --- ODS ----------------------------------------------------------------------------------------

@@ -260,11 +260,12 @@ def _twins(sensor_cfg, proc_cfg, seed=21):
         rest.append(sensor.measure(np.zeros(6), T_W_C, T_W_F))
         np.testing.assert_allclose(rest[-1], ref_sensor.measure(np.zeros(6), T_W_C, T_W_F),
                                    rtol=0, atol=ATOL)
-    proc = WrenchProcessor(proc_cfg, RATE_HZ, G_W)
+    proc = WrenchProcessor(proc_cfg, RATE_HZ, G_W, sensor_cfg.delay_cycles)
     proc.calibrate(np.array(rest), T_W_F[:3, :3], mass_kg=MASS_KG, com_F_m=COM_F_M)
     alpha = 1.0 - np.exp(-2.0 * np.pi * proc_cfg.lowpass_hz / RATE_HZ)
     assert proc.alpha == pytest.approx(alpha, rel=1e-15)
-    ref_proc = oracle.RefProcessor(proc_cfg, alpha, G_W, proc.calibration)
+    ref_proc = oracle.RefProcessor(proc_cfg, alpha, G_W, proc.calibration,
+                                   sensor_cfg.delay_cycles)
     return sensor, proc, ref_sensor, ref_proc
 
 
@@ -306,8 +307,9 @@ def test_sensor_and_chain_equal_the_reference(case):
         raw = sensor.measure(wrench, T_C, T_F, accel)
         np.testing.assert_allclose(raw, ref_sensor.measure(wrench, T_C, T_F, accel),
                                    rtol=0, atol=ATOL)
-        out = proc.process(raw, T_F, T_C, R_W_R, accel)
-        force_R, torque_B, wrench_S = ref_proc.process(raw, T_F, T_C, R_W_R, accel)
+        gate = k % 7 == 0  # now and then the contact gate lifts the deadbands
+        out = proc.process(raw, T_F, T_C, R_W_R, accel, gate)
+        force_R, torque_B, wrench_S = ref_proc.process(raw, T_F, T_C, R_W_R, accel, gate)
         np.testing.assert_allclose(out.force_R_N, force_R, rtol=0, atol=ATOL)
         np.testing.assert_allclose(out.torque_B_Nm, torque_B, rtol=0, atol=ATOL)
         np.testing.assert_allclose(out.wrench_S, wrench_S, rtol=0, atol=ATOL)
@@ -339,7 +341,8 @@ def test_sensor_step_kernel_fills_the_delay_ring():
 def test_deadband_edges_equal_the_reference(mode):
     """Filtered force and torque exactly at, one ulp below and above, well below and well
     above the thresholds: same zeros and same values as the reference, through the whole
-    chain (alpha = 1: the filtered wrench is the reading itself) and the bare kernel."""
+    chain (alpha = 1: the filtered wrench is the reading itself; the COM at the sensor, so
+    that the torque about it is the reading's) and the bare kernel."""
     cfg = WrenchProcessingConfig(deadband_mode=mode, lowpass_hz=1e9,  # alpha = 1
                                  deadband_force_N=5.0, deadband_torque_Nm=0.625,
                                  inertial_compensation=False, payload_compensation=False)
@@ -357,8 +360,8 @@ def test_deadband_edges_equal_the_reference(mode):
         proc.reset()
         ref.reset()
         raw = np.concatenate([f, t])
-        out = proc.process(raw, T_W_F, T_W_C, R_W_R)
-        force_R, torque_B, wrench_S = ref.process(raw, T_W_F, T_W_C, R_W_R)
+        out = proc.process(raw, T_W_F, T_W_F, R_W_R)
+        force_R, torque_B, wrench_S = ref.process(raw, T_W_F, T_W_F, R_W_R)
         assert (not out.wrench_S[:3].any()) == zero == (not wrench_S[:3].any())
         assert (not out.wrench_S[3:].any()) == zero == (not wrench_S[3:].any())
         np.testing.assert_array_equal(out.wrench_S == 0.0, wrench_S == 0.0)

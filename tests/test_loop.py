@@ -47,9 +47,25 @@ def test_free_floating_each_push_gives_impulse_over_mass(free_floating_hil):
         # the data sheet's accuracy (5.5 N) over the push, times the force scale
         allowed = scale * 5.5 * (p.end_s - p.start_s) / mass
         assert np.linalg.norm((after - before) - expected) < allowed, p
+        # and within 3 % of impulse x scale / mass (the fidelity target)
+        assert np.linalg.norm((after - before) - expected) < 0.03 * np.linalg.norm(expected)
     sat = free_floating_hil.metrics["satellites"][0]
-    assert sat["position_error_max_m"] < 0.005
+    assert sat["position_error_max_m"] < 0.001
     assert free_floating_hil.metrics["safety_stop"] is None
+
+
+def test_free_floating_force_pushes_leave_no_spin(free_floating_hil):
+    """Pushes through the COM, with the sensor's noise: the torque deadband acts on the
+    moment about the COM, after the shift, so no spin builds up (was 2.7e-3 rad/s)."""
+    em = free_floating_hil.emulator
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    t = rows[:, 0]
+    last_push = max(p.end_s for p in em.config.pulses if any(p.force_N))
+    first_twist = min(p.start_s for p in em.config.pulses if any(p.torque_Nm))
+    w = rows[(t > last_push + 0.3) & (t < first_twist)][
+        :, [col[f"sat1_w{a}_radps"] for a in "xyz"]]
+    assert len(w) > 100
+    assert np.linalg.norm(w, axis=1).max() < 1e-4
 
 
 def test_free_floating_torque_pulse_turns_the_satellite(free_floating_hil):
@@ -85,12 +101,15 @@ def test_collision_hil_impact_happens_and_is_measured(collision_runs):
         collision_runs["ideal"].metrics["collision"]["restitution"]
     )
     assert coll["restitution"] is not None and coll["restitution"] > 0  # separated
-    # the sponge's impact stays inelastic, near the ideal run's (passivity controller on)
+    # the sponge's impact stays inelastic; with the F/T noise of the data sheet one run's
+    # restitution is uncertain by tens of percent (benchmarks/contact_fidelity.py)
     assert coll["restitution"] < 1.0
-    assert abs(coll["restitution"] - coll["restitution_ideal"]) < 0.15
-    assert coll["impulse_balance"] < 0.2
-    removed = m["passivity"]["dissipated_J"]
-    assert removed["sat1"]["force"] > 0 and removed["sat2"]["force"] > 0
+    assert abs(coll["restitution"] - coll["restitution_ideal"]) < 0.2
+    # the mockups exchanged about the ideal impulse, not 2-3x (lag compensation)
+    assert 0.7 < coll["true_impulse_ratio"]["sat1"] < 1.3
+    assert coll["impulse_balance"] < 1e-9  # pair fusion: one estimate for both satellites
+    assert m["passivity"]["dissipated_J"]["force"] >= 0.0
+    assert m["safety_stop"] is None
     # tracking before the impact
     em = collision_runs["hil"].emulator
     rows, col = em.telemetry.rows(), em.telemetry.index
@@ -102,13 +121,6 @@ def test_collision_hil_impact_happens_and_is_measured(collision_runs):
             axis=1,
         )
         assert d.max() < 0.005
-
-
-def test_without_passivity_control_the_lagging_loop_makes_the_impact_gain_energy():
-    cfg = merge_overrides(load_scenario("collision"), {"passivity": {"enabled": False}})
-    m = run_scenario(cfg, mode="hil", duration_s=4.0).metrics
-    assert m["passivity"] is None
-    assert m["collision"]["restitution"] > 1.0  # DESIGN.md "Fidelity": delay adds energy
 
 
 def test_hil_loop_runs_at_least_real_time(collision_runs):

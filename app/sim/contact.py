@@ -136,6 +136,11 @@ class BoxContactModel:
         self._request.enable_contact = True
         self._request.num_max_contacts = 1
         self._result = coal.CollisionResult()
+        self._distance = {
+            (a, b): coal.ComputeDistance(self._shapes[a], self._shapes[b]) for a, b in self.pairs
+        }
+        self._distance_request = coal.DistanceRequest()
+        self._distance_result = coal.DistanceResult()
 
     @classmethod
     def from_satellites(
@@ -173,6 +178,32 @@ class BoxContactModel:
         if depth <= 0.0:
             return None
         return ContactGeometry(depth, np.array(c.normal, dtype=float), np.array(c.pos))
+
+    def clearances(self, T_W_C: Sequence[np.ndarray],
+                   within_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """((N,) clearance, (N,) nearest): per body, the signed distance (m, < 0 when
+        overlapping) to the nearest body it may touch and that body's index, if nearer
+        than ``within_m``; inf and -1 otherwise (bounding spheres further apart than
+        within_m are not measured)."""
+        out = np.full(self.n, math.inf)
+        nearest = np.full(self.n, -1, dtype=np.int64)
+        for a, b in self.pairs:
+            d_ab = T_W_C[b][:3, 3] - T_W_C[a][:3, 3]
+            reach = self._radii[a] + self._radii[b] + within_m
+            if float(d_ab @ d_ab) > reach * reach:
+                continue
+            self._set_pose(a, T_W_C[a])
+            self._set_pose(b, T_W_C[b])
+            res = self._distance_result
+            res.clear()
+            d = float(self._distance[(a, b)](self._tf[a], self._tf[b],
+                                              self._distance_request, res))
+            if d < within_m:
+                if d < out[a]:
+                    out[a], nearest[a] = d, b
+                if d < out[b]:
+                    out[b], nearest[b] = d, a
+        return out, nearest
 
     def compute(
         self,

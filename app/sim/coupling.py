@@ -1,9 +1,11 @@
-"""The ODS coupling: each arm's measured wrench becomes the input of its virtual satellite.
+"""The ODS coupling: the measured wrenches become the input of the virtual satellites.
 
-The processed F/T wrench of an arm (force in R, torque about the COM in body axes) goes to
-the ODS of the satellite that arm carries, through that arm's passivity controllers when
-``[passivity] enabled`` (:mod:`app.sim.passivity`); the ODS applies the force and torque
-scales of ``[orbit]`` itself (Eqs. 1-6).
+Each arm's processed F/T wrench (force in R, torque about the COM in body axes) goes to the
+ODS of the satellite that arm carries; a satellite without an arm gets its external wrench
+exactly. With ``[passivity] enabled``, the forces of all satellites pass through one
+energy tank (:class:`app.sim.passivity.TankPassivity`: time-aligned port power, momentum
+kept) and each carried satellite's torque through its own passivity controller. The ODS
+applies the force and torque scales of ``[orbit]`` itself (Eqs. 1-6).
 """
 
 from __future__ import annotations
@@ -13,47 +15,50 @@ from collections.abc import Sequence
 import numpy as np
 
 from app.config import PassivityConfig
-from app.sim.ft_sensor import ProcessedWrench
-from app.sim.orbital import OrbitalSimulator
-from app.sim.passivity import PassivityController, is_zero
+from app.sim.passivity import PassivityController, TankPassivity, is_zero
 
 __all__ = ["OdsCoupling"]
 
 
 class OdsCoupling:
-    """Measured wrench of each arm → ODS input of its satellite (with passivity control)."""
+    """Measured wrenches → ODS input (with passivity control when enabled).
 
-    def __init__(self, config: PassivityConfig, dt_s: float, satellites: Sequence[int]) -> None:
-        self.passivity: dict[int, tuple[PassivityController, PassivityController]] = {}
-        if config.enabled:
-            for s in satellites:
-                self.passivity[s] = (PassivityController(dt_s, config.idle_reset_s),
-                                     PassivityController(dt_s, config.idle_reset_s))
+    carried: the satellites (0-based) that an arm carries; masses_kg: every satellite's
+    mass; align_cycles: how old the physical state is that a measured force belongs to.
+    """
 
-    def ods_input(self, satellite: int, measured: ProcessedWrench, ods: OrbitalSimulator,
-                  v_W: np.ndarray, w_W: np.ndarray, R_W_C: np.ndarray,
-                  R_W_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(force in R, torque in body axes) for the ODS of `satellite`, from the wrench
-        measured on its mockup moving at v_W, w_W (lab) with attitude R_W_C."""
-        force, torque = measured.force_R_N, measured.torque_B_Nm
-        pcs = self.passivity.get(satellite)
-        if pcs is None:
-            return force, torque
-        pc_f, pc_t = pcs
-        if is_zero(force):  # the velocities are only needed while something acts
-            pc_f.idle()
-        else:
-            force = pc_f.step(force, ods.velocity_mps[satellite], R_W_R.T @ v_W)
-        if is_zero(torque):
-            pc_t.idle()
-        else:
-            torque = pc_t.step(torque, ods.omega_rel_radps[satellite], R_W_C.T @ w_W)
-        return force, torque
+    def __init__(self, config: PassivityConfig, dt_s: float, carried: Sequence[int],
+                 masses_kg: Sequence[float], force_scale: float = 1.0,
+                 align_cycles: int = 0) -> None:
+        self.enabled = config.enabled and len(carried) > 0
+        self.carried = list(carried)
+        self.tank = TankPassivity(dt_s, np.asarray(masses_kg, dtype=float), force_scale,
+                                  align_cycles, config.idle_reset_s, config.tank_max_J)
+        self.torque_pcs = {s: PassivityController(dt_s, config.idle_reset_s)
+                           for s in self.carried}
 
-    def dissipated_J(self) -> dict[int, dict[str, float]] | None:
-        """Energy each satellite's controllers removed (force and torque ports); None when
-        passivity control is off."""
-        if not self.passivity:
+    def ods_input(self, force_R: np.ndarray, torque_B: np.ndarray, v_virtual_R: np.ndarray,
+                  v_physical_R: np.ndarray, w_virtual_B: np.ndarray,
+                  w_physical_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(force in R, torque in body axes) for every satellite's ODS from what was
+        measured (N, 3 each). v_*: COM velocities in R; w_*: angular velocities relative to
+        R in body axes; virtual: the satellites', physical: the bodies' (for a satellite
+        without an arm, its own)."""
+        if not self.enabled:
+            return force_R, torque_B
+        force_R = self.tank.step(force_R, v_virtual_R, v_physical_R)
+        torque_B = torque_B.copy()
+        for s, pc in self.torque_pcs.items():
+            if is_zero(torque_B[s]):
+                pc.idle()
+            else:
+                torque_B[s] = pc.step(torque_B[s], w_virtual_B[s], w_physical_B[s])
+        return force_R, torque_B
+
+    def dissipated_J(self) -> dict | None:
+        """Energy the passivity layer removed: the force tank's over all satellites, and
+        each carried satellite's torque port; None when passivity control is off."""
+        if not self.enabled:
             return None
-        return {s: {"force": f.dissipated_J, "torque": t.dissipated_J}
-                for s, (f, t) in self.passivity.items()}
+        return {"force": self.tank.dissipated_J,
+                "torque": {s: pc.dissipated_J for s, pc in self.torque_pcs.items()}}

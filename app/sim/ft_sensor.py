@@ -131,10 +131,14 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
     """One cycle of the lab's processing chain; the filter state (6,) is updated in place.
 
     Bias removal → payload compensation ``m g`` (and, with ``inertial``, ``−m a``) in S
-    with its moment ``c × f`` → first-order low-pass → deadbands on the force and torque
-    magnitudes → moment shifted from S to the COM → force rotated into R, torque into the
-    body axes. Fills out (12,) with the force in R, the torque about the COM in body axes
-    and the processed wrench in S.
+    with its moment ``c × f`` → first-order low-pass → deadband on the force → moment
+    shifted from S to the COM by the force that passed → deadband on the torque about the
+    COM → force rotated into R, torque into the body axes. The torque deadband comes after
+    the shift, so that a force through the COM gives no torque whatever the deadbands do;
+    a force the deadband took for noise does not shift the moment either (its moment is
+    noise too). T_W_F, T_W_C and accel are those of the
+    instant the reading was taken. Fills out (12,) with the force in R, the torque about
+    the COM in body axes and the processed wrench in S axes (moment about the COM).
     """
     ge = np.empty(3)
     for a in range(3):
@@ -155,16 +159,17 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
     for k in range(6):
         state[k] += alpha * (w[k] - state[k])
         w[k] = state[k]
-    f, t = w[0:3], w[3:6]
+    f = w[0:3]
     _deadband(f, db_force, soft)
-    _deadband(t, db_torque, soft)
     dx, dy, dz = T_W_C[0, 3] - T_W_F[0, 3], T_W_C[1, 3] - T_W_F[1, 3], T_W_C[2, 3] - T_W_F[2, 3]
     r = (T_W_F[0, 0] * dx + T_W_F[1, 0] * dy + T_W_F[2, 0] * dz,
          T_W_F[0, 1] * dx + T_W_F[1, 1] * dy + T_W_F[2, 1] * dz,
          T_W_F[0, 2] * dx + T_W_F[1, 2] * dy + T_W_F[2, 2] * dz)
-    tc = (t[0] - (r[1] * f[2] - r[2] * f[1]),
-          t[1] - (r[2] * f[0] - r[0] * f[2]),
-          t[2] - (r[0] * f[1] - r[1] * f[0]))
+    w[3] -= r[1] * f[2] - r[2] * f[1]
+    w[4] -= r[2] * f[0] - r[0] * f[2]
+    w[5] -= r[0] * f[1] - r[1] * f[0]
+    tc = w[3:6]
+    _deadband(tc, db_torque, soft)
     fW0 = T_W_F[0, 0] * f[0] + T_W_F[0, 1] * f[1] + T_W_F[0, 2] * f[2]
     fW1 = T_W_F[1, 0] * f[0] + T_W_F[1, 1] * f[1] + T_W_F[1, 2] * f[2]
     fW2 = T_W_F[2, 0] * f[0] + T_W_F[2, 1] * f[1] + T_W_F[2, 2] * f[2]
@@ -266,17 +271,26 @@ class ProcessedWrench:
     torque_B_Nm: np.ndarray
     """(3,) external torque about the COM in body axes: ODS input."""
     wrench_S: np.ndarray
-    """(6,) compensated, filtered, deadbanded wrench in S (moment about S), unscaled."""
+    """(6,) compensated, filtered, deadbanded wrench in S axes, moment about the COM,
+    unscaled."""
 
 
 class WrenchProcessor:
     """The lab's processing chain from a raw reading in S to the ODS's (F in R, τ in B).
 
     Stages: bias removal (calibration) → payload (gravity) compensation → optional inertial
-    compensation → first-order low-pass at the loop rate → deadband (force and torque
-    magnitudes, in S, where the sensor noise lives) → shift of the moment from S to the COM
-    → rotation (force into R, torque into the body axes C). The force and torque scales
-    of the configuration ([orbit]) are applied by the ODS, the one place that owns them.
+    compensation → first-order low-pass at the loop rate → shift of the moment from S to
+    the COM → deadband (force and COM-torque magnitudes) → rotation (force into R, torque
+    into the body axes C). The force and torque scales of the configuration ([orbit]) are
+    applied by the ODS, the one place that owns them.
+
+    Time alignment: a reading is ``delay_cycles`` old when it arrives (the sensor's known
+    latency), so the poses and the acceleration it is compensated, shifted and rotated with
+    are those of the cycle it was taken in, kept in a short ring.
+
+    Contact gate: with ``gate_open`` (the lab's geometry says the mockup is touching or
+    about to touch another body), the deadbands are lifted, so that a contact force below
+    the noise threshold still reaches the ODS whole.
     """
 
     def __init__(
@@ -284,16 +298,30 @@ class WrenchProcessor:
         config: WrenchProcessingConfig,
         rate_hz: float,
         gravity_W_mps2: np.ndarray,
+        delay_cycles: int = 0,
     ) -> None:
         self.config = config
         self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
         self.alpha = lowpass_alpha(config.lowpass_hz, rate_hz)
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
+        self.delay_cycles = int(delay_cycles)
         self._state_S = np.zeros(6)
+        self._ring: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def reset(self) -> None:
-        """Reset the filter state to zero (the expected compensated wrench at rest)."""
+        """Reset the filter state to zero (the expected compensated wrench at rest) and
+        forget the poses of past readings."""
         self._state_S = np.zeros(6)
+        self._ring = []
+
+    def _aligned(self, T_W_F: np.ndarray, T_W_C: np.ndarray,
+                 accel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(T_W_F, T_W_C, accel) of the cycle the arriving reading was taken in."""
+        ring = self._ring
+        ring.append((T_W_F, T_W_C, accel))
+        if len(ring) > self.delay_cycles + 1:
+            del ring[0]
+        return ring[0]
 
     def calibrate(
         self,
@@ -358,22 +386,27 @@ class WrenchProcessor:
         T_W_C: np.ndarray,
         R_W_R: np.ndarray,
         accel_W_mps2: np.ndarray | None = None,
+        gate_open: bool = False,
     ) -> ProcessedWrench:
         """One cycle: raw reading in S → ODS input (force in R, torque about COM in B).
 
-        T_W_F: flange (= sensor) pose; T_W_C: mockup COM pose (its axes are the body axes
-        B); R_W_R: orientation of the CW frame R in W; accel_W_mps2: mockup acceleration in W
-        (used only with inertial_compensation).
+        T_W_F: flange (= sensor) pose now; T_W_C: mockup COM pose now (its axes are the
+        body axes B); R_W_R: orientation of the CW frame R in W; accel_W_mps2: the lab's
+        estimate of the mockup's acceleration now, in W (used only with
+        inertial_compensation); gate_open: lift the deadbands (a contact is near).
         """
         cfg, cal = self.config, self.calibration
         if cfg.inertial_compensation and accel_W_mps2 is None:
             raise ValueError("inertial_compensation needs the mockup's acceleration")
         accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
+        T_W_F, T_W_C, accel = self._aligned(T_W_F, T_W_C, accel)
+        db_force, db_torque = ((0.0, 0.0) if gate_open
+                               else (cfg.deadband_force_N, cfg.deadband_torque_Nm))
         out = np.empty(12)
         process_step(
             np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R, self.gravity_W_mps2,
             cfg.payload_compensation, accel, cfg.inertial_compensation, cal.bias_S,
-            cal.mass_kg, cal.com_F_m, self.alpha, self._state_S, cfg.deadband_force_N,
-            cfg.deadband_torque_Nm, cfg.deadband_mode == "soft", out,
+            cal.mass_kg, cal.com_F_m, self.alpha, self._state_S, db_force, db_torque,
+            cfg.deadband_mode == "soft", out,
         )
         return ProcessedWrench(force_R_N=out[0:3], torque_B_Nm=out[3:6], wrench_S=out[6:12])

@@ -71,10 +71,14 @@ class PhysicalInteraction:
         self.hand = hand
         self.contact_active = False
         """Whether any pair of bodies pushed on each other in the last call."""
+        self.hand_acting = np.zeros(contact.n, dtype=bool)
+        """Per body, whether the operator's hand pushed on it in the last call."""
 
     def wrenches_W(self, bodies: Bodies, t_s: float) -> np.ndarray:
         """(N, 6) external wrench on each body at t_s: force in W, moment about its COM."""
         T_W_C = bodies.T_W_C
         contact = self.contact.compute(T_W_C, bodies.v_W, bodies.w_W)
         self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
-        return contact.wrench_W + self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3])
+        hand_W = self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3])
+        self.hand_acting = np.any(hand_W != 0.0, axis=1)
+        return contact.wrench_W + hand_W

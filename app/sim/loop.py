@@ -25,9 +25,12 @@ import time
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.sim.compensation import force_lag_s, lag_model, predicted_state
 from app.sim.contact import BoxContactModel
+from app.sim.contact_gate import ContactGate, fuse_pair_forces, hold_cycles_for
 from app.sim.coupling import OdsCoupling
 from app.sim.frames import satellite_pose, tracking_errors
+from app.sim.ft_sensor import lowpass_alpha
 from app.sim.hand import Command, OperatorHand
 from app.sim.interaction import (
     Bodies,
@@ -78,9 +81,18 @@ class Emulator:
                          for i, robot in enumerate(config.robots)]
         self._uncarried = sorted(set(range(self.n_sat)) - {arm.satellite for arm in self.arms})
         self._carried = np.array([arm.satellite for arm in self.arms], dtype=np.int64)
+        self._is_carried = np.zeros(self.n_sat, dtype=bool)
+        self._is_carried[self._carried] = True
         self._tracking_out = np.zeros((len(self.arms), 2))
-        self.coupling = OdsCoupling(config.passivity, self.dt_s,
-                                    [arm.satellite for arm in self.arms])
+        self.coupling = OdsCoupling(
+            config.passivity, self.dt_s, [arm.satellite for arm in self.arms],
+            [s.mass_kg for s in config.satellites], config.orbit.force_scale,
+            int(round(force_lag_s(config, hold=False) / self.dt_s)))
+        self.gate = None
+        if config.wrench.contact_gate:
+            alpha = lowpass_alpha(config.wrench.lowpass_hz, config.loop.rate_hz)
+            self.gate = ContactGate(self.n_sat, config.wrench.contact_gate_margin_m,
+                                    hold_cycles_for(config.sensor.delay_cycles, alpha))
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
                                  self.T_R_W, self.ods.params.orbit_rate_radps)
         self.telemetry = self.recorder.buffer
@@ -116,8 +128,11 @@ class Emulator:
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
         self._record()
         self.ods.commit(y_next, self.dt_s)
-        for arm in self.arms:  # TCP target -> VFDM -> servo
-            arm.command(arm.tcp_target_B(self.ods.y))
+        predicted = {}
+        for arm in self.arms:  # TCP target (where the satellite will be) -> VFDM -> servo
+            if arm.lead_s not in predicted:
+                predicted[arm.lead_s] = predicted_state(self.ods, force_R, torque_B, arm.lead_s)
+            arm.command(arm.tcp_target_B(predicted[arm.lead_s]))
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
         self.cycles += 1
@@ -148,22 +163,36 @@ class Emulator:
 
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
-        measured (through the coupling), the others the external wrench exactly."""
-        force_R, torque_B = np.zeros((self.n_sat, 3)), np.zeros((self.n_sat, 3))
-        if self._uncarried:
-            exact_R = external_W[:, :3] @ self.R_W_R
-            for i in self._uncarried:
-                force_R[i] = exact_R[i]
-                torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
+        measured, the others the external wrench exactly; then the coupling (passivity)."""
+        force_R = external_W[:, :3] @ self.R_W_R
+        torque_B = np.array([body_torque_B(external_W[i], bodies.T_W_C[i])
+                             for i in range(self.n_sat)])
+        near, nearest = self._gate_open(bodies)
         for arm in self.arms:
             s = arm.satellite
-            T_W_C, v_W, w_W = bodies.T_W_C[s], bodies.v_W[s], bodies.w_W[s]
-            measured = arm.sense(external_W[s], T_W_C, v_W, self.R_W_R, self.dt_s,
-                                 first_cycle=self.cycles == 0)
-            force_R[s], torque_B[s] = self.coupling.ods_input(
-                s, measured, self.ods, v_W, w_W, T_W_C[:3, :3], self.R_W_R
-            )
-        return force_R, torque_B
+            measured = arm.sense(external_W[s], bodies.T_W_C[s], bodies.v_W[s], self.R_W_R,
+                                 self.dt_s, first_cycle=self.cycles == 0,
+                                 gate_open=bool(near[s]))
+            force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
+        if self.config.wrench.fuse_pair_contact and near.any():
+            fuse_pair_forces(force_R, near, nearest, self._is_carried,
+                             self.interaction.hand_acting)
+        if not self.coupling.enabled:
+            return force_R, torque_B
+        w_phys_B = np.einsum("nji,nj->ni", bodies.T_W_C[:, :3, :3], bodies.w_W)
+        return self.coupling.ods_input(force_R, torque_B, self.ods.velocity_mps,
+                                       bodies.v_W @ self.R_W_R, self.ods.omega_rel_radps,
+                                       w_phys_B)
+
+    def _gate_open(self, bodies: Bodies) -> tuple[np.ndarray, np.ndarray]:
+        """((N,) whether each body's chain lets a contact below the deadband through,
+        (N,) its nearest body or -1): :mod:`app.sim.contact_gate`; all closed without
+        ``[wrench] contact_gate``."""
+        if self.gate is None:
+            return np.zeros(self.n_sat, dtype=bool), np.full(self.n_sat, -1)
+        clearance, nearest = self.interaction.contact.clearances(bodies.T_W_C,
+                                                                 self.gate.margin_m)
+        return self.gate.update(clearance, nearest), self.gate.partner
 
     def ods_advance(self, force_R: np.ndarray,
                     torque_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -224,6 +253,10 @@ class Emulator:
                     f"(error {error_m:.4f} m): is it within reach?"
                 )
             arm.q_start_rad = q
+            if self.config.compensation.enabled:
+                lead = self.config.compensation.lead_s
+                arm.lead_s = (lag_model(self.config, arm.T_F_C, q).lead_s
+                              if lead is None else lead)
             arm.move_to(q, self.dt_s)
         rest = {arm.index: [] for arm in self.arms}
         for _ in range(int(round(settle_s / self.dt_s))):

@@ -32,13 +32,43 @@ i.e. inside the deadband) for ``idle_reset_s``: each contact is balanced on its 
 Limitation: the controller treats the environment as passive. An active source on the
 port (an operator's push) is throttled to what the arm actually follows, so scenarios
 with pushes keep it off.
+
+Two ports, one contact: a contact between two mockups acts on both satellites, and trimming
+each arm's force on its own breaks the momentum balance (5 % sponge, 22 % rigid). The
+force ports of all satellites that are being acted on are therefore watched together by
+:class:`TankPassivity`, an energy tank (Franken et al., "Bilateral telemanipulation with
+time delays: a two-layer approach combining passivity and transparency", IEEE T-RO 2011;
+Ferraguti et al., "An energy tank-based interactive control architecture", ICRA 2013):
+
+    T(k) = T(k−1) + dt Σ_i F_i · v_p,i(k − d) − dt Σ_i F'_i · v_v,i(k)                (tank)
+
+F_i the measured force on mockup i, v_p,i its velocity when that force was measured (d
+cycles ago: the sensor's delay and the filter's lag — the *time-aligned* port power),
+F'_i what satellite i receives, v_v,i its velocity. The virtual satellites never gain
+more energy than the mockups received from the contact: when a cycle would leave T < 0,
+a damper between the satellites takes out the excess,
+
+    F'_i = F_i − β m_i (v_v,i − v_cm),   v_cm = Σ m_i v_v,i / Σ m_i,                      (PC2)
+
+a set of internal forces (Σ m_i (v_v,i − v_cm) = 0): momentum stays balanced, the
+correction is split between the satellites by their masses. T starts each contact full,
+at ``tank_max_J``: a budget that covers what the sensor noise drains from it (noise
+pushes the satellite first and the mockup a few cycles later, so the noise's own power
+looks like energy created); it is capped there, so that energy the contact dissipated
+early is not handed back late.
+
+Scales: the ODS applies s·F to a satellite of mass m, which moves as a body of mass m/s
+under F; both sums above use the unscaled F, so the tank counts energy in the physical
+port's units whatever [orbit] force_scale is. The torque ports (each satellite's own, a
+:class:`PassivityController` with the angular velocities; torque_scale enters the same
+way) have no momentum to keep and stay single-port.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PassivityController", "is_zero"]
+__all__ = ["PassivityController", "TankPassivity", "is_zero"]
 
 
 def is_zero(v: np.ndarray) -> bool:
@@ -91,3 +121,70 @@ class PassivityController:
         self.energy_J += removed_J
         self.dissipated_J += removed_J
         return force - beta * v_virtual
+
+
+class TankPassivity:
+    """Energy tank over the force ports of all satellites (see the module doc: tank, PC2).
+
+    masses_kg: (N,) satellite masses; force_scale: what the ODS multiplies the force by;
+    align_cycles: d, how many cycles old the physical state is that a measured force
+    belongs to; tank_max_J: the tank's cap. One cycle's damper at most halves the
+    satellites' relative velocities (β ≤ m / (2 s dt) per unit mass); a deficit beyond
+    that is carried to the next cycle.
+    """
+
+    def __init__(self, dt_s: float, masses_kg: np.ndarray, force_scale: float,
+                 align_cycles: int, idle_reset_s: float, tank_max_J: float) -> None:
+        if not dt_s > 0.0:
+            raise ValueError(f"dt_s must be > 0, got {dt_s}")
+        self.dt_s = float(dt_s)
+        self.masses_kg = np.asarray(masses_kg, dtype=float)
+        self.beta_max = 0.5 / (float(force_scale) * self.dt_s)
+        self.align_cycles = int(align_cycles)
+        self.idle_reset_cycles = int(round(idle_reset_s / dt_s))
+        self.tank_max_J = float(tank_max_J)
+        self.reset()
+
+    def reset(self) -> None:
+        """Full tank, no history (start of a run)."""
+        self.tank_J = self.tank_max_J
+        self.dissipated_J = 0.0
+        self._idle_cycles = 0
+        self._history: list[np.ndarray] = []
+
+    def _aligned(self, v_physical: np.ndarray) -> np.ndarray:
+        """The physical velocities of d cycles ago (the oldest kept until there are d)."""
+        self._history.append(v_physical)
+        if len(self._history) > self.align_cycles + 1:
+            del self._history[0]
+        return self._history[0]
+
+    def step(self, force: np.ndarray, v_virtual: np.ndarray,
+             v_physical: np.ndarray) -> np.ndarray:
+        """(N, 3) forces for the satellites from the measured (N, 3) ones; v_virtual: the
+        satellites' velocities now, v_physical: the bodies' velocities now (for a satellite
+        without an arm, its own). A satellite with zero force is not part of the port."""
+        v_p = self._aligned(np.array(v_physical, dtype=float))
+        acted = np.any(force != 0.0, axis=1)
+        if not acted.any():
+            self._idle_cycles += 1
+            if self._idle_cycles >= self.idle_reset_cycles:
+                self.tank_J = self.tank_max_J
+            return force
+        self._idle_cycles = 0
+        dt = self.dt_s
+        tank = self.tank_J + dt * float(np.sum(force * (v_p - v_virtual)))
+        out = force
+        if tank < 0.0 and acted.sum() >= 2:
+            m = self.masses_kg[acted]
+            v = v_virtual[acted]
+            rel = v - (m @ v) / m.sum()
+            damping_W = float(np.sum(m * np.einsum("ij,ij->i", rel, rel)))  # per unit β
+            if damping_W > 0.0:
+                beta = min(-tank / (damping_W * dt), self.beta_max)
+                out = force.copy()
+                out[acted] -= beta * m[:, None] * rel
+                tank += beta * damping_W * dt
+                self.dissipated_J += beta * damping_W * dt
+        self.tank_J = min(tank, self.tank_max_J)
+        return out

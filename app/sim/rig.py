@@ -50,6 +50,9 @@ class ArmRig:
     sensor: VirtualFTSensor
     processor: WrenchProcessor
     mockup_mass_kg: float
+    lead_s: float = 0.0
+    """Lag compensation: the arm is sent where the ODS predicts its satellite this much
+    later (app/sim/compensation.py); set at start-up."""
     q_start_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
     v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
     last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -86,18 +89,23 @@ class ArmRig:
         return self._state
 
     def sense(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
-              R_W_R: np.ndarray, dt_s: float, first_cycle: bool) -> ProcessedWrench:
+              R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
+              gate_open: bool = False) -> ProcessedWrench:
         """The F/T sensor reads the external wrench (W, about the COM) on the mockup at
-        T_W_C moving at v_W; the processing chain turns the reading into the ODS's input.
+        T_W_C moving at v_W; the processing chain turns the reading into the ODS's input
+        (``gate_open``: a contact is near, the deadbands are lifted).
 
-        The mockup's acceleration (for the inertial load and its compensation) is the
-        difference of its velocity over the last cycle.
+        The mockup's acceleration, over the cycle that just ended, is the difference of its
+        velocity: the mockup's inertial load m·a on the sensor, and the lab's estimate of it
+        too (the TCP velocity from the measured joint velocities, differenced; the chain's
+        low-pass filters the compensation with the reading), which the chain applies to the
+        reading taken at the same instant.
         """
         accel_W = (v_W - self.v_W_prev) / dt_s if not first_cycle else np.zeros(3)
         self.v_W_prev = v_W.copy()
         T_W_F = self.mockup_state_W()[0]
         raw = self.sensor.measure(wrench_ext_W, T_W_C, T_W_F, accel_W)
-        out = self.processor.process(raw, T_W_F, T_W_C, R_W_R, accel_W)
+        out = self.processor.process(raw, T_W_F, T_W_C, R_W_R, accel_W, gate_open)
         self.last_raw_S = raw
         self.last_processed = np.concatenate([out.force_R_N, out.torque_B_Nm])
         return out
@@ -109,7 +117,10 @@ class ArmRig:
         return T
 
     def command(self, T_B_C_target: np.ndarray) -> None:
-        """VFDM set-points towards the target, one servo step (which may stop the arm)."""
+        """VFDM set-points towards the target, one servo step (which may stop the arm).
+        With ``[vfdm] sync_to_measured`` the virtual arm first takes the measured joints."""
+        if self.vfdm.cfg.sync_to_measured:
+            self.vfdm.q_rad[:] = self.servo.state.q_rad
         self.servo.step(self.vfdm.solve(T_B_C_target))
 
     # --- start-up -------------------------------------------------------------------------
@@ -174,6 +185,7 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
         vfdm=Vfdm(config.vfdm, T_F_C, q_home, JointLimits.of_servo(config.servo, dt_s)),
         servo=UR10eServo(config.servo, dt_s, q_home, safety_box_for_robot(robot)),
         sensor=VirtualFTSensor(config.sensor, mass, gravity_W, rng),
-        processor=WrenchProcessor(config.wrench, config.loop.rate_hz, gravity_W),
+        processor=WrenchProcessor(config.wrench, config.loop.rate_hz, gravity_W,
+                                  config.sensor.delay_cycles),
         mockup_mass_kg=mass,
     )

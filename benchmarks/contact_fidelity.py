@@ -1,0 +1,250 @@
+"""How faithful is an emulated contact? HIL runs against the converged ideal reference.
+
+    .venv/bin/python -m benchmarks.contact_fidelity             # the table (seeds 0-4)
+    .venv/bin/python -m benchmarks.contact_fidelity --map       # + the fidelity map (PNG)
+    .venv/bin/python -m benchmarks.contact_fidelity --quick     # seed 0 only
+
+Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
+run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
+Chains compared, all on the same simulated hardware (F/T noise and bias, sensor and servo
+delays, servo bandwidth and limits):
+
+* ``paper``: the paper's chain (payload + inertial compensation, 30 Hz low-pass, 4 N
+  deadband), nothing else;
+* ``passivity``: + the passivity layer alone (the landed default before lag compensation);
+* ``compensated``: the collision scenario's chain: lag compensation + contact gate + pair
+  fusion + passivity layer (README "Fidelity");
+* ``comp., noise/10`` and ``comp., no noise``: the compensated chain with a sensor ten times
+  quieter, and without noise: what limits it.
+
+Free-floating: tracking, each push's Δv against impulse × force_scale / mass, and the
+spin left after the force-only pushes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from app.config import EmulatorConfig, assignment_override, merge_overrides
+from app.headless import ideal_collision, run_scenario
+from app.metrics import compare_with_ideal
+from app.scenarios import load_scenario
+
+SEEDS = [0, 1, 2, 3, 4]
+RIGID = ['satellites.1.material="rigid"']
+PAPER = ["compensation.enabled=false", "wrench.contact_gate=false",
+         "wrench.fuse_pair_contact=false", "passivity.enabled=false"]
+PASSIVITY = PAPER[:-1] + ["passivity.enabled=true"]
+NOISE_10 = ["sensor.noise_force_N=0.16667", "sensor.noise_torque_Nm=0.006667"]
+NO_NOISE = ["sensor.noise_force_N=0", "sensor.noise_torque_Nm=0"]
+CHAINS = {
+    "paper": PAPER,
+    "passivity": PASSIVITY,
+    "compensated": [],
+    "comp., noise/10": NOISE_10,
+    "comp., no noise": NO_NOISE,
+}
+
+
+def configure(base: EmulatorConfig, assignments: list[str]) -> EmulatorConfig:
+    for a in assignments:
+        base = merge_overrides(base, assignment_override(a))
+    return base
+
+
+def collision_run(args: tuple) -> dict:
+    """One hil run of the collision scenario with the assignments; its collision metrics."""
+    assignments, seed, ideal = args
+    config = configure(load_scenario("collision"), assignments + [f"loop.seed={seed}"])
+    em = run_scenario(config, duration_s=config.loop.duration_s, with_ideal=False).emulator
+    from app.metrics import collision_metrics
+    bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
+    coll = collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s, bodies=bodies)
+    if coll is not None:
+        compare_with_ideal(coll, ideal, config.wrench.deadband_force_N)
+    return {"collision": coll, "status": em.status,
+            "removed_J": None if em.coupling.dissipated_J() is None
+            else em.coupling.dissipated_J()["force"]}
+
+
+def _ideal(assignments: list[str]) -> dict:
+    config = configure(load_scenario("collision"), assignments)
+    return ideal_collision(config, config.loop.duration_s)
+
+
+def _fmt(values: list[float | None], pct: bool = True) -> str:
+    vals = [v for v in values if v is not None]
+    if not vals:
+        return "—"
+    scale = 100.0 if pct else 1.0
+    mean = statistics.fmean(vals) * scale
+    worst = max(vals, key=abs) * scale
+    sd = statistics.stdev(vals) * scale if len(vals) > 1 else 0.0
+    unit = " %" if pct else ""
+    return f"{mean:+.1f}{unit} ± {sd:.1f} (worst {worst:+.1f})" if pct else \
+        f"{mean:.3f} ± {sd:.3f} (worst {worst:.3f})"
+
+
+def collision_table(pool, seeds: list[int]) -> list[str]:
+    lines = ["| case | chain | restitution error (mean ± sd, worst) | true impulse ratio "
+             "| impulse balance (worst) | safety stops | passivity removed (mean) |",
+             "|---|---|---|---|---|---|---|"]
+    for case, extra in (("sponge vs rigid", []), ("rigid vs rigid", RIGID)):
+        ideal = _ideal(extra)
+        for chain, assignments in CHAINS.items():
+            runs = pool.map(collision_run, [(extra + assignments, s, ideal) for s in seeds])
+            colls = [r["collision"] for r in runs]
+            err = [c["restitution_error"] if c else None for c in colls]
+            ratio = [c["true_impulse_ratio"]["sat1"] if c and c["true_impulse_ratio"] else None
+                     for c in colls]
+            bal = [c["impulse_balance"] for c in colls if c and c["impulse_balance"] is not None]
+            stops = sum(r["status"] == "safety_stop" for r in runs)
+            removed = [r["removed_J"] for r in runs if r["removed_J"] is not None]
+            lines.append(
+                f"| {case} (e_ideal {ideal['restitution']:.3f}) | {chain} | {_fmt(err)} | "
+                f"{_fmt(ratio, pct=False)} | {max(bal):.3f} | {stops}/{len(runs)} | "
+                f"{(1e3 * statistics.fmean(removed)):.2f} mJ |" if removed else
+                f"| {case} (e_ideal {ideal['restitution']:.3f}) | {chain} | {_fmt(err)} | "
+                f"{_fmt(ratio, pct=False)} | {max(bal) if bal else float('nan'):.3f} | "
+                f"{stops}/{len(runs)} | — |")
+            print(lines[-1], flush=True)
+    return lines
+
+
+def free_floating(assignments: list[str]) -> dict:
+    """Tracking, Δv of each force push against impulse·scale/mass, spin after them."""
+    config = configure(load_scenario("free-floating"), assignments)
+    em = run_scenario(config, with_ideal=False).emulator
+    rows, ix = em.telemetry.rows(), em.telemetry.index
+    t = rows[:, 0]
+    v = rows[:, [ix["sat1_vx_mps"], ix["sat1_vy_mps"], ix["sat1_vz_mps"]]]
+    w = rows[:, [ix["sat1_wx_radps"], ix["sat1_wy_radps"], ix["sat1_wz_radps"]]]
+    p_err = np.linalg.norm(rows[:, [ix["rob1_x_m"], ix["rob1_y_m"], ix["rob1_z_m"]]]
+                           - rows[:, [ix["sat1_x_m"], ix["sat1_y_m"], ix["sat1_z_m"]]], axis=1)
+    mass, scale = config.satellites[0].mass_kg, config.orbit.force_scale
+    errors = []
+    force_pulses = [p for p in config.pulses if any(p.force_N)]
+    for p in force_pulses:
+        before = np.searchsorted(t, p.start_s - 0.05)
+        after = np.searchsorted(t, p.end_s + 0.3)
+        expected = np.array(p.force_N) * (p.end_s - p.start_s) * scale / mass
+        dv = v[after] - v[before]
+        errors.append(float(np.linalg.norm(dv - expected) / np.linalg.norm(expected)))
+    last_force_end = max(p.end_s for p in force_pulses)
+    first_torque = min((p.start_s for p in config.pulses if any(p.torque_Nm)), default=t[-1])
+    spin = w[(t > last_force_end + 0.3) & (t < first_torque)]
+    return {"status": em.status, "tracking_max_mm": 1e3 * float(p_err.max()),
+            "dv_error_max": max(errors),
+            "spin_max_radps": float(np.linalg.norm(spin, axis=1).max())}
+
+
+def fidelity_map(pool, out_png: Path) -> list[str]:
+    """Restitution error (no sensor noise) over stiffness, approach speed and added delay."""
+    stiffness = [500.0, 5000.0, 50000.0]
+    speeds = [0.01, 0.04, 0.1]
+    delays = [0, 2, 4]  # added servo delay, cycles of 2 ms
+    jobs, keys = [], []
+    for k in stiffness:
+        for v in speeds:
+            x0 = 0.1 + 0.0015 + v * 1.0  # contact after about 1 s
+            base = NO_NOISE + [
+                f"materials.sponge.stiffness_Npm={k}", "loop.duration_s=3.5",
+                f"satellites.0.position_m=[{-x0},0,0]", f"satellites.0.velocity_mps=[{v},0,0]",
+                f"satellites.1.position_m=[{x0},0,0]", f"satellites.1.velocity_mps=[{-v},0,0]"]
+            ideal = _ideal(base)
+            for d in delays:
+                for chain in ("paper", "compensated"):
+                    extra = [f"servo.delay_cycles={1 + d}"] + (PAPER if chain == "paper" else [])
+                    jobs.append((base + extra, 0, ideal))
+                    keys.append((k, v, d, chain))
+    results = dict(zip(keys, pool.map(collision_run, jobs), strict=True))
+
+    def cell(key):
+        r = results[key]
+        c = r["collision"]
+        e = c["restitution_error"] if c else None
+        stop = " stop" if r["status"] == "safety_stop" else ""
+        return ("—" if e is None else f"{100 * e:+.0f} %") + stop
+
+    lines = ["| sponge k (N/m) | speed (m/s) | added delay (ms) | paper chain | compensated |",
+             "|---|---|---|---|---|"]
+    for k in stiffness:
+        for v in speeds:
+            for d in delays:
+                lines.append(f"| {k:g} | {v:g} | {2 * d} | {cell((k, v, d, 'paper'))} | "
+                             f"{cell((k, v, d, 'compensated'))} |")
+    _heat_map(results, stiffness, speeds, delays, out_png)
+    return lines
+
+
+def _heat_map(results, stiffness, speeds, delays, out_png: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(delays), figsize=(4 * len(delays), 7), squeeze=False)
+    for row, chain in enumerate(("paper", "compensated")):
+        for col, d in enumerate(delays):
+            grid = np.full((len(stiffness), len(speeds)), np.nan)
+            for i, k in enumerate(stiffness):
+                for j, v in enumerate(speeds):
+                    c = results[(k, v, d, chain)]["collision"]
+                    if c and c["restitution_error"] is not None:
+                        grid[i, j] = 100 * c["restitution_error"]
+            ax = axes[row, col]
+            im = ax.imshow(np.clip(grid, -100, 100), cmap="RdBu_r", vmin=-100, vmax=100,
+                           origin="lower")
+            for i in range(len(stiffness)):
+                for j in range(len(speeds)):
+                    text = "—" if math.isnan(grid[i, j]) else f"{grid[i, j]:+.0f}"
+                    ax.text(j, i, text, ha="center", va="center", fontsize=9)
+            ax.set_xticks(range(len(speeds)), [f"{v:g}" for v in speeds])
+            ax.set_yticks(range(len(stiffness)), [f"{k:g}" for k in stiffness])
+            ax.set_xlabel("approach speed of each satellite (m/s)")
+            ax.set_ylabel("sponge stiffness (N/m)")
+            ax.set_title(f"{chain}, +{2 * d} ms servo delay")
+    fig.colorbar(im, ax=axes, label="restitution error (%), clipped at ±100")
+    fig.suptitle("Restitution error of the emulated collision vs the converged ideal "
+                 "(sensor noise off)")
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=80)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="seed 0 only")
+    parser.add_argument("--map", action="store_true", help="also the fidelity map")
+    parser.add_argument("--png", default="benchmarks/fidelity_map.png")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    seeds = [0] if args.quick else SEEDS
+    t0 = time.perf_counter()
+    with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
+        print("## Collision (500 Hz, seeds " + ", ".join(map(str, seeds)) + ")\n")
+        collision_table(pool, seeds)
+        print("\n## Free-floating\n")
+        print("| chain | status | tracking max | worst push Δv error | spin after force pushes |")
+        print("|---|---|---|---|---|")
+        for name, assignments in (("paper", ["compensation.enabled=false"]),
+                                  ("compensated", ["compensation.enabled=true"])):
+            f = free_floating(assignments)
+            print(f"| {name} | {f['status']} | {f['tracking_max_mm']:.3f} mm | "
+                  f"{100 * f['dv_error_max']:.2f} % | {f['spin_max_radps']:.2e} rad/s |")
+        if args.map:
+            print("\n## Fidelity map (sensor noise off, seed 0)\n")
+            for line in fidelity_map(pool, Path(args.png)):
+                print(line)
+            print(f"\nwrote {args.png}")
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
