@@ -109,16 +109,24 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         "contact_duration_s": float((touch[-1] - touch[0] + 1) * dt_s),
         "contact_energy_J": energy,
         "restitution": restitution,
+        "approach_speed_mps": -before_rel,
         "contact_start_s": float(rows[first, 0]),
         "contact_end_s": float(rows[last, 0]),
         "window_s": [float(rows[window.start, 0]), float(rows[window.stop - 1, 0])],
     }
 
 
-def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float) -> None:
+def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
+                       noise: tuple[float, float, float] | None = None) -> None:
     """Add the comparison with the converged ideal run (in place): ``restitution_ideal``,
     ``restitution_error`` (e − e_ideal) / e_ideal, ``true_impulse_ratio`` |J_true| /
-    |J_true,ideal| per satellite, and ``warnings``."""
+    |J_true,ideal| per satellite, and ``warnings``.
+
+    deadband_N: the F/T force deadband the contact meets (0 where the contact gate lifts
+    it); noise: (σ of the sensor force noise per sample N, dt s, force_scale · sqrt(1/m_a²
+    + 1/m_b²) 1/kg) for the noise warning: the impulse the noise adds over the ideal
+    contact, σ·sqrt(T·dt), on both satellites, as a bound on the restitution's spread.
+    """
     coll["restitution_ideal"] = None if ideal is None else ideal["restitution"]
     e, ei = coll["restitution"], coll["restitution_ideal"]
     coll["restitution_error"] = (e - ei) / ei if e is not None and ei else None
@@ -133,6 +141,17 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float) -> Non
             warnings.append(
                 f"the ideal contact peaks at {ideal['peak_force_N']:.1f} N, under the F/T "
                 f"force deadband of {deadband_N:g} N: the sensor cannot see it whole")
+        if noise is not None and ei and noise[0] > 0:
+            sigma, dt, gain = noise
+            dv = sigma * np.sqrt(ideal["contact_duration_s"] * dt) * gain
+            spread = dv / (ideal["approach_speed_mps"] * ei)
+            if spread > 0.05:
+                warnings.append(
+                    f"the F/T noise ({sigma:.2g} N per sample) adds about {dv * 1e3:.1f} mm/s "
+                    f"to the satellites' relative velocity over the "
+                    f"{1e3 * ideal['contact_duration_s']:.0f} ms contact: one run's "
+                    f"restitution is uncertain by up to about "
+                    f"±{100 * spread:.0f} %")
     coll["warnings"] = warnings
 
 
@@ -144,6 +163,17 @@ def passivity_metrics(em: Emulator) -> dict | None:
     return {"dissipated_J": {
         "force": removed["force"],
         "torque": {f"sat{s + 1}": e for s, e in removed["torque"].items()}}}
+
+
+def sensing_limits(em: Emulator) -> tuple[float, tuple[float, float, float] | None]:
+    """(the deadband a contact meets, the noise figures) of a run, for compare_with_ideal."""
+    cfg = em.config
+    deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
+    if not em.arms:
+        return deadband, None
+    masses = [s.mass_kg for s in cfg.satellites[:2]]
+    gain = cfg.orbit.force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
+    return deadband, (cfg.sensor.noise_force_N, em.dt_s, gain)
 
 
 def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None) -> dict:
@@ -192,6 +222,6 @@ def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = 
         coll = collision_metrics(rows, index, em.dt_s, bodies=bodies)
         if coll is not None:
             ideal = dict(coll) if em.mode == "ideal" else ideal_collision
-            compare_with_ideal(coll, ideal, em.config.wrench.deadband_force_N)
+            compare_with_ideal(coll, ideal, *sensing_limits(em))
         metrics["collision"] = coll
     return metrics

@@ -9,10 +9,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(module: str) -> str:
+def _run(module: str, timeout_s: float = 120) -> str:
     proc = subprocess.run(
         [sys.executable, "-m", module, "--quick"], cwd=ROOT, capture_output=True, text=True,
-        timeout=120,
+        timeout=timeout_s,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout
@@ -41,3 +41,11 @@ def test_ik_compare_quick():
                  "singular/wrist", "singular/elbow", "singular/shoulder"):
         assert case in out, case
 
+
+
+def test_contact_fidelity_quick():
+    out = _run("benchmarks.contact_fidelity", timeout_s=400)
+    for line in ("## Collision", "| sponge vs rigid (e_ideal", "| rigid vs rigid (e_ideal",
+                 "| paper |", "| passivity |", "| compensated |", "| comp., no noise |",
+                 "## Free-floating", "| chain | status | tracking max |"):
+        assert line in out, line

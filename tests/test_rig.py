@@ -234,3 +234,23 @@ def test_move_to_brings_the_arm_to_rest_at_the_goal(free_floating):
     assert not rig.servo.stopped
     np.testing.assert_allclose(rig.servo.state.q_rad, q, atol=1e-9)
     np.testing.assert_allclose(rig.servo.state.qd_radps, 0.0, atol=1e-9)
+
+
+def test_sync_to_measured_starts_each_cycle_from_the_measured_joints(free_floating):
+    """[vfdm] sync_to_measured: the virtual arm takes the servo's joint positions first,
+    so the set-point is the one a VFDM started there would give."""
+    cfg = merge_overrides(free_floating, {"vfdm": {"sync_to_measured": True}})
+    rig = _rig(cfg)
+    for _ in range(3):  # the servo lags the VFDM: the two differ
+        target = tcp_pose_B(rig.servo.state.q_rad, rig.T_F_C)
+        target[:3, 3] += [0.01, 0.0, 0.0]
+        rig.command(target)
+    assert np.abs(rig.vfdm.q_rad - rig.servo.state.q_rad).max() > 1e-5
+    twin = _rig(cfg).vfdm
+    twin.q_rad[:] = rig.servo.state.q_rad
+    twin.qd_radps[:] = rig.vfdm.qd_radps
+    twin._step_prev[:] = rig.vfdm._step_prev
+    target[:3, 3] += [0.001, 0.0, 0.0]
+    expected = twin.solve(target)
+    rig.command(target)
+    np.testing.assert_array_equal(rig.vfdm.q_rad, expected)

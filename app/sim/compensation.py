@@ -75,6 +75,8 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
     T = T0.copy()
     for k in range(1, RAMP_CYCLES + 1):
         T[0, 3] = T0[0, 3] + RAMP_SPEED_MPS * k * dt_s
+        if config.vfdm.sync_to_measured:  # as ArmRig.command does
+            vfdm.q_rad[:] = servo.state.q_rad
         servo.step(vfdm.solve(T))
     mockup = tcp_pose_B(servo.state.q_rad, T_F_C)
     return float((T[0, 3] - mockup[0, 3]) / RAMP_SPEED_MPS)

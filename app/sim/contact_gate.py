@@ -53,13 +53,18 @@ class ContactGate:
     def update(self, clearance_m: np.ndarray, nearest: np.ndarray) -> np.ndarray:
         """(N,) bool: open for each body, from its clearance to the nearest other body
         (m, ≤ 0 touching; inf far away) and that body's index this cycle."""
-        clearance_m = np.asarray(clearance_m, dtype=float)
-        closing = clearance_m < self._previous
-        trigger = (clearance_m <= 0.0) | ((clearance_m < self.margin_m) & closing)
-        self._previous = clearance_m
-        self._hold = np.where(trigger, self.hold_cycles + 1, np.maximum(self._hold - 1, 0))
-        self.partner = np.where(trigger, nearest, self.partner)
-        return self._hold > 0
+        previous, hold, partner = self._previous, self._hold, self.partner
+        open_ = np.zeros(len(hold), dtype=bool)
+        for i in range(len(hold)):  # a few bodies: plain Python beats array calls
+            c = float(clearance_m[i])
+            if c <= 0.0 or (c < self.margin_m and c < previous[i]):
+                hold[i] = self.hold_cycles + 1
+                partner[i] = nearest[i]
+            elif hold[i] > 0:
+                hold[i] -= 1
+            previous[i] = c
+            open_[i] = hold[i] > 0
+        return open_
 
 
 def fuse_pair_forces(force_R: np.ndarray, open_: np.ndarray, nearest: np.ndarray,

@@ -15,6 +15,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from app.config import PassivityConfig
+from app.sim.interaction import Bodies
+from app.sim.orbital import OrbitalSimulator
 from app.sim.passivity import PassivityController, TankPassivity, is_zero
 
 __all__ = ["OdsCoupling"]
@@ -37,22 +39,26 @@ class OdsCoupling:
         self.torque_pcs = {s: PassivityController(dt_s, config.idle_reset_s)
                            for s in self.carried}
 
-    def ods_input(self, force_R: np.ndarray, torque_B: np.ndarray, v_virtual_R: np.ndarray,
-                  v_physical_R: np.ndarray, w_virtual_B: np.ndarray,
-                  w_physical_B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def ods_input(self, force_R: np.ndarray, torque_B: np.ndarray, ods: OrbitalSimulator,
+                  bodies: Bodies, R_W_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(force in R, torque in body axes) for every satellite's ODS from what was
-        measured (N, 3 each). v_*: COM velocities in R; w_*: angular velocities relative to
-        R in body axes; virtual: the satellites', physical: the bodies' (for a satellite
-        without an arm, its own)."""
+        measured (N, 3 each); ods: the satellites (virtual side), bodies: where the bodies
+        are and how they move in the lab (physical side; for a satellite without an arm,
+        the satellite itself)."""
         if not self.enabled:
             return force_R, torque_B
-        force_R = self.tank.step(force_R, v_virtual_R, v_physical_R)
-        torque_B = torque_B.copy()
+        force_R = self.tank.step(force_R, ods.velocity_mps, bodies.v_W @ R_W_R)
+        w_virtual_B = None
         for s, pc in self.torque_pcs.items():
-            if is_zero(torque_B[s]):
+            t = torque_B[s]
+            if is_zero(t):
                 pc.idle()
-            else:
-                torque_B[s] = pc.step(torque_B[s], w_virtual_B[s], w_physical_B[s])
+                continue
+            if w_virtual_B is None:  # only while a torque acts
+                w_virtual_B = ods.omega_rel_radps
+                torque_B = torque_B.copy()
+            R_W_C = bodies.T_W_C[s, :3, :3]
+            torque_B[s] = pc.step(t, w_virtual_B[s], R_W_C.T @ bodies.w_W[s])
         return force_R, torque_B
 
     def dissipated_J(self) -> dict | None:

@@ -165,8 +165,9 @@ class Emulator:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
         measured, the others the external wrench exactly; then the coupling (passivity)."""
         force_R = external_W[:, :3] @ self.R_W_R
-        torque_B = np.array([body_torque_B(external_W[i], bodies.T_W_C[i])
-                             for i in range(self.n_sat)])
+        torque_B = np.zeros((self.n_sat, 3))
+        for i in self._uncarried:
+            torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
         near, nearest = self._gate_open(bodies)
         for arm in self.arms:
             s = arm.satellite
@@ -177,12 +178,7 @@ class Emulator:
         if self.config.wrench.fuse_pair_contact and near.any():
             fuse_pair_forces(force_R, near, nearest, self._is_carried,
                              self.interaction.hand_acting)
-        if not self.coupling.enabled:
-            return force_R, torque_B
-        w_phys_B = np.einsum("nji,nj->ni", bodies.T_W_C[:, :3, :3], bodies.w_W)
-        return self.coupling.ods_input(force_R, torque_B, self.ods.velocity_mps,
-                                       bodies.v_W @ self.R_W_R, self.ods.omega_rel_radps,
-                                       w_phys_B)
+        return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
 
     def _gate_open(self, bodies: Bodies) -> tuple[np.ndarray, np.ndarray]:
         """((N,) whether each body's chain lets a contact below the deadband through,

@@ -163,10 +163,11 @@ class TankPassivity:
              v_physical: np.ndarray) -> np.ndarray:
         """(N, 3) forces for the satellites from the measured (N, 3) ones; v_virtual: the
         satellites' velocities now, v_physical: the bodies' velocities now (for a satellite
-        without an arm, its own). A satellite with zero force is not part of the port."""
-        v_p = self._aligned(np.array(v_physical, dtype=float))
-        acted = np.any(force != 0.0, axis=1)
-        if not acted.any():
+        without an arm, its own; kept, not copied). A satellite with zero force is not part
+        of the port."""
+        v_p = self._aligned(v_physical)
+        acted = [not is_zero(f) for f in force]
+        if not any(acted):
             self._idle_cycles += 1
             if self._idle_cycles >= self.idle_reset_cycles:
                 self.tank_J = self.tank_max_J
@@ -175,7 +176,8 @@ class TankPassivity:
         dt = self.dt_s
         tank = self.tank_J + dt * float(np.sum(force * (v_p - v_virtual)))
         out = force
-        if tank < 0.0 and acted.sum() >= 2:
+        if tank < 0.0 and sum(acted) >= 2:
+            acted = np.array(acted)
             m = self.masses_kg[acted]
             v = v_virtual[acted]
             rel = v - (m @ v) / m.sum()
