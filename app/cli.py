@@ -4,12 +4,12 @@ subcommands; `serve` (the web app) is registered from :mod:`app.backend.cli`."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
 from app.backend.cli import register_serve
 from app.config import (
-    ConfigError,
     EmulatorConfig,
     assignment_override,
     load_config,
@@ -33,8 +33,12 @@ def _cmd_propagate(args: argparse.Namespace) -> int:
     from app.report import write_telemetry_csv
 
     config = load_config(args.config) if args.config else EmulatorConfig()
+    steps = args.duration / args.dt
+    if steps > MAX_PROPAGATE_STEPS:
+        raise ValueError(f"--duration / --dt: {args.duration:g} s in steps of {args.dt:g} s is "
+                         f"{steps:.3g} steps; at most {MAX_PROPAGATE_STEPS:,}")
+    out = _output_dir(args.out)
     columns, rows = propagate(config, args.duration, args.dt)
-    out = Path(args.out)
     write_telemetry_csv(out / "telemetry.csv", columns, rows)
     print(f"wrote {len(rows)} rows x {len(columns)} columns to {out / 'telemetry.csv'}")
     return 0
@@ -60,19 +64,46 @@ def _cmd_run(args: argparse.Namespace) -> int:
     for assignment in args.set:
         config = merge_overrides(config, assignment_override(assignment))
     duration = args.duration or config.loop.duration_s
+    cycles = duration * config.loop.rate_hz
+    if cycles > MAX_RUN_CYCLES:
+        raise ValueError(
+            f"--duration: {duration:g} s at {config.loop.rate_hz:g} Hz is {cycles:.3g} cycles; "
+            f"a headless run keeps every cycle in memory, at most {MAX_RUN_CYCLES:,} "
+            f"({MAX_RUN_CYCLES / config.loop.rate_hz:g} s at this rate)")
+    out_dir = _output_dir(default_out(args))
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
                disable=args.quiet, file=sys.stderr)
 
     def progress(k, n):
         bar.update(k - bar.n)
 
-    result = run_scenario(config, mode=args.mode, duration_s=duration, out_dir=default_out(args),
+    result = run_scenario(config, mode=args.mode, duration_s=duration, out_dir=out_dir,
                           progress=progress)
     bar.update(bar.total - bar.n)
     bar.close()
     print(run_summary(result.metrics))
     print(f"\nwrote {', '.join(str(p) for p in result.files)}")
     return 0
+
+
+MAX_PROPAGATE_STEPS = 10_000_000
+"""propagate keeps every step in memory (20 floats per satellite and step)."""
+MAX_RUN_CYCLES = 10_000_000
+"""The telemetry of a headless run is kept whole ([loop] telemetry_capacity's bound)."""
+
+
+def _output_dir(path: str | Path) -> Path:
+    """The output directory, created now: a path that cannot be one is the user's mistake,
+    named before anything runs."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"--out: cannot create the directory {str(out)!r}: "
+                         f"{err.strerror or err}") from None
+    if not os.access(out, os.W_OK):
+        raise ValueError(f"--out: the directory {str(out)!r} is not writable")
+    return out
 
 
 def default_out(args: argparse.Namespace) -> Path:
@@ -120,12 +151,12 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except ConfigError as err:
+    except ValueError as err:  # ConfigError included: the user's mistake, named
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

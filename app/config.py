@@ -407,6 +407,11 @@ def load_config(path: str | Path) -> EmulatorConfig:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a TOML file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        reason = getattr(err, "strerror", None) or err
+        raise ConfigError(f"{path}: cannot be read: {reason}") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
     return parse_config(data)
@@ -442,17 +447,26 @@ def assignment_override(text: str) -> dict:
     return parsed
 
 
-def _deep_merge(base, override):
+def _deep_merge(base, override, path: str = ""):
+    """Merge override into base: dicts key by key, a list of dicts item by item (an index
+    beyond the base list is an error naming it), anything else replaced (an empty list
+    too: ``{"pulses": []}`` clears the pulses)."""
     if isinstance(base, dict) and isinstance(override, dict):
         out = dict(base)
         for k, v in override.items():
-            out[k] = _deep_merge(base[k], v) if k in base else v
+            out[k] = _deep_merge(base[k], v, f"{path}{k}.") if k in base else v
         return out
-    if isinstance(base, list) and isinstance(override, list) and all(
+    if isinstance(base, list) and isinstance(override, list) and override and all(
         isinstance(x, dict) for x in override
     ):
         out = list(base)
         for i, v in enumerate(override):
-            out[i] = _deep_merge(base[i], v) if i < len(base) else v
+            if i >= len(base):
+                if v == {}:
+                    continue
+                where = path.rstrip(".") or "(top level)"
+                raise ConfigError(f"{where}.{i}: index out of range: the list has "
+                                  f"{len(base)} item(s), indices 0..{len(base) - 1}")
+            out[i] = _deep_merge(base[i], v, f"{path}{i}.")
         return out
     return override

@@ -85,16 +85,21 @@ def _ideal(assignments: list[str]) -> dict:
 
 
 def _fmt(values: list[float | None], pct: bool = True) -> str:
+    """mean ± sd (worst): errors in % (worst: furthest from 0), ratios (furthest from 1)."""
     vals = [v for v in values if v is not None]
     if not vals:
         return "—"
-    scale = 100.0 if pct else 1.0
-    mean = statistics.fmean(vals) * scale
-    worst = max(vals, key=abs) * scale
-    sd = statistics.stdev(vals) * scale if len(vals) > 1 else 0.0
-    unit = " %" if pct else ""
-    return f"{mean:+.1f}{unit} ± {sd:.1f} (worst {worst:+.1f})" if pct else \
-        f"{mean:.3f} ± {sd:.3f} (worst {worst:.3f})"
+    if len(vals) < len(values):
+        missing = f", {len(values) - len(vals)} without"
+    else:
+        missing = ""
+    sd = statistics.stdev(vals) if len(vals) > 1 else 0.0
+    if pct:
+        worst = max(vals, key=abs)
+        return (f"{100 * statistics.fmean(vals):+.1f} % ± {100 * sd:.1f} "
+                f"(worst {100 * worst:+.1f}{missing})")
+    worst = max(vals, key=lambda v: abs(v - 1.0))
+    return f"{statistics.fmean(vals):.3f} ± {sd:.3f} (worst {worst:.3f}{missing})"
 
 
 def collision_table(pool, seeds: list[int]) -> list[str]:

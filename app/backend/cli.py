@@ -38,9 +38,13 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     async def startup(sockets=None):  # after the lifespan ran: the viser port is known
         await original_startup(sockets=sockets)
         viser_port = getattr(app.state, "viser_port", args.viser_port)
+        port = args.port
+        for srv in getattr(server, "servers", []):  # the port bound, also for --port 0
+            for sock in srv.sockets:
+                port = sock.getsockname()[1]
         print(
-            f"\n  orbit-emulator web app   http://{shown}:{args.port}/\n"
-            f"  REST API docs (OpenAPI)  http://{shown}:{args.port}/docs\n"
+            f"\n  orbit-emulator web app   http://{shown}:{port}/\n"
+            f"  REST API docs (OpenAPI)  http://{shown}:{port}/docs\n"
             f"  3D viewer (viser)        http://{shown}:{viser_port}/\n",
             flush=True,
         )

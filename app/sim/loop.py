@@ -45,7 +45,11 @@ from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.telemetry import Recorder
 
-__all__ = ["Emulator"]
+__all__ = ["Emulator", "StartPoseError"]
+
+
+class StartPoseError(ValueError):
+    """A satellite's start pose is out of its arm's reach (a configuration mistake)."""
 
 
 class Emulator:
@@ -243,7 +247,7 @@ class Emulator:
         for arm in self.arms:
             q, error_m = arm.solve_start_posture(arm.tcp_target_B(self.ods.y), steps)
             if q is None:
-                raise RuntimeError(
+                raise StartPoseError(
                     f"robot {arm.index + 1}: start pose of satellite "
                     f"{self.config.satellites[arm.satellite].name!r} not reached "
                     f"(error {error_m:.4f} m): is it within reach?"

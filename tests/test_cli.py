@@ -1,0 +1,54 @@
+"""The command line's answers to a user's mistakes: a message naming the argument, exit 2,
+no traceback (and nothing run or written)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
+
+MISTAKES = {
+    "config is a directory": (["run", "collision", "--config", "/tmp"],
+                              "/tmp: is a directory, not a TOML file"),
+    "out cannot be created": (["run", "collision", "--out", "/dev/null/x", "--duration", "0.1"],
+                              "--out: cannot create the directory '/dev/null/x'"),
+    "propagate too long": (["propagate", "--duration", "1e9", "--dt", "1e-6"],
+                           "--duration / --dt: 1e+09 s in steps of 1e-06 s is 1e+15 steps"),
+    "run too long": (["run", "collision", "--duration", "1e9"],
+                     "--duration: 1e+09 s at 500 Hz is 5e+11 cycles"),
+    "robot index": (["run", "collision", "--set", "robots.5.q_home_rad=[0,0,0,0,0,0]"],
+                    "robots.5: index out of range: the list has 2 item(s), indices 0..1"),
+    "satellite index": (["run", "collision", "--set", "satellites.2.mass_kg=2"],
+                        "satellites.2: index out of range"),
+    "out of reach": (["run", "collision", "--set", "satellites.0.position_m=[3,0,0]",
+                      "--duration", "1", "--out", "OUT"],
+                     "robot 1: start pose of satellite 'cubesat' not reached"),
+    "bad value": (["run", "collision", "--set", "compensation.lead_s=-1"],
+                  "compensation.lead_s: Input should be greater than or equal to 0"),
+}
+
+
+@pytest.mark.parametrize("case", list(MISTAKES))
+def test_a_mistake_is_named_with_exit_2_and_no_traceback(case, tmp_path):
+    argv, message = MISTAKES[case]
+    argv = [str(tmp_path / "out") if a == "OUT" else a for a in argv]
+    proc = subprocess.run([EXE, *argv, *(["--quiet"] if argv[0] == "run" else [])],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert message in proc.stderr, proc.stderr
+    assert not (tmp_path / "runs").exists()  # nothing ran to completion, nothing written
+
+
+def test_an_empty_list_override_clears_the_list():
+    from app.config import assignment_override, merge_overrides
+    from app.scenarios import load_scenario
+
+    cfg = load_scenario("free-floating")
+    assert len(cfg.pulses) == 10
+    assert merge_overrides(cfg, {"pulses": []}).pulses == []
+    assert merge_overrides(cfg, assignment_override("pulses=[]")).pulses == []
