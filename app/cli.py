@@ -13,6 +13,7 @@ from app.config import (
     EmulatorConfig,
     assignment_override,
     load_config,
+    max_telemetry_rows,
     merge_overrides,
 )
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
@@ -65,11 +66,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         config = merge_overrides(config, assignment_override(assignment))
     duration = args.duration or config.loop.duration_s
     cycles = duration * config.loop.rate_hz
-    if cycles > MAX_RUN_CYCLES:
+    max_cycles = max_telemetry_rows(len(config.satellites), len(config.robots)) - 2
+    if cycles > max_cycles:
         raise ValueError(
             f"--duration: {duration:g} s at {config.loop.rate_hz:g} Hz is {cycles:.3g} cycles; "
-            f"a headless run keeps every cycle in memory, at most {MAX_RUN_CYCLES:,} "
-            f"({MAX_RUN_CYCLES / config.loop.rate_hz:g} s at this rate)")
+            f"a headless run keeps every cycle in memory, at most {max_cycles:,} "
+            f"({max_cycles / config.loop.rate_hz:g} s at this rate)")
     out_dir = _output_dir(default_out(args))
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
                disable=args.quiet, file=sys.stderr)
@@ -88,8 +90,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 MAX_PROPAGATE_STEPS = 10_000_000
 """propagate keeps every step in memory (20 floats per satellite and step)."""
-MAX_RUN_CYCLES = 10_000_000
-"""The telemetry of a headless run is kept whole ([loop] telemetry_capacity's bound)."""
 
 
 def _output_dir(path: str | Path) -> Path:

@@ -318,11 +318,13 @@ class LoopConfig(_Model):
     """The emulation loop."""
 
     rate_hz: Annotated[float, AfterValidator(_finite), Field(ge=10.0, le=5000.0)] = 500.0
-    duration_s: Positive = 30.0
+    duration_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1e6)] = 30.0
     mode: Literal["hil", "ideal"] = "hil"
     seed: Annotated[int, Field(ge=0)] = 0
     telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 200_000
-    approach_timeout_s: Positive = 20.0
+    approach_timeout_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=120.0)] = 20.0
+    """How long the start-up may search for each arm's start posture (VFDM iterations on
+    its virtual model), at most 2 minutes."""
     max_tracking_error_m: Positive = 0.05
     """A mockup this far from its satellite's ODS position stops the run (hil): the arm
     can no longer show the orbit (the paper's lab tracked within 0.01 m)."""
@@ -334,25 +336,48 @@ class LoopConfig(_Model):
     converges to the exact impact."""
 
 
+MAX_SATELLITES = 8
+MAX_ROBOTS = 4
+MAX_PULSES = 1000
+MAX_MATERIALS = 32
+MAX_TELEMETRY_BYTES = 1 << 30
+"""The telemetry ring (and a headless run, which keeps every cycle) holds at most 1 GiB."""
+MAX_VFDM_ITERATIONS_PER_S = 100_000
+"""10x the paper's 10 iterations at 500 Hz: ~0.1 ms of VFDM per arm and cycle."""
+
+
+def telemetry_row_floats(n_satellites: int, n_robots: int) -> int:
+    """Values in one telemetry row (app/sim/telemetry.py loop_columns): the time, 19 ODS
+    values and 3 true-force values per satellite, 22 values per arm."""
+    return 1 + 22 * (n_satellites + n_robots)
+
+
+def max_telemetry_rows(n_satellites: int, n_robots: int) -> int:
+    """The most telemetry rows that fit MAX_TELEMETRY_BYTES for this layout."""
+    return MAX_TELEMETRY_BYTES // (8 * telemetry_row_floats(n_satellites, n_robots))
+
+
 class EmulatorConfig(_Model):
     """A whole scenario: orbit, satellites, pulses and, for the emulation, the lab."""
 
     name: str = "custom"
     description: str = ""
     orbit: OrbitConfig = OrbitConfig()
-    satellites: Annotated[list[SatelliteConfig], Field(min_length=1)] = [
+    satellites: Annotated[list[SatelliteConfig],
+                          Field(min_length=1, max_length=MAX_SATELLITES)] = [
         SatelliteConfig(name="sat1")
     ]
-    pulses: list[PulseConfig] = []
+    pulses: Annotated[list[PulseConfig], Field(max_length=MAX_PULSES)] = []
     lab: LabConfig = LabConfig()
-    robots: list[RobotConfig] = []
+    robots: Annotated[list[RobotConfig], Field(max_length=MAX_ROBOTS)] = []
     vfdm: VfdmConfig = VfdmConfig()
     servo: ServoConfig = ServoConfig()
     sensor: SensorConfig = SensorConfig()
     wrench: WrenchProcessingConfig = WrenchProcessingConfig()
     passivity: PassivityConfig = PassivityConfig()
     compensation: CompensationConfig = CompensationConfig()
-    materials: dict[str, ContactMaterial] = DEFAULT_MATERIALS
+    materials: Annotated[dict[str, ContactMaterial],
+                         Field(max_length=MAX_MATERIALS)] = DEFAULT_MATERIALS
     hand: HandConfig = HandConfig()
     loop: LoopConfig = LoopConfig()
 
@@ -377,6 +402,18 @@ class EmulatorConfig(_Model):
         for i, s in enumerate(self.satellites):
             if s.material not in self.materials:
                 raise ValueError(f"satellites.{i}.material: {s.material!r} is not in materials")
+        max_rows = max_telemetry_rows(len(self.satellites), len(self.robots))
+        if self.loop.telemetry_capacity > max_rows:
+            raise ValueError(
+                f"loop.telemetry_capacity: {self.loop.telemetry_capacity} rows of "
+                f"{telemetry_row_floats(len(self.satellites), len(self.robots))} values "
+                f"exceed {MAX_TELEMETRY_BYTES // 2**20} MiB; at most {max_rows} for this layout")
+        work = self.vfdm.iterations * self.loop.rate_hz
+        if work > MAX_VFDM_ITERATIONS_PER_S:
+            raise ValueError(
+                f"vfdm.iterations: {self.vfdm.iterations} per cycle at {self.loop.rate_hz:g} Hz "
+                f"is {work:g} per second; at most {MAX_VFDM_ITERATIONS_PER_S:,} "
+                f"(the VFDM must leave the cycle time for the rest)")
         return self
 
     def satellite_index(self, name: str) -> int:

@@ -124,6 +124,14 @@ BAD_OVERRIDES = [
     ('{"mode": "sideways"}', "mode"),
     ('{"loop": {"rate_hz": 1e9}}', "loop.rate_hz"),
     ('[1, 2]', "body"),
+    # what would exhaust memory or time is bounded before anything starts
+    ('{"loop": {"telemetry_capacity": 10000000}}', "loop.telemetry_capacity"),
+    ('{"loop": {"approach_timeout_s": 1e9}}', "loop.approach_timeout_s"),
+    ('{"loop": {"duration_s": 1e9}}', "loop.duration_s"),
+    ('{"vfdm": {"iterations": 1000}}', "vfdm.iterations"),
+    ('{"pulses": [' + ", ".join(['{"satellite": "cubesat", "start_s": 1, "end_s": 2}']
+                                * 1001) + "]}", "pulses"),
+    ('{"satellites": [{}, {}, {"mass_kg": 2}]}', "satellites.2: index out of range"),
 ]
 
 
@@ -166,6 +174,25 @@ def test_collision_stop_reset_and_bad_starts(live):
     assert metrics.status_code == 200, metrics.text
     s = live.client.post("/api/reset").json()
     assert s["status"] == "idle" and s["t_s"] == 0.0 and s["scenario"] == "collision"
+
+
+def test_a_body_over_64_kib_is_refused_with_413_and_changes_nothing(live):
+    live.client.post("/api/stop")
+    gen = live.state()["generation"]
+    big = '{"description": "%s"}' % ("x" * 100_000)
+    r = _post_raw(live, "/api/scenarios/collision/start", big)
+    assert r.status_code == 413 and "64 KiB" in r.json()["detail"]
+
+    def chunks():  # no Content-Length: the limit counts what streams in
+        for _ in range(100):
+            yield b" " * 1024
+
+    r = live.client.post("/api/scenarios/collision/start", content=chunks(),
+                         headers={"Content-Type": "application/json"})
+    assert r.status_code == 413
+    s = live.state()
+    assert s["generation"] == gen and s["status"] not in ("running", "starting")
+    assert live.client.get("/api/health").json()["status"] == "ok"
 
 
 def test_a_failing_start_reports_error_and_the_loop_lives_on(live):

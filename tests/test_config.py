@@ -148,3 +148,28 @@ def test_assignment_override_merges_one_field_of_one_item():
 def test_bad_assignment(text, message):
     with pytest.raises(ConfigError, match=message):
         assignment_override(text)
+
+
+def test_the_telemetry_row_size_the_limit_uses_is_the_loop_s():
+    from app.config import telemetry_row_floats
+    from app.sim.telemetry import loop_columns
+
+    for n_sat, n_rob in [(1, 0), (1, 1), (2, 2), (8, 4)]:
+        assert telemetry_row_floats(n_sat, n_rob) == len(loop_columns(n_sat, n_rob))
+
+
+@pytest.mark.parametrize(("override", "field"), [
+    ({"loop": {"telemetry_capacity": 9_000_000}}, "loop.telemetry_capacity"),
+    ({"vfdm": {"iterations": 201}}, "vfdm.iterations"),
+    ({"loop": {"approach_timeout_s": 121}}, "loop.approach_timeout_s"),
+    ({"loop": {"duration_s": 2e6}}, "loop.duration_s"),
+    ({"satellites": [{"name": f"s{i}"} for i in range(9)]}, "satellites"),
+    ({"materials": {f"m{i}": {"stiffness_Npm": 1.0, "damping_spm": 0.0} for i in range(33)}},
+     "materials"),
+])
+def test_settings_that_cost_memory_or_time_are_bounded(override, field):
+    from app.config import ConfigError, parse_config
+
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")) as err:
+        parse_config(override)
+    assert "index out of range" not in str(err.value)

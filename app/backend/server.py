@@ -123,6 +123,60 @@ def _field_errors(errors) -> str:
 # --- the app ----------------------------------------------------------------------------
 
 
+MAX_BODY_BYTES = 64 * 1024
+"""Request bodies beyond this get 413 before anything reads them whole."""
+
+
+class BodyLimit:
+    """ASGI middleware: 413 for an HTTP request whose body exceeds ``limit`` bytes, by its
+    Content-Length or, without one, once the chunks read pass it (a body within the limit
+    is read here and handed on whole)."""
+
+    def __init__(self, app, limit: int = MAX_BODY_BYTES) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        declared = dict(scope.get("headers") or ()).get(b"content-length")
+        if declared is not None:
+            try:
+                if int(declared) > self.limit:
+                    return await self._reject(send)
+            except ValueError:
+                pass
+        chunks, size = [], 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":  # the client went away
+                return
+            chunks.append(message.get("body", b""))
+            size += len(chunks[-1])
+            if size > self.limit:
+                return await self._reject(send)
+            if not message.get("more_body", False):
+                break
+        body = b"".join(chunks)
+        replayed = False
+
+        async def replay():
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()  # after the body: wait for a disconnect, as usual
+
+        await self.app(scope, replay, send)
+
+    async def _reject(self, send) -> None:
+        body = b'{"detail":"request body over %d KiB"}' % (self.limit // 1024)
+        await send({"type": "http.response.start", "status": 413,
+                    "headers": [(b"content-type", b"application/json"),
+                                (b"content-length", str(len(body)).encode())]})
+        await send({"type": "http.response.body", "body": body})
+
+
 def create_app(
     viser_port: int = 0,
     host: str = "127.0.0.1",
@@ -165,6 +219,7 @@ def create_app(
         version="0.1.0",
         lifespan=lifespan,
     )
+    app.add_middleware(BodyLimit)
 
     def service(request: Request) -> EmulatorService:
         return request.app.state.service
