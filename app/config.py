@@ -253,7 +253,9 @@ class WrenchProcessingConfig(_Model):
     ``contact_gate_margin_m`` of one and closing in, its deadbands are lifted, so that a
     contact below the noise threshold reaches the ODS whole. Off: the deadband always
     applies (the paper)."""
-    contact_gate_margin_m: NonNegative = 0.001
+    contact_gate_margin_m: Annotated[float, AfterValidator(_finite),
+                                     Field(ge=0.0, le=0.1)] = 0.001
+    """How close (m) a mockup closing in on another opens its gate (at most 0.1 m)."""
     fuse_pair_contact: bool = False
     """With the contact gate: while two carried mockups touch only each other, hand both
     satellites the one estimate ±(F_b − F_a)/2 of the two sensors (app/sim/contact_gate.py):
@@ -270,7 +272,7 @@ class CompensationConfig(_Model):
     """
 
     enabled: bool = False
-    lead_s: NonNegative | None = None
+    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=0.1)] | None = None
     """None: the loop's own lag model (servo delay and bandwidth, VFDM, sensor delay,
     filter, zero-order hold)."""
 
@@ -288,7 +290,7 @@ class PassivityConfig(_Model):
     enabled: bool = False
     idle_reset_s: NonNegative = 0.1
     """The balance is forgotten once the measured wrench has been zero this long."""
-    tank_max_J: NonNegative = 1e-3
+    tank_max_J: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 1e-3
     """Cap of the force ports' energy tank: energy the contact dissipated early is not
     handed back to the satellites later beyond this."""
 
