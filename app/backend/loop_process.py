@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from app.backend import snapshots
 from app.backend.snapshots import SnapshotWriter
 from app.config import EmulatorConfig
 from app.sim.loop import Emulator
@@ -49,6 +50,7 @@ class LoopCore:
         self.resp_conn = resp_conn
         self.shm = shared_memory.SharedMemory(name=shm_name)
         self.writer = SnapshotWriter(self.shm)
+        self._beats = 0
         self.snapshot_every = max(1, int(settings.get("snapshot_every", 10)))
         self.spin_s = float(settings.get("spin_s", 0.0003))
         self.max_lag_s = float(settings.get("max_lag_s", 0.1))
@@ -76,9 +78,15 @@ class LoopCore:
         self.wall_s = 0.0
         self.timing = {"p50": 0.0, "p99": 0.0, "max": 0.0}
 
+    def beat(self) -> None:
+        """Tell the web process the loop is alive (it watches this; app/backend/runner.py)."""
+        self._beats += 1
+        snapshots.beat(self.shm.buf, self._beats)
+
     def serve(self) -> None:
         try:
             while not self.shutdown:
+                self.beat()
                 if self.cmd_conn.poll(0.05 if self.status != "running" else 0):
                     self.handle(self.cmd_conn.recv())
                 elif self.status == "running":
@@ -146,7 +154,7 @@ class LoopCore:
         if not prepare:
             return
         try:
-            em.prepare()
+            em.prepare(tick=self.beat)
         except Exception as err:
             self.fail(err)
             return
@@ -192,6 +200,7 @@ class LoopCore:
                 time.sleep((wait - spin_ns) * 1e-9)
             while perf() < start_ns:
                 pass
+            self.beat()
             c0 = perf()
             try:
                 em.step()

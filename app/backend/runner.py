@@ -50,6 +50,14 @@ class RunnerError(RuntimeError):
     """The loop process failed to answer a request."""
 
 
+class LoopDown(RunnerError):
+    """The loop process is dead or stalled (see Runner.fault); reset or start restarts it."""
+
+
+STALL_S = 0.5
+"""A loop process whose heartbeat has not moved for this long is stalled."""
+
+
 class Runner:
     """Proxy of the loop process; thread-safe."""
 
@@ -71,7 +79,7 @@ class Runner:
             "rt_priority": rt_priority, "nice": nice, "warm_up": warm_up,
         }
         self._send_lock = threading.Lock()
-        self._state_lock = threading.Lock()
+        self._state_lock = threading.RLock()
         self._ids = itertools.count(1)
         self._waiting: dict[int, list] = {}
         self._proc: mp.process.BaseProcess | None = None
@@ -79,6 +87,9 @@ class Runner:
         self._cache: tuple[int, dict] = (-1, {})
         self._pending: str | None = None  # status asked for and not yet published
         self._pending_gen = -1
+        self._beat = (0, time.monotonic())  # last heartbeat seen, and when it moved
+        self._fault: str | None = None
+        self._watch: threading.Thread | None = None
 
     # --- lifecycle --------------------------------------------------------------------
 
@@ -112,6 +123,53 @@ class Runner:
             if time.monotonic() > deadline:
                 raise RunnerError("the loop process did not start in time")
             time.sleep(0.02)
+        self._fault = None
+        self._beat = (snapshots.heartbeat(self._shm.buf), time.monotonic())
+        if self._watch is None:
+            self._watch = threading.Thread(target=self._watchdog, name="runner-watchdog",
+                                           daemon=True)
+            self._watch.start()
+
+    # --- supervision ------------------------------------------------------------------
+
+    def _watchdog(self) -> None:
+        """Every 0.1 s: is the loop process alive, and has its heartbeat moved?"""
+        while True:
+            time.sleep(0.1)
+            self.fault()
+
+    def fault(self) -> str | None:
+        """Why the loop process cannot serve (dead, or no heartbeat for STALL_S); None when
+        it is fine. Sticky until :meth:`restart`."""
+        with self._state_lock:
+            if self._fault is not None or self._proc is None or self._shm is None:
+                return self._fault
+            if not self._proc.is_alive():
+                self._fault = f"the loop process exited (code {self._proc.exitcode})"
+                return self._fault
+            count, since = self._beat
+            now = time.monotonic()
+            current = snapshots.heartbeat(self._shm.buf)
+            if current != count:
+                self._beat = (current, now)
+            elif now - since > STALL_S:
+                self._fault = f"the loop process has not answered for {now - since:.1f} s"
+            return self._fault
+
+    def restart(self, config: EmulatorConfig, scenario: str, mode: str | None) -> None:
+        """A new loop process in place of a dead or stalled one (what was recorded by the
+        old one is gone with it)."""
+        with self._state_lock:
+            proc = self._proc
+        if proc is not None and proc.is_alive():
+            proc.kill()
+            proc.join(2.0)
+        self.shutdown(timeout_s=0.5)
+        with self._state_lock:
+            self._initial = (config, scenario, mode)
+            self._pending = None
+            self._cache = (-1, {})
+        self.start_thread()
 
     def shutdown(self, timeout_s: float = 5.0) -> None:
         if self._proc is None:
@@ -139,8 +197,14 @@ class Runner:
     def _send(self, msg: tuple) -> None:
         if self._proc is None:
             raise RunnerError("the loop process is not running")
-        with self._send_lock:
-            self._cmd.send(msg)
+        reason = self.fault()
+        if reason is not None:
+            raise LoopDown(reason)
+        try:
+            with self._send_lock:
+                self._cmd.send(msg)
+        except (OSError, EOFError) as err:  # the process died between the check and now
+            raise LoopDown(f"the loop process is gone ({type(err).__name__})") from None
 
     def _read_responses(self) -> None:
         while True:

@@ -23,6 +23,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTex
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from app.backend.runner import RunnerError
 from app.backend.service import (
     MAX_PUSH_DURATION_S,
     MAX_PUSH_FORCE_N,
@@ -87,6 +88,13 @@ class Health(BaseModel):
 
 class Message(BaseModel):
     detail: str
+
+
+class Fault(BaseModel):
+    """/api/health while the loop process is dead or stalled (503)."""
+
+    status: Literal["fault"]
+    reason: str
 
 
 START_BODY_EXAMPLE = {
@@ -255,9 +263,19 @@ def create_app(
 
     # --- API --------------------------------------------------------------------------
 
-    @app.get("/api/health", response_model=Health, tags=["status"])
+    @app.exception_handler(RunnerError)
+    async def _loop_down(_request: Request, exc: RunnerError):
+        # the loop process is dead, stalled or did not answer: the server itself is fine
+        return JSONResponse(status_code=503, content={
+            "detail": f"{exc}; POST /api/reset or a start restarts the loop"})
+
+    @app.get("/api/health", response_model=Health, tags=["status"],
+             responses={503: {"model": Fault}})
     async def health(request: Request):
         svc = service(request)
+        fault = svc.runner.fault()
+        if fault is not None:
+            return JSONResponse(status_code=503, content={"status": "fault", "reason": fault})
         alive = svc.runner.alive
         return {
             "status": "ok" if alive else "degraded",

@@ -57,7 +57,18 @@ class EmulatorService:
         return [{"name": n, "description": d} for n, d in scenario_descriptions().items()]
 
     def state(self) -> dict[str, Any]:
-        return self.runner.snapshot()
+        """The loop's latest state; status "fault" with the reason while the loop process
+        is dead or stalled."""
+        snap = self.runner.snapshot()
+        fault = self.runner.fault()
+        if fault is not None:
+            snap = {**snap, "status": "fault", "reason": fault}
+        return snap
+
+    def _revive(self, config: EmulatorConfig, name: str, mode: str | None) -> None:
+        """A dead or stalled loop process is replaced before a start or a reset."""
+        if self.runner.fault() is not None:
+            self.runner.restart(config, name, mode)
 
     def config_for(self, name: str, overrides: dict | None = None) -> EmulatorConfig:
         """Scenario `name` with `overrides` merged and validated (UnknownScenario /
@@ -96,6 +107,7 @@ class EmulatorService:
         """Start scenario `name`; returns the state once running (or failed to start)."""
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
+            self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
             self.last_config = config
         # the loop publishes the new generation first as "starting", then running /
@@ -111,11 +123,12 @@ class EmulatorService:
         return self.state()
 
     def reset(self, name: str | None = None) -> dict[str, Any]:
-        name = name or self.runner.scenario
+        name = name or self.state()["scenario"]
         if name not in scenario_names():
             name = self.default_scenario
         with self._build_lock:
             config, mode = self.build(name)
+            self._revive(config, name, mode)
             gen = self.runner.request_reset(name, config, mode)
             self.last_config = config
         self.runner.wait_until(lambda s: s["generation"] >= gen, 10.0)

@@ -16,6 +16,8 @@ from multiprocessing import shared_memory
 
 SLOT_BYTES = 1 << 20  # one snapshot slot in shared memory
 HEADER = struct.Struct("<QQQ")  # sequence number, length of slot 0, length of slot 1
+HEARTBEAT = struct.Struct("<Q")  # the loop's heartbeat counter, after the header
+HEARTBEAT_AT = 32
 SLOT0 = 64  # offset of slot 0 (the header comes first)
 SHM_BYTES = SLOT0 + 2 * SLOT_BYTES  # size of the shared memory block
 
@@ -25,8 +27,19 @@ class SnapshotError(RuntimeError):
 
 
 def clear(buf) -> None:
-    """Mark a new block as holding no snapshot yet."""
+    """Mark a new block as holding no snapshot yet (and no heartbeat)."""
     HEADER.pack_into(buf, 0, 0, 0, 0)
+    HEARTBEAT.pack_into(buf, HEARTBEAT_AT, 0)
+
+
+def beat(buf, count: int) -> None:
+    """The loop process: 'still here' (count: its own running counter)."""
+    HEARTBEAT.pack_into(buf, HEARTBEAT_AT, count)
+
+
+def heartbeat(buf) -> int:
+    """The last heartbeat count the loop process wrote (0: none yet)."""
+    return HEARTBEAT.unpack_from(buf, HEARTBEAT_AT)[0]
 
 
 def sequence(buf) -> int:

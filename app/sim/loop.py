@@ -235,17 +235,19 @@ class Emulator:
 
     # --- start-up -------------------------------------------------------------------------
 
-    def prepare(self, settle_s: float = 0.5) -> None:
+    def prepare(self, settle_s: float = 0.5, tick=None) -> None:
         """Move every arm to its start pose, calibrate its F/T sensor, start the clock.
 
         The start posture is found by the VFDM itself (run on its virtual model only until
         converged); the arm then makes a smooth joint move there within half its speed
         limits, rests for `settle_s` while the sensor readings are averaged for the payload
         calibration (bias with the known mockup mass and COM, as the paper's lab did).
+        ``tick``: called now and then while it works (a supervisor's heartbeat).
         """
+        tick = tick or (lambda: None)
         steps = int(self.config.loop.approach_timeout_s * self.config.loop.rate_hz)
         for arm in self.arms:
-            q, error_m = arm.solve_start_posture(arm.tcp_target_B(self.ods.y), steps)
+            q, error_m = arm.solve_start_posture(arm.tcp_target_B(self.ods.y), steps, tick)
             if q is None:
                 raise StartPoseError(
                     f"robot {arm.index + 1}: start pose of satellite "
@@ -257,8 +259,11 @@ class Emulator:
                 lead = self.config.compensation.lead_s
                 arm.lead_s = (lag_model(self.config, arm.T_F_C, q).lead_s
                               if lead is None else lead)
+            tick()
             arm.move_to(q, self.dt_s)
+            tick()
         rest = {arm.index: [] for arm in self.arms}
+        tick()
         for _ in range(int(round(settle_s / self.dt_s))):
             for arm in self.arms:
                 rest[arm.index].append(arm.rest_reading())

@@ -125,12 +125,15 @@ class ArmRig:
 
     # --- start-up -------------------------------------------------------------------------
 
-    def solve_start_posture(self, T_B_C_target: np.ndarray,
-                            max_steps: int) -> tuple[np.ndarray | None, float]:
+    def solve_start_posture(self, T_B_C_target: np.ndarray, max_steps: int,
+                            tick=None) -> tuple[np.ndarray | None, float]:
         """(q, position error m): joint positions that put the TCP at the target, found by
-        the VFDM run on its virtual model only until converged (q None if it does not)."""
+        the VFDM run on its virtual model only until converged (q None if it does not).
+        ``tick``: called every 500 steps (a supervisor's heartbeat)."""
         vfdm = Vfdm(self.vfdm.cfg, self.T_F_C, self.vfdm.q_rad, limits=None)
-        for _ in range(max_steps):
+        for k in range(max_steps):
+            if tick is not None and k % 500 == 0:
+                tick()
             q = vfdm.solve(T_B_C_target)
             err = vfdm.last_error
             if np.linalg.norm(err[:3]) < 1e-5 and np.linalg.norm(err[3:]) < 1e-4:
