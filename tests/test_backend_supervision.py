@@ -77,3 +77,24 @@ def test_a_stalled_loop_is_noticed_and_a_start_replaces_it(live):
             pass
     assert live.client.get("/api/health").json()["status"] == "ok"
     live.client.post("/api/stop")
+
+
+def test_health_turns_degraded_when_the_loop_misses_its_deadlines(live):
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/free-floating/start", json={"pulses": []}).json()
+    assert s["status"] == "running"
+    time.sleep(1.0)
+    health = live.client.get("/api/health").json()
+    ratio = health["deadline_miss_ratio_10s"]
+    assert ratio is not None and 0.0 <= ratio <= 1.0
+    assert health["status"] == ("ok" if ratio <= 0.01 else "degraded")
+    live.client.post("/api/stop")
+    # 5 kHz: a dual-stage cycle costs more than its 200 us, most deadlines are missed
+    s = live.client.post("/api/scenarios/collision/start",
+                         json={"loop": {"rate_hz": 5000}}).json()
+    assert s["status"] == "running"
+    time.sleep(1.5)
+    health = live.client.get("/api/health").json()
+    assert health["deadline_miss_ratio_10s"] > 0.01
+    assert health["status"] == "degraded"
+    live.client.post("/api/stop")

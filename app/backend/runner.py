@@ -24,6 +24,7 @@ process, which starts and stops the process and
 
 from __future__ import annotations
 
+import collections
 import itertools
 import multiprocessing as mp
 import threading
@@ -54,6 +55,8 @@ class LoopDown(RunnerError):
     """The loop process is dead or stalled (see Runner.fault); reset or start restarts it."""
 
 
+MISS_WINDOW_S = 10.0
+"""Health reports the deadline-miss ratio over this window."""
 STALL_S = 0.5
 """A loop process whose heartbeat has not moved for this long is stalled."""
 
@@ -90,6 +93,7 @@ class Runner:
         self._beat = (0, time.monotonic())  # last heartbeat seen, and when it moved
         self._fault: str | None = None
         self._watch: threading.Thread | None = None
+        self._timing: collections.deque = collections.deque(maxlen=int(MISS_WINDOW_S / 0.1) + 2)
 
     # --- lifecycle --------------------------------------------------------------------
 
@@ -133,10 +137,33 @@ class Runner:
     # --- supervision ------------------------------------------------------------------
 
     def _watchdog(self) -> None:
-        """Every 0.1 s: is the loop process alive, and has its heartbeat moved?"""
+        """Every 0.1 s: is the loop process alive, has its heartbeat moved; and a sample
+        of its (cycles, deadline misses) for :meth:`miss_ratio`."""
         while True:
             time.sleep(0.1)
-            self.fault()
+            if self.fault() is None:
+                try:
+                    loop = self.snapshot()["loop"]
+                except (RunnerError, KeyError):
+                    continue
+                with self._state_lock:
+                    self._timing.append((time.monotonic(), loop["cycles"],
+                                         loop["deadline_misses"]))
+
+    def miss_ratio(self, window_s: float = MISS_WINDOW_S) -> float | None:
+        """Share of the cycles in the last ``window_s`` that missed their deadline (None
+        when no cycle ran in that window)."""
+        with self._state_lock:
+            samples = list(self._timing)
+        if not samples:
+            return None
+        now = samples[-1][0]
+        first = next((x for x in samples if now - x[0] <= window_s), samples[-1])
+        _, c1, m1 = samples[-1]
+        _, c0, m0 = first
+        if c1 < c0:  # a new run restarted the counters within the window
+            c0 = m0 = 0
+        return (m1 - m0) / (c1 - c0) if c1 > c0 else None
 
     def fault(self) -> str | None:
         """Why the loop process cannot serve (dead, or no heartbeat for STALL_S); None when

@@ -76,8 +76,15 @@ class ScenarioInfo(BaseModel):
     description: str
 
 
+MAX_MISS_RATIO = 0.01
+"""Health turns "degraded" when more of the last 10 s of cycles missed their deadline."""
+
+
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
+    deadline_miss_ratio_10s: float | None = Field(
+        description="share of the cycles of the last 10 s that missed their deadline "
+        "(null when none ran); above 0.01 the status is 'degraded'")
     viser_port: int
     loop_alive: bool
     emulator_status: str
@@ -277,8 +284,11 @@ def create_app(
         if fault is not None:
             return JSONResponse(status_code=503, content={"status": "fault", "reason": fault})
         alive = svc.runner.alive
+        ratio = svc.runner.miss_ratio()
+        late = ratio is not None and ratio > MAX_MISS_RATIO
         return {
-            "status": "ok" if alive else "degraded",
+            "status": "ok" if alive and not late else "degraded",
+            "deadline_miss_ratio_10s": ratio,
             "viser_port": request.app.state.viser_port,
             "loop_alive": alive,
             "emulator_status": svc.runner.status,
