@@ -196,6 +196,7 @@ class Runner:
             self._initial = (config, scenario, mode)
             self._pending = None
             self._cache = (-1, {})
+            self._timing.clear()
         self.start_thread()
 
     def shutdown(self, timeout_s: float = 5.0) -> None:
