@@ -177,7 +177,9 @@ class Runner:
             count, since = self._beat
             now = time.monotonic()
             current = snapshots.heartbeat(self._shm.buf)
-            if current != count:
+            if current != count or self._waiting:
+                # a heavy read (metrics, telemetry) keeps the loop busy between two
+                # beats: not a stall while one is answered (its own timeout applies)
                 self._beat = (current, now)
             elif now - since > STALL_S:
                 self._fault = f"the loop process has not answered for {now - since:.1f} s"
