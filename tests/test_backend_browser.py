@@ -143,12 +143,22 @@ def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     assert g > 150 and g > r + 40, f"no green gizmo arrow at {tip}: {(r, g, b)}"
     direction = (tip - center) / np.linalg.norm(tip - center)
     y0 = s0["satellites"][0]["position_m"][1]
-    page.mouse.move(*tip)
-    page.mouse.down()
-    for k in range(1, 4):  # ~20 px along +y on screen: about 0.15 m in the lab
-        page.mouse.move(*(tip + direction * 7 * k))
-    s1 = live.wait_for(lambda s: s["satellites"][0]["velocity_mps"][1] > 0.005,
-                       timeout_s=30)
+    # In about one full-suite run in three on this shared VM the first press does not
+    # grab the arrow (the drag never reaches the server; alone the test always passes):
+    # a second drag, from the top, is what an operator would do too.
+    for attempt in range(2):
+        page.mouse.move(*tip)
+        page.mouse.down()
+        for k in range(1, 4):  # ~20 px along +y on screen: about 0.15 m in the lab
+            page.mouse.move(*(tip + direction * 7 * k))
+        try:
+            s1 = live.wait_for(lambda s: s["satellites"][0]["velocity_mps"][1] > 0.005,
+                               timeout_s=8)
+            break
+        except TimeoutError:
+            page.mouse.up()
+            if attempt == 1:
+                raise
     page.mouse.up()
     assert s1["satellites"][0]["position_m"][1] > y0
     v = s1["satellites"][0]["velocity_mps"]
