@@ -18,6 +18,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    StrictBool,
     ValidationError,
     model_validator,
 )
@@ -78,7 +79,7 @@ class OrbitConfig(_Model):
     """Observer orbit and what the ODS does with the wrenches it receives."""
 
     altitude_m: Positive = 800e3
-    gravity_gradient: bool = True
+    gravity_gradient: StrictBool = True
     force_scale: NonNegative = 1.0
     """Multiplies every external force before it enters the ODS (scales lab pushes)."""
     torque_scale: NonNegative = 1.0 / 2000.0
@@ -190,7 +191,7 @@ class VfdmConfig(_Model):
     velocity_mode: Literal["damped", "reset"] = "damped"
     damping: Annotated[float, AfterValidator(_finite), Field(ge=0.0, lt=1.0)] = 0.1
     """Fraction of virtual joint velocity removed per internal step (mode 'damped')."""
-    sync_to_measured: bool = False
+    sync_to_measured: StrictBool = False
     """Each cycle, start the virtual arm from the measured joint positions (as FZI's
     cartesian_controllers can): the set-points then never drift from the real arm, at the
     cost of the servo's lag entering the virtual model."""
@@ -236,8 +237,8 @@ class SensorConfig(_Model):
 class WrenchProcessingConfig(_Model):
     """What the lab does to a raw F/T reading before the ODS sees it."""
 
-    payload_compensation: bool = True
-    inertial_compensation: bool = True
+    payload_compensation: StrictBool = True
+    inertial_compensation: StrictBool = True
     lowpass_hz: Positive = 30.0
     deadband_force_N: NonNegative = 4.0
     deadband_torque_Nm: NonNegative = 0.25
@@ -247,16 +248,18 @@ class WrenchProcessingConfig(_Model):
     deadband_mode: Literal["hard", "soft"] = "hard"
     """'hard': zero below the threshold, unchanged above (keeps the size of real pushes);
     'soft': zero below, magnitude reduced by the threshold above (continuous)."""
-    contact_gate: bool = False
+    contact_gate: StrictBool = False
     """Contact-aware deadband (app/sim/contact_gate.py): while the lab's geometry (the
     mockups' boxes at their measured poses) has a mockup touching another body, or within
     ``contact_gate_margin_m`` of one and closing in, its deadbands are lifted, so that a
     contact below the noise threshold reaches the ODS whole. Off: the deadband always
     applies (the paper)."""
     contact_gate_margin_m: Annotated[float, AfterValidator(_finite),
-                                     Field(ge=0.0, le=0.1)] = 0.001
-    """How close (m) a mockup closing in on another opens its gate (at most 0.1 m)."""
-    fuse_pair_contact: bool = False
+                                     Field(ge=0.0, le=0.01)] = 0.001
+    """How close (m) a mockup closing in on another opens its gate. At most 1 cm: the
+    open gate lets the sensor's noise through for margin / closing speed before the
+    touch (60 ms at the paper's 0.16 m/s, as long as the sponge contact itself)."""
+    fuse_pair_contact: StrictBool = False
     """With the contact gate: while two carried mockups touch only each other, hand both
     satellites the one estimate ±(F_b − F_a)/2 of the two sensors (app/sim/contact_gate.py):
     the exchanged momentum balances exactly, the noise per satellite drops by √2."""
@@ -271,23 +274,33 @@ class CompensationConfig(_Model):
     in step with the virtual satellites. Off by default (the paper has none).
     """
 
-    enabled: bool = False
+    enabled: StrictBool = False
     lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=0.1)] | None = None
     """None: the loop's own lag model (servo delay and bandwidth, VFDM, sensor delay,
-    filter, zero-order hold)."""
+    filter, zero-order hold). Only with ``enabled``."""
+
+    @model_validator(mode="after")
+    def _lead_needs_enabled(self) -> CompensationConfig:
+        if self.lead_s is not None and not self.enabled:
+            raise ValueError("lead_s is set but enabled is false: it would have no effect "
+                             "(set enabled = true, or leave lead_s out)")
+        return self
 
 
 class PassivityConfig(_Model):
-    """Passivity observer + energy-bounding controller on each arm's emulation port.
+    """Passivity layer between the measured wrenches and the ODS (app/sim/passivity.py).
 
     Off by default (the paper has none). Loop lag makes an emulated contact gain energy;
-    with this on, a virtual satellite never receives more energy than its mockup's
-    contact delivered (app/sim/passivity.py). It treats the environment as passive, so
-    an operator's push through an enabled port is throttled: scenarios with pushes keep
-    it off.
+    with this on, the satellites' forces pass one energy tank: together they never gain
+    more energy than the mockups received from the contact, by an internal damper between
+    the satellites that keeps momentum and never turns a push into a pull. It needs two
+    satellites acted on at once (a contact both sides see); with one, it only counts.
+    Each carried satellite's torque passes its own passivity controller. It treats the
+    environment as passive, so an operator's push is throttled: scenarios with pushes
+    keep it off.
     """
 
-    enabled: bool = False
+    enabled: StrictBool = False
     idle_reset_s: NonNegative = 0.1
     """The balance is forgotten once the measured wrench has been zero this long."""
     tank_max_J: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 1e-3

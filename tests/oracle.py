@@ -375,8 +375,8 @@ def deadband(v: np.ndarray, threshold: float, mode: str) -> np.ndarray:
 class RefProcessor:
     """The lab's processing chain: bias removal, payload compensation ``m g`` and (optional)
     inertial compensation ``−m a`` in S with the moment ``c × f`` → first-order low-pass →
-    force deadband → moment shifted from S to the COM by the force that passed → deadband
-    of the torque about the COM → force into R, torque into the body axes. Poses and
+    moment shifted from S to the COM by the filtered force → deadbands of the force and of
+    the torque about the COM → force into R, torque into the body axes. Poses and
     acceleration are those of the cycle the reading was taken in (``delay_cycles`` ago).
     ``calibration``: an app.sim.ft_sensor.Calibration (bias, mass, COM in F).
     """
@@ -415,9 +415,9 @@ class RefProcessor:
         cfg, R_W_F = self.config, T_W_F[:3, :3]
         db_f, db_t = (0.0, 0.0) if gate_open else (cfg.deadband_force_N, cfg.deadband_torque_Nm)
         w = self.filter(self.compensate(wrench_S, R_W_F, accel_W))
-        f_S = deadband(w[:3], db_f, cfg.deadband_mode)
         r_FC_S = R_W_F.T @ (T_W_C[:3, 3] - T_W_F[:3, 3])
-        t_C_S = deadband(w[3:] - np.cross(r_FC_S, f_S), db_t, cfg.deadband_mode)
+        t_C_S = deadband(w[3:] - np.cross(r_FC_S, w[:3]), db_t, cfg.deadband_mode)
+        f_S = deadband(w[:3], db_f, cfg.deadband_mode)
         return (R_W_R.T @ (R_W_F @ f_S), T_W_C[:3, :3].T @ (R_W_F @ t_C_S),
                 np.concatenate([f_S, t_C_S]))
 

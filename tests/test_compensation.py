@@ -9,8 +9,8 @@ import pytest
 from app.config import assignment_override, merge_overrides
 from app.headless import run_scenario
 from app.scenarios import load_scenario
-from app.sim.compensation import force_lag_s, lag_model, predicted_state
-from app.sim.ft_sensor import lowpass_alpha
+from app.sim.compensation import LagModelError, force_lag_s, lag_model, predicted_state
+from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor
 from app.sim.loop import Emulator
 from app.sim.orbital import OrbitalSimulator
 from app.sim.ur10e import T_F_C_from_config
@@ -32,10 +32,11 @@ def ideal():
     return run_scenario(_collision(*NO_NOISE), mode="ideal", duration_s=4.0).metrics
 
 
-def test_the_position_lag_model_is_the_lag_the_loop_shows():
+@pytest.mark.parametrize("rate_hz", [500.0, 1000.0])
+def test_the_position_lag_model_is_the_lag_the_loop_shows(rate_hz):
     """Before the impact the satellites fly at 0.08 m/s: the mockups trail them by the
-    identified position lag (uncompensated run)."""
-    cfg = _collision(*PAPER, *NO_NOISE)
+    identified position lag (uncompensated run), at the paper's rate and at twice it."""
+    cfg = _collision(*PAPER, *NO_NOISE, f"loop.rate_hz={rate_hz}")
     em = Emulator(cfg)
     em.run(2.0)
     rows, col = em.telemetry.rows(), em.telemetry.index
@@ -48,13 +49,40 @@ def test_the_position_lag_model_is_the_lag_the_loop_shows():
     assert 0.005 < model.position_s < 0.02
 
 
-def test_the_force_lag_is_delay_filter_and_hold():
-    cfg = _collision()
-    alpha = lowpass_alpha(cfg.wrench.lowpass_hz, cfg.loop.rate_hz)
-    dt = 1.0 / cfg.loop.rate_hz
-    expected = (cfg.sensor.delay_cycles + (1 - alpha) / alpha + 0.5) * dt
-    assert force_lag_s(cfg) == pytest.approx(expected, rel=1e-12)
-    assert force_lag_s(cfg, hold=False) == pytest.approx(expected - 0.5 * dt, rel=1e-12)
+def test_a_lag_that_cannot_be_identified_or_made_up_is_refused():
+    """At 125 Hz the arm's tracking oscillates (no steady lag to lead by); a 1 Hz
+    low-pass lags 160 ms, beyond what a prediction can make up: each says so before the
+    clock starts, and names the way out."""
+    with pytest.raises(LagModelError, match=r"did not settle .* at 125 Hz .* lead_s by hand"):
+        Emulator(_collision("loop.rate_hz=125")).prepare()
+    with pytest.raises(LagModelError, match=r"beyond the 100 ms a lead can make up"):
+        Emulator(_collision("wrench.lowpass_hz=1")).prepare()
+
+
+@pytest.mark.parametrize(("rate_hz", "delay_cycles", "lowpass_hz"),
+                         [(500.0, 1, 30.0), (1000.0, 3, 12.0)])
+def test_the_force_lag_is_the_lag_the_sensor_chain_shows(rate_hz, delay_cycles, lowpass_hz):
+    """A force ramp on a mockup at rest, through the real sensor and processing chain:
+    the output trails the ramp by the model's force lag (delay + filter; the ODS's
+    zero-order hold adds its half cycle on top)."""
+    cfg = _collision(*NO_NOISE, f"loop.rate_hz={rate_hz}",
+                     f"sensor.delay_cycles={delay_cycles}", f"wrench.lowpass_hz={lowpass_hz}",
+                     "wrench.deadband_force_N=0", "wrench.inertial_compensation=false")
+    dt = 1.0 / rate_hz
+    g_W = np.array([0.0, 0.0, -9.81])
+    sensor = VirtualFTSensor(cfg.sensor, 1.0, g_W, np.random.default_rng(0))
+    proc = WrenchProcessor(cfg.wrench, rate_hz, g_W, delay_cycles)
+    T = np.eye(4)
+    proc.calibrate(np.array([sensor.measure(np.zeros(6), T, T) for _ in range(50)]),
+                   T[:3, :3], mass_kg=1.0, com_F_m=np.zeros(3))
+    slope_Nps = 10.0
+    for k in range(int(round(0.5 / dt))):
+        f_in = slope_Nps * k * dt
+        out = proc.process(sensor.measure(np.array([f_in, 0, 0, 0, 0, 0]), T, T),
+                           T, T, np.eye(3))
+    lag_s = (f_in - out.force_R_N[0]) / slope_Nps
+    assert lag_s == pytest.approx(force_lag_s(cfg, hold=False), rel=1e-6)
+    assert force_lag_s(cfg) - force_lag_s(cfg, hold=False) == pytest.approx(0.5 * dt)
 
 
 def test_the_prediction_is_the_ods_ahead_under_the_held_input():
@@ -98,17 +126,25 @@ def test_the_collision_window_closes_with_a_zero_deadband():
 
 def test_compensated_collision_matches_the_physics_with_a_quiet_sensor(ideal):
     """The claim, with the noise off (its limit is the sensor's noise: README, Fidelity):
-    restitution within 5 %, the mockups' impulse within 15 % of the ideal one, momentum
-    balanced, no stop; the passivity layer removes next to nothing."""
+    restitution +4.6 % from the ideal (what remains is the prediction's error, the force
+    held constant over the lead: app/sim/compensation.py), asserted within 7 %; the
+    mockups' impulse within 15 % of the ideal one; no stop; the passivity layer removes
+    next to nothing. Momentum: with pair fusion the two satellites get one estimate, so
+    the balance is exact by construction; without it, the two sensor chains (each arm's
+    own inertial compensation, poses, delay) must agree on the one contact force."""
     m = run_scenario(_collision(*NO_NOISE), duration_s=4.0, with_ideal=False).metrics
     coll = m["collision"]
     e_ideal = ideal["collision"]["restitution"]
-    assert coll["restitution"] == pytest.approx(e_ideal, rel=0.05)
+    assert coll["restitution"] == pytest.approx(e_ideal, rel=0.07)
     j_ideal = np.linalg.norm(ideal["collision"]["true_impulse_Ns"]["sat1"])
     assert np.linalg.norm(coll["true_impulse_Ns"]["sat1"]) == pytest.approx(j_ideal, rel=0.15)
-    assert coll["impulse_balance"] < 0.02
+    assert coll["impulse_balance"] == 0.0
     assert m["safety_stop"] is None
     assert m["passivity"]["dissipated_J"]["force"] < 0.1 * 0.5 * 0.5 * 0.16**2
+    apart = run_scenario(_collision(*NO_NOISE, "wrench.fuse_pair_contact=false"),
+                         duration_s=4.0, with_ideal=False).metrics["collision"]
+    assert apart["impulse_balance"] < 1e-6
+    assert apart["restitution"] == pytest.approx(coll["restitution"], rel=1e-6)
 
 
 def test_uncompensated_the_lagging_loop_makes_the_impact_gain_energy():

@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from app.config import DEFAULT_MATERIALS
+from app.sim.contact import BoxContactModel
 from app.sim.contact_gate import ContactGate, fuse_pair_forces, hold_cycles_for
 from app.sim.ft_sensor import lowpass_alpha
 
@@ -55,7 +57,8 @@ def _forces():
 def test_two_carried_mockups_touching_each_other_get_one_estimate():
     f = _forces()
     fused = fuse_pair_forces(f, np.array([True, True, False]), np.array([1, 0, -1]),
-                             np.array([True, True, True]), np.zeros(3, dtype=bool))
+                             np.ones(3, dtype=bool), np.array([True, True, True]),
+                             np.zeros(3, dtype=bool))
     assert fused == [(0, 1)]
     est = 0.5 * (_forces()[1] - _forces()[0])
     np.testing.assert_allclose(f[1], est)
@@ -64,13 +67,16 @@ def test_two_carried_mockups_touching_each_other_get_one_estimate():
 
 
 @pytest.mark.parametrize("case", ["hand on one", "one not carried", "partners differ",
-                                  "one gate closed"])
+                                  "one gate closed", "a third body near one"])
 def test_no_fusion_when_the_pair_is_not_alone(case):
     open_ = np.array([True, True, True])
     nearest = np.array([1, 0, 1])
+    alone = np.ones(3, dtype=bool)
     carried = np.array([True, True, True])
     hand = np.zeros(3, dtype=bool)
-    if case == "hand on one":
+    if case == "a third body near one":
+        alone[1] = False
+    elif case == "hand on one":
         hand[1] = True
     elif case == "one not carried":
         carried[0] = False
@@ -79,5 +85,40 @@ def test_no_fusion_when_the_pair_is_not_alone(case):
     else:
         open_[1] = False
     f = _forces()
-    assert fuse_pair_forces(f, open_, nearest, carried, hand) == []
+    assert fuse_pair_forces(f, open_, nearest, alone, carried, hand) == []
     np.testing.assert_array_equal(f, _forces())
+
+
+def _boxes_in_a_row(gap_m: float):
+    """Three 0.2 m cubes along x, the middle one ``gap_m`` from each neighbour."""
+    model = BoxContactModel([(0.2, 0.2, 0.2)] * 3, [DEFAULT_MATERIALS["sponge"]] * 3)
+    poses = []
+    for x in (-0.2 - gap_m, 0.0, 0.2 + gap_m):
+        T = np.eye(4)
+        T[0, 3] = x
+        poses.append(T)
+    return model, poses
+
+
+def test_a_body_pressed_between_two_others_is_not_fused():
+    """Box 1 touches boxes 0 and 2: its sensor measures both contacts' sum, so handing its
+    satellite the estimate of one pair would break the momentum the contacts exchange."""
+    model, poses = _boxes_in_a_row(-5e-4)
+    clearance, nearest, crowd = model.clearances(poses, 0.001)
+    np.testing.assert_array_equal(crowd, [1, 2, 1])
+    assert clearance[1] == pytest.approx(-5e-4, abs=1e-9)
+    gate = ContactGate(3, 0.001, hold_cycles=2)
+    open_ = gate.update(clearance, nearest, crowd)
+    assert open_.all()
+    np.testing.assert_array_equal(gate.alone, [True, False, True])  # 1 is near two bodies
+    f = _forces()
+    assert fuse_pair_forces(f, open_, gate.partner, gate.alone, np.ones(3, dtype=bool),
+                            np.zeros(3, dtype=bool)) == []
+    np.testing.assert_array_equal(f, _forces())
+    # 1.5 mm apart on one side (beyond the margin): the other pair is alone and fused again
+    poses[2][0, 3] += 0.002
+    clearance, nearest, crowd = model.clearances(poses, 0.001)
+    np.testing.assert_array_equal(crowd, [1, 1, 0])
+    open_ = gate.update(clearance, nearest, crowd)
+    assert fuse_pair_forces(f, open_, gate.partner, gate.alone, np.ones(3, dtype=bool),
+                            np.zeros(3, dtype=bool)) == [(0, 1)]

@@ -70,8 +70,10 @@ def _tank_step(F, v_v, v_p, tank, beta_max=np.inf):
     v_cm = (m @ v_v) / m.sum()
     rel = v_v - v_cm
     w = float(np.sum(m * np.sum(rel * rel, axis=1)))
-    beta = min(-tank / (w * DT), beta_max)
-    return F - beta * m[:, None] * rel, tank + beta * w * DT, beta * w * DT
+    d = m[:, None] * rel  # the damper's force per unit β
+    no_pull = min((F[i] @ F[i]) / (d[i] @ F[i]) for i in range(2) if d[i] @ F[i] > 0)
+    beta = min(-tank / (w * DT), beta_max, no_pull)
+    return F - beta * d, tank + beta * w * DT, beta * w * DT
 
 
 def test_without_passivity_the_measured_wrenches_pass_unchanged():
@@ -145,7 +147,7 @@ def test_the_damper_never_does_more_than_halve_the_relative_velocity():
     """With force_scale s the ODS applies s·F: β is capped at 1 / (2 s dt)."""
     s = 0.005
     c = _coupling(force_scale=s)
-    F = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    F = np.array([[-100.0, 0.0, 0.0], [100.0, 0.0, 0.0]])  # strong: no pull before the cap
     v_v = np.array([[-1e-3, 0.0, 0.0], [1e-3, 0.0, 0.0]])  # slow: a huge β would be needed
     v_p = np.array([[0.5, 0.0, 0.0], [-0.5, 0.0, 0.0]])
     f, _ = _input(c, F, ZERO, v_v, v_p, ZERO, ZERO)
@@ -155,6 +157,34 @@ def test_the_damper_never_does_more_than_halve_the_relative_velocity():
     dv_rel = s * DT * (f[1] / MASSES[1] - f[0] / MASSES[0]) - s * DT * (
         F[1] / MASSES[1] - F[0] / MASSES[0])
     assert abs(dv_rel[0]) == pytest.approx(0.5 * (v_v[1, 0] - v_v[0, 0]), rel=1e-12)
+
+
+def test_the_damper_never_turns_a_push_into_a_pull():
+    """A weak push and a large deficit: β stops where the first satellite's force reaches
+    zero along itself; momentum stays balanced and the rest of the deficit is carried."""
+    c = _coupling()
+    F = np.array([[-0.2, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    v_v = np.array([[-0.1, 0.0, 0.0], [0.1, 0.0, 0.0]])  # moving apart fast
+    v_p = np.array([[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0]])  # the mockups still pressing in
+    f, _ = _input(c, F, ZERO, v_v, v_p, ZERO, ZERO)
+    expected, tank, _ = _tank_step(F, v_v, v_p, 0.0)
+    np.testing.assert_allclose(f, expected, rtol=1e-12, atol=1e-15)
+    assert np.all(np.einsum("ij,ij->i", f, F) >= -1e-15)  # nobody pulled
+    assert min(np.linalg.norm(f, axis=1)) == pytest.approx(0.0, abs=1e-12)  # one push gone
+    np.testing.assert_allclose(f.sum(axis=0), F.sum(axis=0), atol=1e-15)
+    assert c.tank.tank_J == pytest.approx(tank) and tank < 0.0  # carried
+
+
+def test_at_force_scale_zero_the_tank_has_no_damper_limit():
+    """force_scale = 0: the ODS ignores forces, so no β is too strong (no division by 0)."""
+    c = _coupling(force_scale=0.0)
+    assert c.tank.beta_max == np.inf
+    F = np.array([[-3.0, 0.2, 0.0], [3.0, -0.2, 0.1]])
+    v_v = np.array([[-0.05, 0.0, 0.0], [0.04, 0.01, 0.0]])
+    v_p = np.array([[-0.01, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    f, _ = _input(c, F, ZERO, v_v, v_p, ZERO, ZERO)
+    np.testing.assert_allclose(f, _tank_step(F, v_v, v_p, 0.0)[0], rtol=1e-12, atol=1e-15)
+    assert _coupling(enabled=False, force_scale=0.0).tank is None  # off: nothing built
 
 
 @pytest.mark.parametrize(("idle_cycles", "refilled"), [(4, False), (5, True)])

@@ -202,6 +202,30 @@ def test_calibration_estimates_bias_mass_and_com_from_several_poses():
         proc.calibrate(np.array(readings[:500]), np.array(rotations[:500]))
 
 
+@pytest.mark.parametrize("force_N", [3.6, 3.99, 4.5, 20.0])
+def test_a_push_through_the_com_gives_no_torque_on_either_side_of_the_force_deadband(force_N):
+    """The moment is shifted to the COM by the whole force before any deadband: a push
+    through the COM just under the 4 N force deadband gives neither force nor torque (the
+    lever arm's r × F, 0.26 N·m here, is not handed on as a torque); above it, the force
+    alone."""
+    sensor = _sensor(NOISELESS)
+    proc = _calibrated(sensor, WrenchProcessingConfig(inertial_compensation=False,
+                                                      deadband_force_N=4.0,
+                                                      deadband_torque_Nm=0.25))
+    direction_W = T_W_F[:3, :3] @ np.array([1.0, 0.0, 0.0])  # across the 0.07 m lever arm
+    wrench = point_force_wrench_W(force_N * direction_W, T_W_C[:3, 3], T_W_C[:3, 3])
+    lever_Nm = np.linalg.norm(np.cross(COM_F_M, [force_N, 0.0, 0.0]))
+    for _ in range(500):
+        out = proc.process(sensor.measure(wrench, T_W_C, T_W_F), T_W_F, T_W_C, R_W_R)
+    assert not out.torque_B_Nm.any()
+    if force_N < 4.0:
+        assert lever_Nm > 0.25  # what a shift by the passed force alone would have given
+        assert not out.force_R_N.any()
+    else:
+        np.testing.assert_allclose(out.force_R_N, R_W_R.T @ (force_N * direction_W),
+                                   atol=1e-9)
+
+
 def test_deadband_hard_and_soft():
     """On the magnitude: 0 at or below the threshold; above it 'hard' passes the vector
     unchanged and 'soft' takes the threshold off its magnitude."""

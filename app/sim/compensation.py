@@ -40,10 +40,21 @@ from app.sim.servo import UR10eServo
 from app.sim.ur10e import tcp_pose_B
 from app.sim.vfdm import JointLimits, Vfdm
 
-__all__ = ["LagModel", "force_lag_s", "identify_position_lag_s", "lag_model", "predicted_state"]
+__all__ = ["LagModel", "LagModelError", "force_lag_s", "identify_position_lag_s", "lag_model",
+           "predicted_state"]
 
 RAMP_SPEED_MPS = 0.05
-RAMP_CYCLES = 400
+RAMP_S = 0.8
+"""A ramp this long (at any loop rate) shows the steady lag; doubled up to MAX_RAMP_S
+while the lag still drifts."""
+MAX_RAMP_S = 6.4
+CONVERGED_S = 1e-4
+"""The lag has settled when it moved less than this over the ramp's last quarter."""
+MAX_LEAD_S = 0.1
+
+
+class LagModelError(ValueError):
+    """The loop's lag could not be identified, or is beyond what a lead can make up."""
 
 
 @dataclass(frozen=True)
@@ -67,19 +78,50 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
     Copies of the arm's VFDM and servo model (not the arm itself) start at rest at
     ``q0_rad`` and follow a TCP target that moves at RAMP_SPEED_MPS along the base x axis,
     in the loop's order: the target of t_k+1 → VFDM → one servo step → the mockup at t_k+1.
+    The ramp lasts RAMP_S, doubled while the lag still moves by more than CONVERGED_S over
+    its last quarter. Raises LagModelError if it never settles, or if the mockup does not
+    trail the target (a lag ≤ 0 is no lag a lead could make up).
     """
     dt_s = 1.0 / config.loop.rate_hz
+    ramp_s = RAMP_S
+    while True:
+        lags_s = _ramp_lags_s(config, T_F_C, q0_rad, dt_s, ramp_s)
+        drift_s = abs(lags_s[-1] - lags_s[0])
+        if drift_s <= CONVERGED_S:
+            break
+        if 2.0 * ramp_s > MAX_RAMP_S:
+            raise LagModelError(
+                f"the position lag did not settle within a {ramp_s:g} s ramp at "
+                f"{config.loop.rate_hz:g} Hz (it still "
+                f"moved {1e3 * drift_s:.2f} ms over the last quarter): set "
+                f"[compensation] lead_s by hand")
+        ramp_s *= 2.0
+    lag_s = float(lags_s[-1])
+    if not lag_s > 0.0:
+        raise LagModelError(f"the mockup does not trail its target (lag {1e3 * lag_s:.2f} "
+                            f"ms): set [compensation] lead_s by hand")
+    return lag_s
+
+
+def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
+                 dt_s: float, ramp_s: float) -> np.ndarray:
+    """The lag (s) at 3/4 of a ramp of ``ramp_s`` and at its end."""
     vfdm = Vfdm(config.vfdm, T_F_C, q0_rad, JointLimits.of_servo(config.servo, dt_s))
     servo = UR10eServo(config.servo, dt_s, q0_rad)
     T0 = vfdm.tcp_pose()
     T = T0.copy()
-    for k in range(1, RAMP_CYCLES + 1):
+    cycles = max(4, int(round(ramp_s / dt_s)))
+    check = {(3 * cycles) // 4, cycles}
+    lags = []
+    for k in range(1, cycles + 1):
         T[0, 3] = T0[0, 3] + RAMP_SPEED_MPS * k * dt_s
         if config.vfdm.sync_to_measured:  # as ArmRig.command does
             vfdm.q_rad[:] = servo.state.q_rad
         servo.step(vfdm.solve(T))
-    mockup = tcp_pose_B(servo.state.q_rad, T_F_C)
-    return float((T[0, 3] - mockup[0, 3]) / RAMP_SPEED_MPS)
+        if k in check:
+            mockup = tcp_pose_B(servo.state.q_rad, T_F_C)
+            lags.append((T[0, 3] - mockup[0, 3]) / RAMP_SPEED_MPS)
+    return np.array(lags)
 
 
 def force_lag_s(config: EmulatorConfig, hold: bool = True) -> float:
@@ -91,8 +133,17 @@ def force_lag_s(config: EmulatorConfig, hold: bool = True) -> float:
 
 
 def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray) -> LagModel:
-    """The lags of the arm with mockup offset T_F_C, identified around posture q0_rad."""
-    return LagModel(identify_position_lag_s(config, T_F_C, q0_rad), force_lag_s(config))
+    """The lags of the arm with mockup offset T_F_C, identified around posture q0_rad.
+    Raises LagModelError if their sum is beyond MAX_LEAD_S (the largest lead the
+    configuration accepts: a prediction that far ahead is no longer a small correction)."""
+    model = LagModel(identify_position_lag_s(config, T_F_C, q0_rad), force_lag_s(config))
+    if model.lead_s > MAX_LEAD_S:
+        raise LagModelError(
+            f"the loop's lag is {1e3 * model.lead_s:.0f} ms ({1e3 * model.position_s:.0f} ms "
+            f"to the mockup, {1e3 * model.force_s:.0f} ms back from the sensor), beyond the "
+            f"{1e3 * MAX_LEAD_S:.0f} ms a lead can make up: faster servo or filter, a higher "
+            f"rate, or [compensation] enabled = false")
+    return model
 
 
 def predicted_state(ods: OrbitalSimulator, force_R_N: np.ndarray, torque_B_Nm: np.ndarray,

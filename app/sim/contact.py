@@ -180,13 +180,14 @@ class BoxContactModel:
         return ContactGeometry(depth, np.array(c.normal, dtype=float), np.array(c.pos))
 
     def clearances(self, T_W_C: Sequence[np.ndarray],
-                   within_m: float) -> tuple[np.ndarray, np.ndarray]:
-        """((N,) clearance, (N,) nearest): per body, the signed distance (m, < 0 when
-        overlapping) to the nearest body it may touch and that body's index, if nearer
-        than ``within_m``; inf and -1 otherwise (bounding spheres further apart than
-        within_m are not measured)."""
+                   within_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """((N,) clearance, (N,) nearest, (N,) crowd): per body, the signed distance (m,
+        < 0 when overlapping) to the nearest body it may touch and that body's index, if
+        nearer than ``within_m`` (inf and -1 otherwise), and how many bodies are nearer
+        than ``within_m`` (bounding spheres further apart than that are not measured)."""
         out = np.full(self.n, math.inf)
         nearest = np.full(self.n, -1, dtype=np.int64)
+        crowd = np.zeros(self.n, dtype=np.int64)
         for a, b in self.pairs:
             d_ab = T_W_C[b][:3, 3] - T_W_C[a][:3, 3]
             reach = self._radii[a] + self._radii[b] + within_m
@@ -199,11 +200,13 @@ class BoxContactModel:
             d = float(self._distance[(a, b)](self._tf[a], self._tf[b],
                                               self._distance_request, res))
             if d < within_m:
+                crowd[a] += 1
+                crowd[b] += 1
                 if d < out[a]:
                     out[a], nearest[a] = d, b
                 if d < out[b]:
                     out[b], nearest[b] = d, a
-        return out, nearest
+        return out, nearest, crowd
 
     def compute(
         self,

@@ -14,7 +14,8 @@ grows as σ·sqrt(open time · dt)); a tight margin and a short hold keep that w
 the contact itself.
 
 Two sensors, one contact: while two carried mockups touch only each other (each the
-other's nearest body, the gate open for both, no hand on either), both sensors measure the
+other's partner, no third body within the margin of either, the gate open for both, no
+hand on either), both sensors measure the
 same contact force, equal and opposite (Newton's third law). With ``fuse`` the gate hands
 both satellites the one estimate ``F = (F_b − F_a) / 2``: its noise is 1/√2 of either
 sensor's, and the momentum the contact exchanges balances exactly. (The relative velocity,
@@ -49,11 +50,16 @@ class ContactGate:
         self._hold = np.zeros(n_bodies, dtype=np.int64)
         self.partner = np.full(n_bodies, -1, dtype=np.int64)
         """Per body, the body that last opened its gate (-1: none yet)."""
+        self.alone = np.ones(n_bodies, dtype=bool)
+        """Per body: no body but its partner is within the margin."""
 
-    def update(self, clearance_m: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+    def update(self, clearance_m: np.ndarray, nearest: np.ndarray,
+               crowd: np.ndarray | None = None) -> np.ndarray:
         """(N,) bool: open for each body, from its clearance to the nearest other body
-        (m, ≤ 0 touching; inf far away) and that body's index this cycle."""
-        previous, hold, partner = self._previous, self._hold, self.partner
+        (m, ≤ 0 touching; inf far away), that body's index this cycle and how many bodies
+        are within the margin (``crowd``; None: at most the nearest). Also updates
+        :attr:`partner` and :attr:`alone`."""
+        previous, hold, partner, alone = self._previous, self._hold, self.partner, self.alone
         open_ = np.zeros(len(hold), dtype=bool)
         for i in range(len(hold)):  # a few bodies: plain Python beats array calls
             c = float(clearance_m[i])
@@ -64,18 +70,23 @@ class ContactGate:
                 hold[i] -= 1
             previous[i] = c
             open_[i] = hold[i] > 0
+            n = 0 if crowd is None else int(crowd[i])
+            alone[i] = n == 0 or (n == 1 and nearest[i] == partner[i])
         return open_
 
 
-def fuse_pair_forces(force_R: np.ndarray, open_: np.ndarray, nearest: np.ndarray,
-                     carried: np.ndarray, hand_acting: np.ndarray) -> list[tuple[int, int]]:
+def fuse_pair_forces(force_R: np.ndarray, open_: np.ndarray, partner: np.ndarray,
+                     alone: np.ndarray, carried: np.ndarray,
+                     hand_acting: np.ndarray) -> list[tuple[int, int]]:
     """Replace, in place, the measured forces of each pair of carried bodies whose gates
-    are open for each other (``nearest``: the gate's partners) by their common estimate
-    ±(F_b − F_a)/2 (module doc); the fused pairs."""
+    are open for each other (``partner``: the gate's partners) and near nothing else
+    (``alone``) by their common estimate ±(F_b − F_a)/2 (module doc); the fused pairs.
+    A body that touches two others measures the sum of two contacts: it is not fused."""
     fused = []
-    for a in np.nonzero(open_ & carried & ~hand_acting)[0]:
-        b = int(nearest[a])
-        if b > a and open_[b] and carried[b] and not hand_acting[b] and nearest[b] == a:
+    for a in np.nonzero(open_ & carried & alone & ~hand_acting)[0]:
+        b = int(partner[a])
+        if (b > a and open_[b] and carried[b] and alone[b] and not hand_acting[b]
+                and partner[b] == a):
             f = 0.5 * (force_R[b] - force_R[a])
             force_R[b], force_R[a] = f, -f
             fused.append((int(a), b))

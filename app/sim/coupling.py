@@ -34,6 +34,10 @@ class OdsCoupling:
                  align_cycles: int = 0) -> None:
         self.enabled = config.enabled and len(carried) > 0
         self.carried = list(carried)
+        self.tank: TankPassivity | None = None
+        self.torque_pcs: dict[int, PassivityController] = {}
+        if not self.enabled:
+            return
         self.tank = TankPassivity(dt_s, np.asarray(masses_kg, dtype=float), force_scale,
                                   align_cycles, config.idle_reset_s, config.tank_max_J)
         self.torque_pcs = {s: PassivityController(dt_s, config.idle_reset_s)

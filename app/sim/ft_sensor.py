@@ -131,12 +131,12 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
     """One cycle of the lab's processing chain; the filter state (6,) is updated in place.
 
     Bias removal → payload compensation ``m g`` (and, with ``inertial``, ``−m a``) in S
-    with its moment ``c × f`` → first-order low-pass → deadband on the force → moment
-    shifted from S to the COM by the force that passed → deadband on the torque about the
-    COM → force rotated into R, torque into the body axes. The torque deadband comes after
-    the shift, so that a force through the COM gives no torque whatever the deadbands do;
-    a force the deadband took for noise does not shift the moment either (its moment is
-    noise too). T_W_F, T_W_C and accel are those of the
+    with its moment ``c × f`` → first-order low-pass → moment shifted from S to the COM by
+    the filtered force → deadbands on the force and on the torque about the COM → force
+    rotated into R, torque into the body axes. The shift uses the whole force, whatever
+    the force deadband keeps: a push through the COM then gives no torque, even one just
+    under the force deadband (shifting by the force that passed would hand the ODS its
+    lever-arm moment, r × F, as a false torque). T_W_F, T_W_C and accel are those of the
     instant the reading was taken. Fills out (12,) with the force in R, the torque about
     the COM in body axes and the processed wrench in S axes (moment about the COM).
     """
@@ -160,7 +160,6 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
         state[k] += alpha * (w[k] - state[k])
         w[k] = state[k]
     f = w[0:3]
-    _deadband(f, db_force, soft)
     dx, dy, dz = T_W_C[0, 3] - T_W_F[0, 3], T_W_C[1, 3] - T_W_F[1, 3], T_W_C[2, 3] - T_W_F[2, 3]
     r = (T_W_F[0, 0] * dx + T_W_F[1, 0] * dy + T_W_F[2, 0] * dz,
          T_W_F[0, 1] * dx + T_W_F[1, 1] * dy + T_W_F[2, 1] * dz,
@@ -168,6 +167,7 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
     w[3] -= r[1] * f[2] - r[2] * f[1]
     w[4] -= r[2] * f[0] - r[0] * f[2]
     w[5] -= r[0] * f[1] - r[1] * f[0]
+    _deadband(f, db_force, soft)
     tc = w[3:6]
     _deadband(tc, db_torque, soft)
     fW0 = T_W_F[0, 0] * f[0] + T_W_F[0, 1] * f[1] + T_W_F[0, 2] * f[2]

@@ -180,7 +180,7 @@ class Emulator:
                                  gate_open=bool(near[s]))
             force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
         if self.config.wrench.fuse_pair_contact and near.any():
-            fuse_pair_forces(force_R, near, nearest, self._is_carried,
+            fuse_pair_forces(force_R, near, nearest, self.gate.alone, self._is_carried,
                              self.interaction.hand_acting)
         return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
 
@@ -190,9 +190,9 @@ class Emulator:
         ``[wrench] contact_gate``."""
         if self.gate is None:
             return np.zeros(self.n_sat, dtype=bool), np.full(self.n_sat, -1)
-        clearance, nearest = self.interaction.contact.clearances(bodies.T_W_C,
-                                                                 self.gate.margin_m)
-        return self.gate.update(clearance, nearest), self.gate.partner
+        clearance, nearest, crowd = self.interaction.contact.clearances(bodies.T_W_C,
+                                                                        self.gate.margin_m)
+        return self.gate.update(clearance, nearest, crowd), self.gate.partner
 
     def ods_advance(self, force_R: np.ndarray,
                     torque_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -51,7 +51,11 @@ a damper between the satellites takes out the excess,
     F'_i = F_i − β m_i (v_v,i − v_cm),   v_cm = Σ m_i v_v,i / Σ m_i,                      (PC2)
 
 a set of internal forces (Σ m_i (v_v,i − v_cm) = 0): momentum stays balanced, the
-correction is split between the satellites by their masses. T starts each contact full,
+correction is split between the satellites by their masses. β is capped so that no
+satellite's force turns against itself (a contact pushes; the damper may take the push
+away, never make it a pull); what the cap leaves is carried to the next cycles. With only
+one satellite acted on (the other's sensor inside its deadband, an operator's push) there
+is no internal force to apply: the tank counts, nothing is corrected. T starts each contact full,
 at ``tank_max_J``: a budget that covers what the sensor noise drains from it (noise
 pushes the satellite first and the mockup a few cycles later, so the noise's own power
 looks like energy created); it is capped there, so that energy the contact dissipated
@@ -66,6 +70,8 @@ way) have no momentum to keep and stay single-port.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["PassivityController", "TankPassivity", "is_zero"]
@@ -74,6 +80,17 @@ __all__ = ["PassivityController", "TankPassivity", "is_zero"]
 def is_zero(v: np.ndarray) -> bool:
     """Whether a 3-vector is exactly zero (inside the deadband); cheaper than ndarray.any."""
     return v[0] == 0.0 and v[1] == 0.0 and v[2] == 0.0
+
+
+def _no_reversal_beta(force: np.ndarray, per_beta: np.ndarray) -> float:
+    """The largest β for which no force F_i − β d_i turns against F_i (F'_i · F_i ≥ 0):
+    the damper may take a push away, never turn it into a pull."""
+    along = np.einsum("ij,ij->i", per_beta, force)
+    squared = np.einsum("ij,ij->i", force, force)
+    braking = along > 0.0
+    if not braking.any():
+        return math.inf
+    return float(np.min(squared[braking] / along[braking]))
 
 
 class PassivityController:
@@ -139,7 +156,10 @@ class TankPassivity:
             raise ValueError(f"dt_s must be > 0, got {dt_s}")
         self.dt_s = float(dt_s)
         self.masses_kg = np.asarray(masses_kg, dtype=float)
-        self.beta_max = 0.5 / (float(force_scale) * self.dt_s)
+        if not force_scale >= 0.0:
+            raise ValueError(f"force_scale must be >= 0, got {force_scale}")
+        # the satellites feel s·F: at s = 0 no damper moves them, none is too strong
+        self.beta_max = 0.5 / (force_scale * self.dt_s) if force_scale > 0.0 else math.inf
         self.align_cycles = int(align_cycles)
         self.idle_reset_cycles = int(round(idle_reset_s / dt_s))
         self.tank_max_J = float(tank_max_J)
@@ -183,7 +203,8 @@ class TankPassivity:
             rel = v - (m @ v) / m.sum()
             damping_W = float(np.sum(m * np.einsum("ij,ij->i", rel, rel)))  # per unit β
             if damping_W > 0.0:
-                beta = min(-tank / (damping_W * dt), self.beta_max)
+                beta = min(-tank / (damping_W * dt), self.beta_max,
+                           _no_reversal_beta(force[acted], m[:, None] * rel))
                 out = force.copy()
                 out[acted] -= beta * m[:, None] * rel
                 tank += beta * damping_W * dt
