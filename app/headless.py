@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.config import EmulatorConfig, merge_overrides
-from app.metrics import collision_metrics, compute_metrics
+from app.metrics import collision_metrics, compute_metrics, contact_pair
 from app.plots import plot_run
 from app.report import write_json, write_telemetry_csv
 from app.sim.loop import Emulator
@@ -24,7 +24,9 @@ def ideal_collision(config: EmulatorConfig, duration_s: float) -> dict | None:
     """The collision metrics of the same scenario run in ideal mode (the reference)."""
     em = Emulator(config, mode="ideal")
     em.run(duration_s)
-    return collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s)
+    rows, index = em.telemetry.rows(), em.telemetry.index
+    pair = contact_pair(rows, index, em.n_sat) if em.n_sat >= 2 and len(rows) else None
+    return None if pair is None else collision_metrics(rows, index, em.dt_s, *pair)
 
 
 def run_scenario(

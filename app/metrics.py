@@ -39,17 +39,34 @@ def tracking_errors(rows: np.ndarray, index: dict, sat: int, rob: int) -> dict:
     }
 
 
+def contact_pair(rows: np.ndarray, index: dict, n_sat: int) -> tuple[int, int] | None:
+    """The two satellites (1-based) of the run's first contact: at the first row where two
+    or more satellites feel a true external force, the two that feel the largest (a hand's
+    push on one satellite alone is no contact). None if no such row."""
+    forces = np.stack([np.linalg.norm(
+        _cols(rows, index, f"sat{s}", ("true_fx_N", "true_fy_N", "true_fz_N")), axis=1)
+        for s in range(1, n_sat + 1)], axis=1)
+    shared = np.nonzero(np.count_nonzero(forces, axis=1) >= 2)[0]
+    if not len(shared):
+        return None
+    a, b = sorted(int(i) + 1 for i in np.argsort(forces[shared[0]])[-2:])
+    return a, b
+
+
 def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b: int = 2,
                       bodies: dict[int, str] | None = None):
-    """Impulses the ODS received, their balance, and the coefficient of restitution.
+    """Impulses the ODS received, their balance, and the coefficient of restitution of the
+    first contact between satellites a and b (1-based).
 
-    The contact lasts from the first touch until the true contact force has been zero for
-    50 ms; the window adds 50 ms on either side for the loop's lag (what the ODS receives
-    comes filtered and delayed), and the impulses are the ODS's received force integrated
-    over it. The window closes whatever the ODS keeps receiving (e.g. noise through a zero
-    deadband). Restitution
+    The contact lasts from the first touch (both bodies feel a true force) until the true
+    force has been zero for 50 ms; the window adds 50 ms on either side for the loop's lag
+    (what the ODS receives comes filtered and delayed), and the impulses are the ODS's
+    received force integrated over it. The window closes whatever the ODS keeps receiving
+    (e.g. noise through a zero deadband). Restitution
     e = -(v_b - v_a)_after . n / (v_b - v_a)_before . n, with n the line of centres at
-    first contact. None if no impact, or if the run ended before the satellites separated.
+    first contact and "after" 20 ms past the window. None, with a warning, if the run
+    ended before (``contact_open_at_end``) or the satellites were not moving apart then;
+    a later touch is named too (the figures cover the first contact only).
 
     What the bodies themselves went through (DESIGN.md "Fidelity"), from the true external
     force on each actual mockup: ``true_impulse_Ns``, ``peak_force_N``,
@@ -58,21 +75,23 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     ``bodies`` names, per satellite, the telemetry prefix of its actual body ("rob2" for a
     mockup on arm 2; default: the satellite itself, as in an ideal run).
     """
-    true_a = _cols(rows, index, f"sat{a}", ("true_fx_N", "true_fy_N", "true_fz_N"))
+    true = {s_: _cols(rows, index, f"sat{s_}", ("true_fx_N", "true_fy_N", "true_fz_N"))
+            for s_ in (a, b)}
     applied = {
         s: _cols(rows, index, f"sat{s}", ("fx_N", "fy_N", "fz_N")) for s in (a, b)
     }
-    touching = np.linalg.norm(true_a, axis=1) > 0
+    touching = (np.linalg.norm(true[a], axis=1) > 0) & (np.linalg.norm(true[b], axis=1) > 0)
     if not touching.any():
         return None
     first = int(np.argmax(touching))
     # the contact: from the first touch until the bodies have been apart for `quiet`
     quiet = int(round(0.05 / dt_s))
-    last = first
+    last, ended = first, False
     for k in range(first, len(rows)):
         if touching[k]:
             last = k
         elif k - last > quiet:
+            ended = True
             break
     # the window adds `quiet` on both sides, for the loop's lag (filtered, delayed force)
     window = slice(max(0, first - quiet), min(len(rows), last + quiet + 1))
@@ -80,27 +99,28 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     ja, jb = impulse[a], impulse[b]
     biggest = max(np.linalg.norm(ja), np.linalg.norm(jb))
     balance = float(np.linalg.norm(ja + jb) / biggest) if biggest > 0 else None
-    after = window.stop - 1 + int(round(0.02 / dt_s))
-    pos = {s: _cols(rows, index, f"sat{s}", ("x_m", "y_m", "z_m")) for s in (a, b)}
-    vel = {s: _cols(rows, index, f"sat{s}", ("vx_mps", "vy_mps", "vz_mps")) for s in (a, b)}
-    n = pos[b][first] - pos[a][first]
-    n /= np.linalg.norm(n)
-    before_rel = float((vel[b][first] - vel[a][first]) @ n)
-    restitution = None
-    if after < len(rows) and before_rel < 0:
-        restitution = float(-((vel[b][after] - vel[a][after]) @ n) / before_rel)
+    warnings = []
+    restitution, before_rel = _restitution(rows, index, a, b, first,
+                                           window.stop - 1 + int(round(0.02 / dt_s)),
+                                           ended, warnings)
+    again = np.nonzero(touching[window.stop:])[0]
+    if len(again):
+        warnings.append(f"the bodies touched again at t = {rows[window.stop + again[0], 0]:.3f}"
+                        " s: the collision metrics cover the first contact only")
+    if not ended:
+        warnings.append(f"the contact had not ended when the run stopped at t = "
+                        f"{rows[-1, 0]:.3f} s: its impulse is incomplete, no restitution")
     bodies = bodies or {}
-    true = {s_: _cols(rows, index, f"sat{s_}", ("true_fx_N", "true_fy_N", "true_fz_N"))
-            for s_ in (a, b)}
     body_v = {s_: _cols(rows, index, bodies.get(s_, f"sat{s_}"), ("vx_mps", "vy_mps", "vz_mps"))
               for s_ in (a, b)}
-    touch = np.nonzero(np.linalg.norm(true[a][window], axis=1) > 0)[0] + window.start
+    touch = np.nonzero(touching[window])[0] + window.start
     # row k: the state at t_k and the force over [t_k, t_k+1): velocities at mid-cycle
     k0, k1 = window.start, min(window.stop, len(rows) - 1)
     v_rel = body_v[b] - body_v[a]
     v_mid = 0.5 * (v_rel[k0:k1] + v_rel[k0 + 1:k1 + 1])
     energy = -float(np.sum(np.einsum("ij,ij->i", true[b][k0:k1], v_mid)) * dt_s)
     return {
+        "pair": [f"sat{a}", f"sat{b}"],
         "impulse_Ns": {f"sat{a}": ja.tolist(), f"sat{b}": jb.tolist()},
         "impulse_balance": balance,
         "true_impulse_Ns": {f"sat{s_}": (true[s_][window].sum(axis=0) * dt_s).tolist()
@@ -112,31 +132,56 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         "approach_speed_mps": -before_rel,
         "contact_start_s": float(rows[first, 0]),
         "contact_end_s": float(rows[last, 0]),
+        "contact_open_at_end": not ended,
         "window_s": [float(rows[window.start, 0]), float(rows[window.stop - 1, 0])],
+        "warnings": warnings,
     }
+
+
+def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, after: int,
+                 ended: bool, warnings: list[str]) -> tuple[float | None, float]:
+    """(e, the relative normal velocity before the contact m/s): see collision_metrics."""
+    pos = {s: _cols(rows, index, f"sat{s}", ("x_m", "y_m", "z_m")) for s in (a, b)}
+    vel = {s: _cols(rows, index, f"sat{s}", ("vx_mps", "vy_mps", "vz_mps")) for s in (a, b)}
+    n = pos[b][first] - pos[a][first]
+    n /= np.linalg.norm(n)
+    before_rel = float((vel[b][first] - vel[a][first]) @ n)
+    if not ended or after >= len(rows) or before_rel >= 0:
+        return None, before_rel
+    after_rel = float((vel[b][after] - vel[a][after]) @ n)
+    if after_rel <= 0.0:
+        warnings.append(f"the satellites were not moving apart after the contact (relative "
+                        f"normal velocity {1e3 * after_rel:+.1f} mm/s at t = "
+                        f"{rows[after, 0]:.3f} s): no restitution")
+        return None, before_rel
+    return -after_rel / before_rel, before_rel
 
 
 def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
                        noise: tuple[float, float, float] | None = None) -> None:
     """Add the comparison with the converged ideal run (in place): ``restitution_ideal``,
     ``restitution_error`` (e − e_ideal) / e_ideal, ``true_impulse_ratio`` |J_true| /
-    |J_true,ideal| per satellite, and ``warnings``.
+    |J_true,ideal| per satellite (None while either contact was still open at the end),
+    and more ``warnings``.
 
     deadband_N: the F/T force deadband the contact meets (0 where the contact gate lifts
-    it); noise: (σ of the sensor force noise per sample N, dt s, force_scale · sqrt(1/m_a²
-    + 1/m_b²) 1/kg) for the noise warning: the impulse the noise adds over the ideal
-    contact, σ·sqrt(T·dt), on both satellites, as a bound on the restitution's spread.
+    it, or without a sensor); noise: (σ of the sensor force noise per sample N, dt s,
+    force_scale · sqrt(1/m_a² + 1/m_b²) 1/kg) for the noise warning: the impulse the noise
+    adds over the ideal contact, σ·sqrt(T·dt), on both satellites, as an open-loop bound on
+    the restitution's spread (while the bodies touch, the contact takes part of it back).
     """
     coll["restitution_ideal"] = None if ideal is None else ideal["restitution"]
     e, ei = coll["restitution"], coll["restitution_ideal"]
     coll["restitution_error"] = (e - ei) / ei if e is not None and ei else None
     coll["true_impulse_ratio"] = None
-    warnings = []
+    warnings = list(coll.get("warnings", []))
     if ideal is not None:
-        coll["true_impulse_ratio"] = {
-            name: float(np.linalg.norm(j) / np.linalg.norm(ideal["true_impulse_Ns"][name]))
-            for name, j in coll["true_impulse_Ns"].items()
-        }
+        if not (coll.get("contact_open_at_end") or ideal.get("contact_open_at_end")):
+            coll["true_impulse_ratio"] = {
+                name: float(np.linalg.norm(j) / np.linalg.norm(ideal["true_impulse_Ns"][name]))
+                for name, j in coll["true_impulse_Ns"].items()
+                if name in ideal["true_impulse_Ns"]
+            }
         if ideal["peak_force_N"] < deadband_N:
             warnings.append(
                 f"the ideal contact peaks at {ideal['peak_force_N']:.1f} N, under the F/T "
@@ -147,11 +192,12 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
             spread = dv / (ideal["approach_speed_mps"] * ei)
             if spread > 0.05:
                 warnings.append(
-                    f"the F/T noise ({sigma:.2g} N per sample) adds about {dv * 1e3:.1f} mm/s "
-                    f"to the satellites' relative velocity over the "
+                    f"the F/T noise ({sigma:.2g} N per sample) adds up to about "
+                    f"{dv * 1e3:.1f} mm/s to the satellites' relative velocity over the "
                     f"{1e3 * ideal['contact_duration_s']:.0f} ms contact: one run's "
-                    f"restitution is uncertain by up to about "
-                    f"±{100 * spread:.0f} %")
+                    f"restitution is uncertain by up to about ±{100 * spread:.0f} % "
+                    f"(an open-loop bound: while the bodies touch, the contact takes part "
+                    f"of it back)")
     coll["warnings"] = warnings
 
 
@@ -165,13 +211,16 @@ def passivity_metrics(em: Emulator) -> dict | None:
         "torque": {f"sat{s + 1}": e for s, e in removed["torque"].items()}}}
 
 
-def sensing_limits(em: Emulator) -> tuple[float, tuple[float, float, float] | None]:
-    """(the deadband a contact meets, the noise figures) of a run, for compare_with_ideal."""
+def sensing_limits(em: Emulator, pair: tuple[int, int] = (1, 2),
+                   ) -> tuple[float, tuple[float, float, float] | None]:
+    """(the deadband a contact meets, the noise figures) of a run, for compare_with_ideal;
+    pair: the contact's satellites (1-based). Without arms (an ideal run) there is no
+    sensor: no deadband, no noise."""
     cfg = em.config
-    deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
     if not em.arms:
-        return deadband, None
-    masses = [s.mass_kg for s in cfg.satellites[:2]]
+        return 0.0, None
+    deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
+    masses = [cfg.satellites[s - 1].mass_kg for s in pair]
     gain = cfg.orbit.force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
     return deadband, (cfg.sensor.noise_force_N, em.dt_s, gain)
 
@@ -217,11 +266,14 @@ def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = 
         "safety_stop": em.safety_stop,
         "passivity": passivity_metrics(em),
     }
-    if em.n_sat >= 2 and len(rows):
+    pair = contact_pair(rows, index, em.n_sat) if em.n_sat >= 2 and len(rows) else None
+    if pair is not None:
         bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
-        coll = collision_metrics(rows, index, em.dt_s, bodies=bodies)
+        coll = collision_metrics(rows, index, em.dt_s, *pair, bodies=bodies)
         if coll is not None:
             ideal = dict(coll) if em.mode == "ideal" else ideal_collision
-            compare_with_ideal(coll, ideal, *sensing_limits(em))
+            if ideal is not None and ideal.get("pair") != coll["pair"]:
+                ideal = None  # the ideal run's first contact was another pair's
+            compare_with_ideal(coll, ideal, *sensing_limits(em, pair))
         metrics["collision"] = coll
     return metrics

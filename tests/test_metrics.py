@@ -7,6 +7,7 @@ import pytest
 
 from app.config import merge_overrides
 from app.headless import run_scenario
+from app.metrics import collision_metrics, compare_with_ideal, contact_pair
 from app.scenarios import load_scenario
 
 
@@ -63,18 +64,122 @@ def test_ideal_peak_force_and_duration_of_the_hunt_crossley_impact(ideal):
     assert abs(coll["contact_duration_s"] - last_force) <= 2 * 0.002
 
 
-def test_a_contact_under_the_deadband_is_named_unless_the_gate_lifts_it(ideal):
+def test_a_contact_under_the_deadband_is_named_where_a_sensor_meets_it(ideal):
+    """The deadband warning belongs to a run with a sensor whose deadband the contact
+    meets: not to an ideal run (no sensor), not where the contact gate lifts it."""
     coll = ideal.metrics["collision"]
     assert coll["peak_force_N"] < 4.0
-    assert coll["warnings"] == []  # the scenario's contact gate lifts the deadband
+    assert coll["warnings"] == []
     gateless = merge_overrides(load_scenario("collision"), {"wrench": {"contact_gate": False}})
-    named = run_scenario(gateless, mode="ideal", duration_s=6.0).metrics["collision"]
-    assert named["warnings"] == [
+    assert run_scenario(gateless, mode="ideal", duration_s=6.0).metrics["collision"][
+        "warnings"] == []  # an ideal run has no sensor
+    met = {k: v for k, v in coll.items() if k != "warnings"}
+    compare_with_ideal(met, coll, deadband_N=4.0)
+    assert met["warnings"] == [
         f"the ideal contact peaks at {coll['peak_force_N']:.1f} N, under the F/T force "
         "deadband of 4 N: the sensor cannot see it whole"]
-    cfg = merge_overrides(gateless, {"wrench": {"deadband_force_N": 0.0}})
-    quiet = run_scenario(cfg, mode="ideal", duration_s=6.0).metrics["collision"]
-    assert quiet["warnings"] == []
+    met = {k: v for k, v in coll.items() if k != "warnings"}
+    compare_with_ideal(met, coll, deadband_N=0.0)  # the gate lifts it
+    assert met["warnings"] == []
+
+
+# --- synthetic telemetry: two 1 kg bodies on the x axis, a contact force profile ----------
+
+DT = 0.002
+FIELDS = ("x_m", "y_m", "z_m", "vx_mps", "vy_mps", "vz_mps", "fx_N", "fy_N", "fz_N",
+          "true_fx_N", "true_fy_N", "true_fz_N")
+
+
+def _telemetry(force_N: np.ndarray, v0_mps: float = 0.1, n_sat: int = 2,
+               pair: tuple[int, int] = (0, 1)) -> tuple[np.ndarray, dict]:
+    """Rows of bodies pair[0] (at -0.2 m, moving +v0) and pair[1] (at +0.2 m, moving -v0)
+    under ±force_N[k] along x over cycle k (Newton, 1 kg), the others at rest far away;
+    the ODS receives the true force."""
+    index = {"t_s": 0}
+    for s in range(1, n_sat + 1):
+        for f in FIELDS:
+            index[f"sat{s}_{f}"] = len(index)
+    rows = np.zeros((len(force_N), len(index)))
+    rows[:, 0] = DT * np.arange(len(force_N))
+    x = {pair[0]: -0.2, pair[1]: 0.2}
+    v = {pair[0]: v0_mps, pair[1]: -v0_mps}
+    for s in set(range(n_sat)) - set(pair):
+        rows[:, index[f"sat{s + 1}_y_m"]] = 5.0 * (s + 1)  # the others: far away
+    for k, f in enumerate(force_N):
+        for s, sign in ((pair[0], -1.0), (pair[1], 1.0)):
+            c = f"sat{s + 1}_"
+            rows[k, index[c + "x_m"]], rows[k, index[c + "vx_mps"]] = x[s], v[s]
+            rows[k, index[c + "fx_N"]] = rows[k, index[c + "true_fx_N"]] = sign * f
+            v[s] += sign * f * DT
+            x[s] += v[s] * DT
+    return rows, index
+
+
+def _pulses(*spans: tuple[float, float, float], total_s: float = 1.0) -> np.ndarray:
+    """A force profile: (start s, end s, N) blocks."""
+    f = np.zeros(int(round(total_s / DT)))
+    for t0, t1, value in spans:
+        f[int(round(t0 / DT)):int(round(t1 / DT))] = value
+    return f
+
+
+def test_a_clean_bounce_gives_the_restitution_of_its_impulse():
+    """Impulse 0.15 N s on each 1 kg body closing at 0.2 m/s: they part at 0.1 m/s, e 0.5."""
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0)))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["restitution"] == pytest.approx(0.5, rel=1e-9)
+    assert coll["warnings"] == [] and coll["contact_open_at_end"] is False
+    assert coll["pair"] == ["sat1", "sat2"]
+
+
+def test_bodies_that_do_not_part_get_no_restitution_but_a_warning():
+    """Impulse 0.06 N s: still closing at 0.08 m/s after the contact (the arms' stuck
+    case): no negative "restitution"."""
+    rows, index = _telemetry(_pulses((0.1, 0.112, 5.0)))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["restitution"] is None
+    assert len(coll["warnings"]) == 1
+    assert coll["warnings"][0].startswith(
+        "the satellites were not moving apart after the contact (relative normal velocity "
+        "-80.0 mm/s at t = ")
+
+
+def test_a_second_touch_is_named_and_left_out():
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0), (0.5, 0.52, 1.0)))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["restitution"] == pytest.approx(0.5, rel=1e-9)  # the first contact's
+    assert coll["contact_end_s"] == pytest.approx(0.128)
+    assert coll["warnings"] == ["the bodies touched again at t = 0.500 s: the collision "
+                                "metrics cover the first contact only"]
+
+
+def test_a_contact_open_at_the_end_has_no_restitution_and_no_impulse_ratio():
+    rows, index = _telemetry(_pulses((0.9, 1.0, 5.0)))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["contact_open_at_end"] is True and coll["restitution"] is None
+    assert coll["warnings"] == ["the contact had not ended when the run stopped at t = "
+                                "0.998 s: its impulse is incomplete, no restitution"]
+    done = collision_metrics(*_telemetry(_pulses((0.1, 0.13, 5.0))), DT)
+    compare_with_ideal(coll, done, deadband_N=0.0)
+    assert coll["true_impulse_ratio"] is None and coll["restitution_error"] is None
+    assert len(coll["warnings"]) == 1  # kept, not overwritten
+
+
+def test_the_pair_is_found_among_three_satellites():
+    """Satellites 2 and 3 collide while 1 flies alone: the metrics name and measure them."""
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0)), n_sat=3, pair=(1, 2))
+    assert contact_pair(rows, index, 3) == (2, 3)
+    coll = collision_metrics(rows, index, DT, *contact_pair(rows, index, 3))
+    assert coll["pair"] == ["sat2", "sat3"]
+    assert coll["restitution"] == pytest.approx(0.5, rel=1e-9)
+    assert collision_metrics(rows, index, DT) is None  # 1 and 2 never touch
+
+
+def test_a_push_on_one_satellite_is_no_contact():
+    rows, index = _telemetry(np.zeros(100))
+    rows[10:20, index["sat1_true_fx_N"]] = 3.0  # the hand, on satellite 1 alone
+    assert contact_pair(rows, index, 2) is None
+    assert collision_metrics(rows, index, DT) is None
 
 
 def test_hil_metrics_compare_the_actual_mockups_with_the_ideal_run(hil, ideal):
@@ -92,6 +197,7 @@ def test_hil_metrics_compare_the_actual_mockups_with_the_ideal_run(hil, ideal):
     spread = dv / (ref["approach_speed_mps"] * ref["restitution"])
     assert ref["approach_speed_mps"] == pytest.approx(0.16, rel=1e-3)
     assert coll["warnings"] == [
-        f"the F/T noise (1.7 N per sample) adds about {dv * 1e3:.1f} mm/s to the satellites' "
-        f"relative velocity over the {1e3 * ref['contact_duration_s']:.0f} ms contact: one "
-        f"run's restitution is uncertain by up to about ±{100 * spread:.0f} %"]
+        f"the F/T noise (1.7 N per sample) adds up to about {dv * 1e3:.1f} mm/s to the "
+        f"satellites' relative velocity over the {1e3 * ref['contact_duration_s']:.0f} ms "
+        f"contact: one run's restitution is uncertain by up to about ±{100 * spread:.0f} % "
+        "(an open-loop bound: while the bodies touch, the contact takes part of it back)"]
