@@ -181,6 +181,11 @@ class VfdmConfig(_Model):
     end_inertia_kgm2: Positive = 1.0
     link_mass_kg: Positive = 0.01
     link_inertia_ratio: Positive = 1e-6
+    joint_armature_kgm2: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 0.0025
+    """Rotor inertia of every virtual joint (not in Table 1; 0 is the paper's model): damps
+    the virtual arm's motion near a singularity as damped least squares with λ² = armature
+    / end inertia does (0.0025: λ = 0.05), so that the wrist does not swing through q5 = 0
+    (app/sim/vfdm.py)."""
     iterations: Annotated[int, Field(ge=1, le=1000)] = 10
     internal_dt_s: Positive = 0.02
     """Virtual-model integration step, independent of the control period (as in the FZI

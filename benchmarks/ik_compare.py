@@ -266,10 +266,12 @@ def main(argv: list[str] | None = None) -> int:
     n_sing = 1000 if args.quick else 2000  # cycles per singular path (2 s quick, 4 s full)
 
     vcfg = load_scenario("collision").vfdm
+    paper = vcfg.model_copy(update={"joint_armature_kgm2": 0.0})  # Table 1's model alone
     PinkIK, pink_note = pink_factory()  # noqa: N806
     methods = {
         "VFDM": lambda T_F_C, q0: Vfdm(vcfg, T_F_C, q0),
-        "VFDM, no joint limits (before)": lambda T_F_C, q0: Vfdm(vcfg, T_F_C, q0, limits=None),
+        "VFDM, no armature": lambda T_F_C, q0: Vfdm(paper, T_F_C, q0),
+        "VFDM, Table 1 alone (before)": lambda T_F_C, q0: Vfdm(paper, T_F_C, q0, limits=None),
         "pseudo-inverse": lambda T_F_C, q0: PseudoInverseIK(T_F_C, q0),
         "DLS (λ=0.05)": lambda T_F_C, q0: DampedLeastSquaresIK(T_F_C, q0),
         "J transpose (α=0.2)": lambda T_F_C, q0: JacobianTransposeIK(T_F_C, q0),

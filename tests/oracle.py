@@ -118,8 +118,11 @@ def virtual_inertias(cfg, T_F_C: np.ndarray) -> list[pin.Inertia]:
 
 
 def virtual_model(cfg, T_F_C: np.ndarray) -> pin.Model:
-    """The VFDM's virtual arm (``cfg``: a VfdmConfig): conditioned inertia, no gravity."""
-    return build_model(virtual_inertias(cfg, T_F_C), T_F_C, gravity=False)
+    """The VFDM's virtual arm (``cfg``: a VfdmConfig): conditioned inertia, the joints'
+    armature, no gravity."""
+    model = build_model(virtual_inertias(cfg, T_F_C), T_F_C, gravity=False)
+    model.armature = np.full(model.nv, float(cfg.joint_armature_kgm2))
+    return model
 
 
 def skew(v: np.ndarray) -> np.ndarray:

@@ -126,7 +126,7 @@ def test_the_collision_window_closes_with_a_zero_deadband():
 
 def test_compensated_collision_matches_the_physics_with_a_quiet_sensor(ideal):
     """The claim, with the noise off (its limit is the sensor's noise: README, Fidelity):
-    restitution +4.6 % from the ideal (what remains is the prediction's error, the force
+    restitution +4.9 % from the ideal (what remains is the prediction's error, the force
     held constant over the lead: app/sim/compensation.py), asserted within 7 %; the
     mockups' impulse within 15 % of the ideal one; no stop; the passivity layer removes
     next to nothing. Momentum: with pair fusion the two satellites get one estimate, so

@@ -161,7 +161,9 @@ def test_joint_space_inertia_equals_crba():
     for q in postures(1000, seed=3):
         fk_joints(q, arm.pR, arm.pp, R, p)
         joint_space_inertia(R, p, arm.mass, arm.lever, arm.Icom, H, work)
-        np.testing.assert_allclose(H, ref.inertia(q), rtol=0, atol=ATOL)
+        # the links' H; Pinocchio's CRBA adds the joints' armature on the diagonal
+        np.testing.assert_allclose(H + arm.armature * np.eye(6), ref.inertia(q), rtol=0,
+                                   atol=ATOL)
         np.testing.assert_array_equal(H, H.T)
 
 
@@ -449,8 +451,11 @@ def singular():
 
 
 # measured bounds of the position error (benchmarks/README.md, "Singular paths"), with margin
-SINGULAR_BOUND_MM = {"singular/wrist q5=0": 30.0, "singular/elbow stretched": 1.5,
-                     "singular/shoulder (over base)": 4.0, "singular/wrist+elbow": 30.0}
+SINGULAR_BOUND_MM = {"singular/wrist q5=0": 3.0, "singular/elbow stretched": 1.5,
+                     "singular/shoulder (over base)": 4.0, "singular/wrist+elbow": 8.0}
+# measured peak joint speed / limit: the armature keeps the wrist from swinging (0.95 without)
+SINGULAR_PEAK_SPEED = {"singular/wrist q5=0": 0.5, "singular/elbow stretched": 0.3,
+                       "singular/shoulder (over base)": 0.4, "singular/wrist+elbow": 0.4}
 
 
 @pytest.mark.parametrize("k", range(4))
@@ -462,7 +467,7 @@ def test_vfdm_rides_through_each_singular_path_within_the_joint_limits(singular,
     cfg = load_scenario("collision").vfdm
     v = Vfdm(cfg, T_F_C, q0)
     servo = UR10eServo(ServoConfig(), 0.002, q0)
-    sp_prev, err_mm, closest = q0.copy(), [], np.inf
+    sp_prev, err_mm, closest, peak = q0.copy(), [], np.inf, 0.0
     for T in targets:
         sp = v.solve(T)
         assert np.all(np.abs(sp - sp_prev) <= SPEED_LIMITS_RADPS * 0.002 * (1 + 1e-12)), label
@@ -470,21 +475,30 @@ def test_vfdm_rides_through_each_singular_path_within_the_joint_limits(singular,
         st = servo.step(sp)
         assert not st.stopped, f"{label}: {st.reason}"
         assert np.all(np.abs(st.qd_radps) <= SPEED_LIMITS_RADPS)
+        peak = max(peak, float(np.max(np.abs(st.qd_radps) / SPEED_LIMITS_RADPS)))
         err_mm.append(1e3 * np.linalg.norm(pose_error(T, tcp_pose_B(st.q_rad, T_F_C))[:3]))
         closest = min(closest, measure(st.q_rad))
     assert max(err_mm) < SINGULAR_BOUND_MM[label], label
+    assert peak < SINGULAR_PEAK_SPEED[label], label
     assert err_mm[-1] < 1.0, label  # made up by the end
     if label != "singular/elbow stretched":  # the arm really went through the singularity
         assert closest < 0.005, label
 
 
-def test_without_the_joint_limits_the_wrist_path_trips_a_speed_stop(singular):
-    """The same path with the limits off (the VFDM before): a protective stop."""
+@pytest.mark.parametrize(("armature", "limits", "stop"), [
+    (0.0, False, "joint 4 speed limit"),  # Table 1's model as it was: the wrist swings
+    (0.0025, False, ""),                   # the armature alone: no swing, no stop
+])
+def test_the_armature_keeps_the_wrist_from_swinging_into_a_speed_stop(singular, armature,
+                                                                      limits, stop):
+    """The wrist path without the set-point limits: Table 1's model trips the servo's
+    speed stop on joint 4 as q5 passes 0; with the joints' armature it passes."""
     T_F_C, paths = singular
     label, targets, q0, _ = paths[0]
-    v = Vfdm(load_scenario("collision").vfdm, T_F_C, q0, limits=None)
+    cfg = load_scenario("collision").vfdm.model_copy(update={"joint_armature_kgm2": armature})
+    v = Vfdm(cfg, T_F_C, q0, limits=None)
     servo = UR10eServo(ServoConfig(), 0.002, q0)
     for T in targets:
         if servo.step(v.solve(T)).stopped:
             break
-    assert servo.reason == "joint 4 speed limit"
+    assert servo.reason == stop
