@@ -146,7 +146,12 @@ def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, afte
     n = pos[b][first] - pos[a][first]
     n /= np.linalg.norm(n)
     before_rel = float((vel[b][first] - vel[a][first]) @ n)
-    if not ended or after >= len(rows) or before_rel >= 0:
+    if before_rel >= 0.0:
+        warnings.append(f"the satellites were not closing in at the first touch (relative "
+                        f"normal velocity {1e3 * before_rel:+.1f} mm/s at t = "
+                        f"{rows[first, 0]:.3f} s): no restitution")
+        return None, before_rel
+    if not ended or after >= len(rows):
         return None, before_rel
     after_rel = float((vel[b][after] - vel[a][after]) @ n)
     if after_rel <= 0.0:

@@ -144,6 +144,17 @@ def test_bodies_that_do_not_part_get_no_restitution_but_a_warning():
         "-80.0 mm/s at t = ")
 
 
+def test_a_touch_while_moving_apart_gives_no_restitution_but_a_warning():
+    """A body grazed while the two already separate (e.g. a light satellite thrown about
+    by sensor noise): no approach, so no restitution, and the metrics say why."""
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0)), v0_mps=-0.05)
+    coll = collision_metrics(rows, index, DT)
+    assert coll["restitution"] is None
+    assert coll["warnings"][0].startswith(
+        "the satellites were not closing in at the first touch (relative normal velocity "
+        "+100.0 mm/s at t = 0.100 s)")
+
+
 def test_a_second_touch_is_named_and_left_out():
     rows, index = _telemetry(_pulses((0.1, 0.13, 5.0), (0.5, 0.52, 1.0)))
     coll = collision_metrics(rows, index, DT)
