@@ -475,19 +475,26 @@ def load_config(path: str | Path) -> EmulatorConfig:
 
 
 def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:
-    """Deep-merge a dict of overrides into a config and validate the result.
+    """Apply a merge patch of overrides to a config and validate the result.
 
-    Lists (satellites, robots, pulses) given as a list of dicts are merged item by item,
-    so ``{"satellites": [{"velocity_mps": [0.01, 0, 0]}]}`` changes only that field.
+    JSON Merge Patch (RFC 7396) with one extension, for the REST start body and ``--set``
+    alike: objects merge key by key; ``null`` removes a key, so it takes its default; a
+    list replaces the whole list (``{"pulses": []}`` clears the pulses); an object whose
+    keys are all item indices patches those items of a list in place
+    (``{"satellites": {"1": {"mass_kg": 2}}}`` changes one field of the second satellite;
+    an index beyond the list is an error naming it).
     """
-    return parse_config(_deep_merge(base.model_dump(), overrides))
+    if not isinstance(overrides, dict):
+        raise ConfigError("overrides: expected an object of settings")
+    return parse_config(_merge_patch(base.model_dump(), overrides))
 
 
 def assignment_override(text: str) -> dict:
     """``"passivity.enabled=false"`` → ``{"passivity": {"enabled": False}}`` for merge_overrides.
 
     The value is read as TOML (``0.5``, ``true``, ``[0.1, 0, 0]``, ``"rigid"``), a bare
-    word as a string; a numeric key picks an item of a list (``robots.1.q_home_rad=...``).
+    word as a string; a numeric key picks an item of a list (``robots.1.q_home_rad=...``
+    → ``{"robots": {"1": {"q_home_rad": ...}}}``); a list value replaces the whole list.
     """
     key, sep, value = text.partition("=")
     path = [part.strip() for part in key.split(".")]
@@ -497,33 +504,43 @@ def assignment_override(text: str) -> dict:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()
-    for part in reversed(path):
-        parsed = [{}] * int(part) + [parsed] if part.isdigit() else {part: parsed}
-    if not isinstance(parsed, dict):
+    if path[0].isdigit():
         raise ConfigError(f"{key.strip()}: the first part of KEY must be a section name")
+    for part in reversed(path):
+        parsed = {part: parsed}  # a number picks a list item (merge_overrides)
     return parsed
 
 
-def _deep_merge(base, override, path: str = ""):
-    """Merge override into base: dicts key by key, a list of dicts item by item (an index
-    beyond the base list is an error naming it), anything else replaced (an empty list
-    too: ``{"pulses": []}`` clears the pulses)."""
-    if isinstance(base, dict) and isinstance(override, dict):
-        out = dict(base)
-        for k, v in override.items():
-            out[k] = _deep_merge(base[k], v, f"{path}{k}.") if k in base else v
-        return out
-    if isinstance(base, list) and isinstance(override, list) and override and all(
-        isinstance(x, dict) for x in override
-    ):
-        out = list(base)
-        for i, v in enumerate(override):
-            if i >= len(base):
-                if v == {}:
-                    continue
-                where = path.rstrip(".") or "(top level)"
-                raise ConfigError(f"{where}.{i}: index out of range: the list has "
-                                  f"{len(base)} item(s), indices 0..{len(base) - 1}")
-            out[i] = _deep_merge(base[i], v, f"{path}{i}.")
-        return out
-    return override
+def _merge_patch(target, patch, path: str = ""):
+    """RFC 7396 MergePatch(target, patch), plus index-keyed objects for list items (see
+    merge_overrides); path: where we are, for the messages."""
+    if not isinstance(patch, dict):
+        return patch
+    if isinstance(target, list):
+        return _patch_items(target, patch, path)
+    out = dict(target) if isinstance(target, dict) else {}
+    for key, value in patch.items():
+        if value is None:
+            out.pop(key, None)
+        else:
+            out[key] = _merge_patch(out.get(key), value, f"{path}{key}.")
+    return out
+
+
+def _patch_items(items: list, patch: dict, path: str) -> list:
+    """Patch the items of a list named by the (string) indices of ``patch``."""
+    where = path.rstrip(".") or "(top level)"
+    out = list(items)
+    for key, value in patch.items():
+        if not (isinstance(key, str) and key.isdigit()):
+            raise ConfigError(f"{where}: a list is replaced by a list or patched by an object "
+                              f"of item indices, got the key {key!r}")
+        i = int(key)
+        if i >= len(items):
+            raise ConfigError(f"{where}.{i}: index out of range: the list has "
+                              f"{len(items)} item(s), indices 0..{len(items) - 1}")
+        if value is None:
+            raise ConfigError(f"{where}.{i}: an item cannot be removed by null; give the "
+                              f"whole list instead")
+        out[i] = _merge_patch(items[i], value, f"{path}{i}.")
+    return out

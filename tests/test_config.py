@@ -8,6 +8,8 @@ import pytest
 from app.config import (
     ConfigError,
     EmulatorConfig,
+    SatelliteConfig,
+    VfdmConfig,
     assignment_override,
     load_config,
     merge_overrides,
@@ -109,13 +111,36 @@ def test_unreadable_files_fail_clearly(tmp_path):
         load_config(bad)
 
 
-def test_overrides_merge_item_by_item_and_validate():
-    base = parse_config({"satellites": [{"name": "a"}, {"name": "b", "mass_kg": 2.0}]})
-    cfg = merge_overrides(base, {"satellites": [{}, {"velocity_mps": [0.01, 0, 0]}]})
+def test_overrides_are_a_merge_patch_with_item_indices():
+    """RFC 7396: objects merge, null takes the default back, a list replaces the list;
+    an object of item indices patches those items in place."""
+    base = parse_config({"satellites": [{"name": "a"}, {"name": "b", "mass_kg": 2.0}],
+                         "vfdm": {"kp_lin": 20.0}})
+    cfg = merge_overrides(base, {"satellites": {"1": {"velocity_mps": [0.01, 0, 0]}}})
     assert cfg.satellites[1].velocity_mps == (0.01, 0.0, 0.0)
     assert cfg.satellites[1].mass_kg == 2.0 and cfg.satellites[0].name == "a"
+    whole = merge_overrides(base, {"satellites": [{"name": "c"}]})
+    assert [s.name for s in whole.satellites] == ["c"]
+    assert whole.satellites[0].mass_kg == SatelliteConfig(name="c").mass_kg
+    assert merge_overrides(base, {"vfdm": {"kp_lin": None}}).vfdm.kp_lin == VfdmConfig().kp_lin
+    assert merge_overrides(base, {}) == base
     with pytest.raises(ConfigError, match="orbit.altitude_m"):
         merge_overrides(base, {"orbit": {"altitude_m": -1}})
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    ({"satellites": {"2": {"mass_kg": 1.0}}},
+     "satellites.2: index out of range: the list has 2 item(s), indices 0..1"),
+    ({"satellites": {"x": {}}}, "satellites: a list is replaced by a list or patched by an "
+                                "object of item indices, got the key 'x'"),
+    ({"satellites": {"0": None}}, "satellites.0: an item cannot be removed by null"),
+    ({"satellites": [{"mass_kg": 1.0}]}, "satellites.0.name"),
+])
+def test_bad_patches_name_what_is_wrong(patch, message):
+    base = parse_config({"satellites": [{"name": "a"}, {"name": "b"}]})
+    with pytest.raises(ConfigError) as err:
+        merge_overrides(base, patch)
+    assert message in str(err.value)
 
 
 @pytest.mark.parametrize(
@@ -124,8 +149,9 @@ def test_overrides_merge_item_by_item_and_validate():
         ("passivity.enabled=false", {"passivity": {"enabled": False}}),
         ("wrench.lowpass_hz = 20", {"wrench": {"lowpass_hz": 20}}),
         ("satellites.1.velocity_mps=[0.1, 0, 0]",
-         {"satellites": [{}, {"velocity_mps": [0.1, 0, 0]}]}),
-        ("satellites.0.material=rigid", {"satellites": [{"material": "rigid"}]}),
+         {"satellites": {"1": {"velocity_mps": [0.1, 0, 0]}}}),
+        ("satellites.0.material=rigid", {"satellites": {"0": {"material": "rigid"}}}),
+        ("pulses=[]", {"pulses": []}),
     ],
 )
 def test_assignment_override(text, expected):

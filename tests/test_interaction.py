@@ -157,7 +157,7 @@ def one_arm_two_satellites():
     """The collision scenario with the sponge left without its arm (and spinning)."""
     cfg = merge_overrides(load_scenario("collision"), {
         "lab": {"r_attitude_wxyz": list(R_ATTITUDE)},
-        "satellites": [{}, {"omega_radps": [0.1, -0.2, 0.3]}],
+        "satellites": {"1": {"omega_radps": [0.1, -0.2, 0.3]}},
     })
     data = cfg.model_dump()
     data["robots"] = data["robots"][:1]

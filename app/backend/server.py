@@ -105,7 +105,7 @@ class Fault(BaseModel):
 
 
 START_BODY_EXAMPLE = {
-    "satellites": [{"velocity_mps": [0.01, 0.0, 0.0]}],
+    "satellites": {"0": {"velocity_mps": [0.01, 0.0, 0.0]}},
     "vfdm": {"kp_lin": 20},
     "mode": "hil",
 }
@@ -308,8 +308,10 @@ def create_app(
         request: Request,
         body: Annotated[
             dict[str, Any] | None,
-            Body(description="config overrides (merged into the scenario) and an optional "
-                 "'mode' ('hil' or 'ideal')", examples=[START_BODY_EXAMPLE]),
+            Body(description="config overrides, a JSON merge patch of the scenario (RFC "
+                 "7396: a list replaces the list, null restores a default; an object of "
+                 "item indices such as {\"0\": {...}} patches list items), and an "
+                 "optional 'mode' ('hil' or 'ideal')", examples=[START_BODY_EXAMPLE]),
         ] = None,
     ) -> dict[str, Any]:
         """Start a scenario with optional overrides; returns the state once running.
