@@ -98,3 +98,30 @@ def test_health_turns_degraded_when_the_loop_misses_its_deadlines(live):
     assert health["deadline_miss_ratio_10s"] > 0.01
     assert health["status"] == "degraded"
     live.client.post("/api/stop")
+
+
+def test_stop_interrupts_a_start_that_would_take_long(live):
+    """The wedge of old: a start pose out of reach with the longest approach allowed
+    (120 s of virtual time, over a second of search here). A stop sent meanwhile ends the
+    start-up within 0.5 s; the loop then takes the next start as usual."""
+    import threading
+
+    live.client.post("/api/stop")
+    body = {"satellites": {"0": {"position_m": [3.0, 0.0, 0.0]}},
+            "loop": {"approach_timeout_s": 120.0}}
+    answer = {}
+    starter = threading.Thread(target=lambda: answer.update(
+        r=live.client.post("/api/scenarios/free-floating/start", json=body)))
+    starter.start()
+    live.wait_for(lambda s: s["status"] == "starting", timeout_s=5.0)
+    t0 = time.monotonic()
+    assert live.client.post("/api/stop").status_code == 200
+    s = live.wait_for(lambda s: s["status"] == "stopped", timeout_s=0.5)
+    assert time.monotonic() - t0 < 0.5
+    assert s["reason"] == "stopped by the operator during start-up"
+    starter.join(timeout=5.0)
+    assert not starter.is_alive() and answer["r"].status_code == 200
+    assert answer["r"].json()["status"] == "stopped"
+    r = live.client.post("/api/scenarios/free-floating/start")
+    assert r.status_code == 200 and r.json()["status"] == "running", r.text
+    live.client.post("/api/stop")

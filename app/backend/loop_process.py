@@ -41,6 +41,10 @@ log = logging.getLogger("orbit_emulator.runner")
 _TIMING_WINDOW = 5000  # cycles kept for the p50 / p99 of the cycle time (10 s at 500 Hz)
 
 
+class _StartInterrupted(Exception):
+    """A stop, reset, start or shutdown arrived while a run was starting."""
+
+
 class LoopCore:
     """Runs in the loop process: owns the Emulator, paces it, answers requests."""
 
@@ -62,6 +66,7 @@ class LoopCore:
         self.em = Emulator(config, mode=mode)
         self.generation = 0
         self.shutdown = False
+        self._pending: tuple | None = None  # a control message that interrupted a start
         self._reset_timing()
         if settings.get("warm_up", True):
             warm_up(config)
@@ -87,7 +92,10 @@ class LoopCore:
         try:
             while not self.shutdown:
                 self.beat()
-                if self.cmd_conn.poll(0.05 if self.status != "running" else 0):
+                if self._pending is not None:
+                    msg, self._pending = self._pending, None
+                    self.handle(msg)
+                elif self.cmd_conn.poll(0.05 if self.status != "running" else 0):
                     self.handle(self.cmd_conn.recv())
                 elif self.status == "running":
                     self.run_paced()
@@ -154,7 +162,12 @@ class LoopCore:
         if not prepare:
             return
         try:
-            em.prepare(tick=self.beat)
+            em.prepare(tick=self._starting_tick)
+        except _StartInterrupted:
+            em.status = "stopped"
+            self.status, self.reason = "stopped", "stopped by the operator during start-up"
+            self.publish()
+            return
         except Exception as err:
             self.fail(err)
             return
@@ -164,6 +177,21 @@ class LoopCore:
             self.status = em.status
             self.reason = (em.safety_stop or {}).get("reason")
         self.publish()
+
+    def _starting_tick(self) -> None:
+        """Called now and then while a run starts (Emulator.prepare): the heartbeat, reads
+        answered, and a stop, reset, start or shutdown ends the start-up at once (a start
+        or reset is then handled as if it had come after)."""
+        self.beat()
+        while self.cmd_conn.poll():
+            msg = self.cmd_conn.recv()
+            if msg[0] in ("stop", "reset", "start", "shutdown"):
+                if msg[0] != "stop":
+                    self._pending = msg
+                raise _StartInterrupted
+            if msg[0] == "read":
+                self.handle(msg)
+            # a command ("cmd") for a run that is not running yet is dropped
 
     def fail(self, err: BaseException) -> None:
         msg = f"{type(err).__name__}: {err}"
