@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from app.config import EmulatorConfig
 from app.sim.loop import Emulator
 
 
@@ -216,32 +219,69 @@ def passivity_metrics(em: Emulator) -> dict | None:
         "torque": {f"sat{s + 1}": e for s, e in removed["torque"].items()}}}
 
 
+@dataclass(frozen=True)
+class RunFacts:
+    """What the metrics need of a run beyond its telemetry and configuration: what the loop
+    knows (a headless Emulator, or the loop process's published state)."""
+
+    mode: str
+    status: str
+    cycles: int
+    wall_s: float
+    cycle_time_us: dict
+    """{"p50", "p99"} (µs; None without cycles)."""
+    safety_stop: dict | None
+    passivity: dict | None
+    arm_of: dict[int, int]
+    """Satellite (0-based) → the arm (0-based) that carries it."""
+
+
+def run_facts(em: Emulator, wall_s: float) -> RunFacts:
+    """The facts of an Emulator that ran (its cycle times over the whole run)."""
+    ct = np.array(em.cycle_time_ns, dtype=float) / 1e3
+    return RunFacts(
+        mode=em.mode, status=em.status, cycles=em.cycles, wall_s=wall_s,
+        cycle_time_us={"p50": float(np.percentile(ct, 50)) if len(ct) else None,
+                       "p99": float(np.percentile(ct, 99)) if len(ct) else None},
+        safety_stop=em.safety_stop, passivity=passivity_metrics(em),
+        arm_of={arm.satellite: arm.index for arm in em.arms})
+
+
 def sensing_limits(em: Emulator, pair: tuple[int, int] = (1, 2),
                    ) -> tuple[float, tuple[float, float, float] | None]:
     """(the deadband a contact meets, the noise figures) of a run, for compare_with_ideal;
     pair: the contact's satellites (1-based). Without arms (an ideal run) there is no
     sensor: no deadband, no noise."""
-    cfg = em.config
-    if not em.arms:
+    return _sensing_limits(em.config, bool(em.arms), pair)
+
+
+def _sensing_limits(cfg: EmulatorConfig, with_arms: bool, pair: tuple[int, int],
+                    ) -> tuple[float, tuple[float, float, float] | None]:
+    if not with_arms:
         return 0.0, None
     deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
     masses = [cfg.satellites[s - 1].mass_kg for s in pair]
     gain = cfg.orbit.force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
-    return deadband, (cfg.sensor.noise_force_N, em.dt_s, gain)
+    return deadband, (cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz, gain)
 
 
 def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None) -> dict:
     """The metrics.json of a run (the emulator after it ran; wall_s its wall-clock time)."""
-    rows = em.telemetry.rows()
-    index = em.telemetry.index
+    return metrics_of(em.config, em.telemetry.rows(), em.telemetry.index,
+                      run_facts(em, wall_s), ideal_collision)
+
+
+def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: RunFacts,
+               ideal_collision: dict | None = None) -> dict:
+    """The metrics.json of a run from its telemetry rows (oldest first), its
+    configuration and the facts the loop kept."""
     sim_s = float(rows[-1, 0]) if len(rows) else 0.0
-    ct = np.array(em.cycle_time_ns, dtype=float) / 1e3
+    n_sat = len(config.satellites)
     sats = []
-    arm_of = {arm.satellite: arm.index for arm in em.arms}
-    for i, sat in enumerate(em.config.satellites):
+    for i, sat in enumerate(config.satellites):
         entry = {"id": i + 1, "name": sat.name}
-        if i in arm_of and len(rows):
-            entry.update(tracking_errors(rows, index, i + 1, arm_of[i] + 1))
+        if i in facts.arm_of and len(rows):
+            entry.update(tracking_errors(rows, index, i + 1, facts.arm_of[i] + 1))
         else:
             entry.update(
                 position_error_max_m=None, position_error_rms_m=None,
@@ -251,34 +291,32 @@ def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = 
         entry["delta_v_mps"] = float(np.linalg.norm(v[-1] - v[0])) if len(rows) else 0.0
         sats.append(entry)
     metrics = {
-        "scenario": em.config.name,
-        "mode": em.mode,
-        "status": em.status,
+        "scenario": config.name,
+        "mode": facts.mode,
+        "status": facts.status,
         "duration_s": sim_s,
-        "cycles": em.cycles,
-        "rate_hz": em.config.loop.rate_hz,
-        "realtime_factor": sim_s / wall_s if wall_s > 0 else None,
-        "cycle_time_us": {
-            "p50": float(np.percentile(ct, 50)) if len(ct) else None,
-            "p99": float(np.percentile(ct, 99)) if len(ct) else None,
-        },
-        "force_scale": em.config.orbit.force_scale,
-        "torque_scale": em.config.orbit.torque_scale,
-        "vfdm_iterations": em.config.vfdm.iterations,
-        "seed": em.config.loop.seed,
+        "cycles": facts.cycles,
+        "rate_hz": config.loop.rate_hz,
+        "realtime_factor": sim_s / facts.wall_s if facts.wall_s > 0 else None,
+        "cycle_time_us": dict(facts.cycle_time_us),
+        "force_scale": config.orbit.force_scale,
+        "torque_scale": config.orbit.torque_scale,
+        "vfdm_iterations": config.vfdm.iterations,
+        "seed": config.loop.seed,
         "satellites": sats,
         "collision": None,
-        "safety_stop": em.safety_stop,
-        "passivity": passivity_metrics(em),
+        "safety_stop": facts.safety_stop,
+        "passivity": facts.passivity,
     }
-    pair = contact_pair(rows, index, em.n_sat) if em.n_sat >= 2 and len(rows) else None
+    pair = contact_pair(rows, index, n_sat) if n_sat >= 2 and len(rows) else None
     if pair is not None:
-        bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
-        coll = collision_metrics(rows, index, em.dt_s, *pair, bodies=bodies)
+        bodies = {s + 1: f"rob{a + 1}" for s, a in facts.arm_of.items()}
+        coll = collision_metrics(rows, index, 1.0 / config.loop.rate_hz, *pair, bodies=bodies)
         if coll is not None:
-            ideal = dict(coll) if em.mode == "ideal" else ideal_collision
+            ideal = dict(coll) if facts.mode == "ideal" else ideal_collision
             if ideal is not None and ideal.get("pair") != coll["pair"]:
                 ideal = None  # the ideal run's first contact was another pair's
-            compare_with_ideal(coll, ideal, *sensing_limits(em, pair))
+            compare_with_ideal(coll, ideal, *_sensing_limits(config, bool(facts.arm_of),
+                                                             pair))
         metrics["collision"] = coll
     return metrics

@@ -142,8 +142,8 @@ def test_same_seed_gives_identical_telemetry(tmp_path):
 def test_driven_out_of_the_safety_volume_stops_and_keeps_telemetry(tmp_path):
     cfg = merge_overrides(
         load_scenario("free-floating"),
-        {"robots": [{"safety_box_max_m": [1.5, 1.5, 1.5]}],  # TCP starts at z = 1.0 m
-         "satellites": [{"velocity_mps": [0.0, 0.0, 0.2]}],  # rises 0.2 m/s in R (z up)
+        {"robots": {"0": {"safety_box_max_m": [1.5, 1.5, 1.5]}},  # TCP starts at z = 1.0 m
+         "satellites": {"0": {"velocity_mps": [0.0, 0.0, 0.2]}},  # rises 0.2 m/s in R (z up)
          "pulses": []},
     )
     result = run_scenario(cfg, duration_s=6.0, out_dir=tmp_path)

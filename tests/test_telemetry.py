@@ -175,3 +175,27 @@ def test_ring_buffer_rows_are_copies_and_next_row_writes_in_place():
 def test_ring_buffer_needs_room_for_a_row():
     with pytest.raises(ValueError, match="capacity must be at least 1"):
         TelemetryBuffer(["a"], capacity=0)
+
+
+def test_a_ring_read_elsewhere_keeps_only_whole_rows():
+    """ring_rows: a claimed row is not seen until committed; after a wrap the rows still
+    whole are returned oldest first."""
+    from app.sim.telemetry import ring_rows
+
+    data, counters = np.zeros((3, 2)), np.zeros(2, dtype=np.int64)
+    buf = TelemetryBuffer(["a", "b"], 3)
+    buf.use_storage(data, counters)
+    assert ring_rows(data, counters).shape == (0, 2)
+    buf.append(np.array([0.0, 0.5]))
+    row = buf.next_row()  # claimed, being written
+    row[0] = 1.0
+    np.testing.assert_array_equal(ring_rows(data, counters), [[0.0, 0.5]])
+    buf.commit()
+    np.testing.assert_array_equal(ring_rows(data, counters), [[0.0, 0.5], [1.0, 0.0]])
+    for k in range(2, 6):
+        buf.append(np.array([k, k + 0.5]))
+    np.testing.assert_array_equal(ring_rows(data, counters), buf.rows())
+    buf.next_row()  # claims the slot of the oldest row (3): it is no longer whole
+    np.testing.assert_array_equal(ring_rows(data, counters), [[4, 4.5], [5, 5.5]])
+    with pytest.raises(ValueError, match="already holds rows"):
+        buf.use_storage(np.zeros((3, 2)), np.zeros(2, dtype=np.int64))

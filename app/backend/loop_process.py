@@ -8,7 +8,8 @@ for :class:`~app.backend.runner.Runner`, its proxy in the web process). It
   stop / reset) begin or end a run;
 * publishes a snapshot (a plain dict) every ``snapshot_every`` cycles through the shared
   memory channel of :mod:`app.backend.snapshots`;
-* answers heavy reads (telemetry rows, metrics) on the response pipe, between two cycles.
+* records each cycle's telemetry row into the run's ring in shared memory
+  (:mod:`app.backend.ring`), which the web process reads without asking.
 
 Pacing: cycle k is due to start at ``t0 + k·dt`` and must finish by ``t0 + (k+1)·dt``
 (its deadline); a cycle that finishes later is a deadline miss. The loop sleeps until
@@ -31,8 +32,10 @@ from typing import Any
 import numpy as np
 
 from app.backend import snapshots
+from app.backend.ring import attach_ring
 from app.backend.snapshots import SnapshotWriter
 from app.config import EmulatorConfig
+from app.metrics import passivity_metrics
 from app.sim.loop import Emulator
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
 
@@ -67,6 +70,7 @@ class LoopCore:
         self.generation = 0
         self.shutdown = False
         self._pending: tuple | None = None  # a control message that interrupted a start
+        self._rings: list = []  # the telemetry rings mapped (the current run's last)
         self._reset_timing()
         if settings.get("warm_up", True):
             warm_up(config)
@@ -116,47 +120,38 @@ class LoopCore:
                 except ValueError as err:
                     log.warning("command rejected: %s", err)
         elif kind == "start":
-            _, scenario, config, mode = msg
-            self.begin(scenario, config, mode, prepare=True)
+            _, scenario, config, mode, ring = msg
+            self.begin(scenario, config, mode, prepare=True, ring=ring)
         elif kind == "reset":
-            _, scenario, config, mode = msg
-            self.begin(scenario, config, mode, prepare=False)
+            _, scenario, config, mode, ring = msg
+            self.begin(scenario, config, mode, prepare=False, ring=ring)
         elif kind == "stop":
             if self.status in ("running", "starting"):
                 if self.em.status == "running":
                     self.em.status = "stopped"
                 self.status, self.reason = "stopped", "stopped by the operator"
                 self.publish()
-        elif kind == "read":
-            _, req_id, what = msg
-            try:
-                result = (True, self.read(what))
-            except Exception as err:
-                result = (False, f"{type(err).__name__}: {err}")
-            self.resp_conn.send(("resp", req_id, *result))
         elif kind == "shutdown":
             self.shutdown = True
 
-    def read(self, what: str) -> Any:
-        if what == "telemetry":
-            return list(self.em.telemetry.columns), self.em.telemetry.rows()
-        if what == "metrics":
-            from app.metrics import compute_metrics
-
-            return compute_metrics(self.em, self.wall_s)
-        raise ValueError(f"unknown read {what!r}")
-
     def begin(self, scenario: str, config: EmulatorConfig, mode: str | None,
-              prepare: bool) -> None:
+              prepare: bool, ring: str | None = None) -> None:
+        """A new run (``ring``: the name of its telemetry ring in shared memory)."""
         self.status = "starting" if prepare else "idle"
         self.reason = None
         self.generation += 1
         try:
             em = Emulator(config, mode=mode)
+            if ring is not None:
+                shm, data, counters = attach_ring(ring, em.telemetry.capacity,
+                                                  len(em.telemetry.columns))
+                em.telemetry.use_storage(data, counters)
+                del data, counters
         except Exception as err:
             self.fail(err)
             return
         self.scenario, self.em = scenario, em
+        self._switch_ring(shm if ring is not None else None)
         self._reset_timing()
         self.publish()
         if not prepare:
@@ -178,9 +173,19 @@ class LoopCore:
             self.reason = (em.safety_stop or {}).get("reason")
         self.publish()
 
+    def _switch_ring(self, shm) -> None:
+        """Keep the new run's ring mapped; unmap the old ones once nothing uses them."""
+        keep = []
+        for old in self._rings:
+            try:
+                old.close()
+            except BufferError:  # still viewed (an old emulator not yet collected)
+                keep.append(old)
+        self._rings = keep + ([shm] if shm is not None else [])
+
     def _starting_tick(self) -> None:
-        """Called now and then while a run starts (Emulator.prepare): the heartbeat, reads
-        answered, and a stop, reset, start or shutdown ends the start-up at once (a start
+        """Called now and then while a run starts (Emulator.prepare): the heartbeat,
+        and a stop, reset, start or shutdown ends the start-up at once (a start
         or reset is then handled as if it had come after)."""
         self.beat()
         while self.cmd_conn.poll():
@@ -189,8 +194,6 @@ class LoopCore:
                 if msg[0] != "stop":
                     self._pending = msg
                 raise _StartInterrupted
-            if msg[0] == "read":
-                self.handle(msg)
             # a command ("cmd") for a run that is not running yet is dropped
 
     def fail(self, err: BaseException) -> None:
@@ -326,6 +329,7 @@ class LoopCore:
             "satellites": sats,
             "robots": robots,
             "contact_active": bool(em.contact_active),
+            "passivity": passivity_metrics(em),
             "layout": {
                 "T_W_R": T_W_R.tolist(),
                 "arms": [[cfg.robots[a.index].name, a.T_W_B.tolist()] for a in em.arms],

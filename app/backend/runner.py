@@ -18,8 +18,9 @@ process, which starts and stops the process and
 * reads the snapshot (a plain dict) the loop publishes every ``snapshot_every`` cycles into
   shared memory (:mod:`app.backend.snapshots`: two slots and a sequence number; the writer
   never waits for a reader, a reader retries when the writer lapped it);
-* makes heavy reads (telemetry rows, metrics) request/response over the pipes; the loop
-  answers between two cycles.
+* gives each run a telemetry ring in shared memory (:class:`RunTelemetry`): the loop
+  writes a row per cycle into it, and telemetry and metrics are read and computed here, in
+  the web process, from a copy of it; nothing a client reads costs the loop a cycle.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from typing import Any
 
 from app.backend import snapshots
 from app.backend.loop_process import _loop_main
+from app.backend.ring import RunTelemetry
 from app.config import EmulatorConfig
 from app.sim.hand import Command
 
@@ -94,6 +96,8 @@ class Runner:
         self._fault: str | None = None
         self._watch: threading.Thread | None = None
         self._timing: collections.deque = collections.deque(maxlen=int(MISS_WINDOW_S / 0.1) + 2)
+        self._rings: dict[int, RunTelemetry] = {}  # by generation; the last two are kept
+        self._ring_lock = threading.Lock()
 
     # --- lifecycle --------------------------------------------------------------------
 
@@ -177,9 +181,7 @@ class Runner:
             count, since = self._beat
             now = time.monotonic()
             current = snapshots.heartbeat(self._shm.buf)
-            if current != count or self._waiting:
-                # a heavy read (metrics, telemetry) keeps the loop busy between two
-                # beats: not a stall while one is answered (its own timeout applies)
+            if current != count:
                 self._beat = (current, now)
             elif now - since > STALL_S:
                 self._fault = f"the loop process has not answered for {now - since:.1f} s"
@@ -215,6 +217,7 @@ class Runner:
         self._proc = None
         for conn in (self._cmd, self._resp):
             conn.close()
+        self._release_rings()
         if self._shm is not None:
             self._shm.close()
             self._shm.unlink()
@@ -311,10 +314,38 @@ class Runner:
             busy = self._status(snap)
             if busy in ("starting", "running"):
                 raise RunnerBusy(f"a scenario is already {busy}; stop it first")
-            self._pending = "starting"
-            self._pending_gen = snap["generation"] + 1
-            self._send(("start", scenario, config, mode))
-            return self._pending_gen
+            gen = snap["generation"] + 1
+            ring = self._new_ring(gen, config, mode)
+            self._send(("start", scenario, config, mode, ring.name))
+            self._pending, self._pending_gen = "starting", gen
+            return gen
+
+    def _new_ring(self, gen: int, config: EmulatorConfig, mode: str | None) -> RunTelemetry:
+        """The telemetry ring of run ``gen``; the rings of runs before ``gen − 1`` go."""
+        ring = RunTelemetry(config, mode)
+        with self._ring_lock:
+            old = self._rings.pop(gen, None)
+            self._rings[gen] = ring
+            stale = [g for g in self._rings if g < gen - 1]
+            for g in stale:
+                self._rings.pop(g).release()
+            if old is not None:
+                old.release()
+        return ring
+
+    def _release_rings(self) -> None:
+        with self._ring_lock:
+            for ring in self._rings.values():
+                ring.release()
+            self._rings.clear()
+
+    def run_telemetry(self) -> tuple[dict, RunTelemetry | None, Any]:
+        """(the latest state, the ring of its run or None, a copy of the ring's committed
+        rows or None): read here, in the web process; the loop is not asked."""
+        snap = self.snapshot()
+        with self._ring_lock:
+            ring = self._rings.get(snap.get("generation", -1))
+            return snap, ring, None if ring is None else ring.rows()
 
     def request_stop(self) -> None:
         self._send(("stop",))
@@ -322,10 +353,11 @@ class Runner:
     def request_reset(self, scenario: str, config: EmulatorConfig, mode: str | None) -> int:
         with self._state_lock:
             snap = self.snapshot()
-            self._pending = "idle"
-            self._pending_gen = snap["generation"] + 1
-            self._send(("reset", scenario, config, mode))
-            return self._pending_gen
+            gen = snap["generation"] + 1
+            ring = self._new_ring(gen, config, mode)
+            self._send(("reset", scenario, config, mode, ring.name))
+            self._pending, self._pending_gen = "idle", gen
+            return gen
 
     def post(self, command: Command) -> None:
         """Queue a Push / HandAnchor; the loop applies it before its next cycle.
@@ -349,20 +381,3 @@ class Runner:
         except (RunnerBusy, ValueError, RunnerError, OSError):
             return False
         return True
-
-    def read(self, what: str, timeout_s: float = 60.0) -> Any:
-        """'telemetry' -> (columns, rows) or 'metrics' -> dict, computed by the loop
-        between two cycles."""
-        req_id = next(self._ids)
-        slot = [threading.Event(), None]
-        self._waiting[req_id] = slot
-        try:
-            self._send(("read", req_id, what))
-            if not slot[0].wait(timeout_s):
-                raise RunnerError(f"no answer to {what!r} in {timeout_s:g} s")
-            ok, payload = slot[1]
-        finally:
-            self._waiting.pop(req_id, None)
-        if not ok:
-            raise RunnerError(payload)
-        return payload

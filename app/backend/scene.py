@@ -225,7 +225,7 @@ class EmulatorScene:
     def _gui_overrides(self) -> dict:
         return {
             "orbit": {"altitude_m": float(self.gui_altitude.value) * 1e3},
-            "satellites": [{"velocity_mps": [float(v) for v in self.gui_velocity.value]}],
+            "satellites": {"0": {"velocity_mps": [float(v) for v in self.gui_velocity.value]}},
             "vfdm": {"kp_lin": float(self.gui_kp_lin.value),
                      "kp_rot": float(self.gui_kp_rot.value)},
             "loop": {"duration_s": float(self.gui_duration.value)},

@@ -10,10 +10,13 @@ import math
 import threading
 from typing import Any
 
+import numpy as np
+
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
+from app.sim.telemetry import loop_columns
 
 __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
 
@@ -151,13 +154,38 @@ class EmulatorService:
     # --- heavier reads --------------------------------------------------------------------
 
     def telemetry_csv(self) -> str:
+        """The current run's telemetry as CSV (computed here, from the shared ring)."""
         from app.report import telemetry_csv_text
 
-        columns, rows = self.runner.read("telemetry")
+        snap, ring, rows = self.runner.run_telemetry()
+        columns, rows = self._rows_of(snap, ring, rows)
         return telemetry_csv_text(columns, rows)
 
+    def _rows_of(self, snap: dict, ring, rows) -> tuple[list[str], np.ndarray]:
+        """(columns, rows) of the current run; none yet before the first start."""
+        if ring is not None:
+            return ring.columns, rows
+        columns = loop_columns(len(snap["satellites"]), len(snap["robots"]))
+        return columns, np.empty((0, len(columns)))
+
     def metrics(self) -> dict[str, Any]:
-        return self.runner.read("metrics")
+        """The current run's metrics (computed here, from the shared ring and the state the
+        loop published; the cycle times are those of its last 10 s)."""
+        from app.metrics import RunFacts, metrics_of
+
+        snap, ring, rows = self.runner.run_telemetry()
+        columns, rows = self._rows_of(snap, ring, rows)
+        config = ring.config if ring is not None else self.last_config
+        loop = snap["loop"]
+        facts = RunFacts(
+            mode=snap["mode"], status=snap["status"], cycles=loop["cycles"],
+            wall_s=loop["wall_s"],
+            cycle_time_us={"p50": loop["cycle_time_us"]["p50"] if loop["cycles"] else None,
+                           "p99": loop["cycle_time_us"]["p99"] if loop["cycles"] else None},
+            safety_stop=snap["safety_stop"], passivity=snap.get("passivity"),
+            arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])})
+        index = {name: k for k, name in enumerate(columns)}
+        return metrics_of(config, rows, index, facts)
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:

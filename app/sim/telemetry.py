@@ -52,43 +52,65 @@ def loop_columns(n_sat: int, n_arms: int) -> list[str]:
 
 
 class TelemetryBuffer:
-    """Fixed-capacity ring buffer of float rows with named columns."""
+    """Fixed-capacity ring buffer of float rows with named columns.
 
-    def __init__(self, columns: list[str], capacity: int) -> None:
+    Its state is two counters: rows claimed and rows committed (completely written), both
+    since the start. Storage and counters may be given (e.g. arrays in shared memory), so
+    that another process can read the rows while they are written: :func:`ring_rows`.
+    """
+
+    def __init__(self, columns: list[str], capacity: int, data: np.ndarray | None = None,
+                 counters: np.ndarray | None = None) -> None:
         if capacity < 1:
             raise ValueError("capacity must be at least 1")
         self.columns = list(columns)
         self.index = {name: k for k, name in enumerate(self.columns)}
-        self._data = np.zeros((capacity, len(self.columns)))
-        self._next = 0
-        self.count = 0
-        self.dropped = 0
+        if data is None:
+            data = np.zeros((capacity, len(self.columns)))
+        if data.shape != (capacity, len(self.columns)):
+            raise ValueError(f"storage of shape {data.shape} for {capacity} rows of "
+                             f"{len(self.columns)} columns")
+        self._data = data
+        self._counters = np.zeros(2, dtype=np.int64) if counters is None else counters
+        self._counters[:] = 0
 
     @property
     def capacity(self) -> int:
         return self._data.shape[0]
 
+    @property
+    def count(self) -> int:
+        """Rows held (at most the capacity)."""
+        return min(int(self._counters[0]), self.capacity)
+
+    @property
+    def dropped(self) -> int:
+        """Rows overwritten by newer ones."""
+        return max(0, int(self._counters[0]) - self.capacity)
+
     def append(self, row: np.ndarray) -> None:
         """Store one row (length = number of columns)."""
         self.next_row()[:] = row
+        self.commit()
 
     def next_row(self) -> np.ndarray:
         """Claim the next row and return it (a view) for the caller to fill in place.
 
-        It counts as appended at once (and, when full, overwrites the oldest row).
+        It counts as appended at once (and, when full, overwrites the oldest row); a
+        reader in another process sees it only after :meth:`commit`.
         """
-        row = self._data[self._next]
-        self._next = (self._next + 1) % self.capacity
-        if self.count < self.capacity:
-            self.count += 1
-        else:
-            self.dropped += 1
-        return row
+        claimed = int(self._counters[0])
+        self._counters[0] = claimed + 1
+        return self._data[claimed % self.capacity]
+
+    def commit(self) -> None:
+        """Every claimed row is completely written."""
+        self._counters[1] = self._counters[0]
 
     def rows(self, last: int | None = None) -> np.ndarray:
         """A copy of the stored rows, oldest first (the newest `last` only, if given)."""
         n = self.count if last is None else min(last, self.count)
-        start = (self._next - n) % self.capacity
+        start = (int(self._counters[0]) - n) % self.capacity
         idx = (start + np.arange(n)) % self.capacity
         return self._data[idx].copy()
 
@@ -96,9 +118,36 @@ class TelemetryBuffer:
         return self.rows(last)[:, self.index[name]]
 
     def clear(self) -> None:
-        self._next = 0
-        self.count = 0
-        self.dropped = 0
+        self._counters[:] = 0
+
+    def use_storage(self, data: np.ndarray, counters: np.ndarray) -> None:
+        """Keep the rows from now on in ``data`` (capacity, columns) with the two counters
+        in ``counters`` (int64 (2,)); only while empty."""
+        if self._counters[0]:
+            raise ValueError("the buffer already holds rows")
+        if data.shape != self._data.shape or counters.shape != (2,):
+            raise ValueError(f"storage of shape {data.shape} and counters {counters.shape} "
+                             f"for a buffer of shape {self._data.shape}")
+        self._data, self._counters = data, counters
+        self._counters[:] = 0
+
+
+def ring_rows(data: np.ndarray, counters: np.ndarray) -> np.ndarray:
+    """The committed rows of a ring written elsewhere meanwhile (oldest first, a copy).
+
+    Rows committed before the copy began are whole; a row whose slot the writer claimed
+    again while the copy ran may be torn, so the rows kept are those numbered
+    ``[claimed_after − capacity, committed_before)``.
+    """
+    capacity = data.shape[0]
+    committed = int(counters[1])
+    copy = data.copy()
+    claimed = int(counters[0])
+    first = max(0, claimed - capacity)
+    if committed <= first:
+        return np.empty((0, data.shape[1]))
+    idx = np.arange(first, committed) % capacity
+    return copy[idx]
 
 
 # --- row kernels ----------------------------------------------------------------------------
@@ -177,3 +226,4 @@ class Recorder:
         for T_W_C, v_W, q_rad, raw_S in arms:
             k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, row, k)
         row[k:] = true_force_R.ravel()
+        self.buffer.commit()
