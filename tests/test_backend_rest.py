@@ -210,3 +210,13 @@ def test_a_failing_start_reports_error_and_the_loop_lives_on(live):
     r = live.client.post("/api/scenarios/free-floating/start")
     assert r.status_code == 200 and r.json()["status"] == "running", r.text
     live.client.post("/api/stop")
+
+
+def test_the_viewer_panels_start_settings_are_a_valid_override(live):
+    """The 3D viewer's panel (viser GUI) starts a run with its fields as overrides: they
+    merge into the scenario and the first satellite takes the panel's velocity."""
+    scene = live.app.state.scene
+    scene.gui_velocity.value = (0.02, -0.01, 0.0)
+    config = live.app.state.service.config_for("collision", scene._gui_overrides())
+    assert config.satellites[0].velocity_mps == pytest.approx((0.02, -0.01, 0.0))
+    assert len(config.satellites) == 2

@@ -141,13 +141,11 @@ def ring_rows(data: np.ndarray, counters: np.ndarray) -> np.ndarray:
     """
     capacity = data.shape[0]
     committed = int(counters[1])
-    copy = data.copy()
+    start = max(0, committed - capacity)
+    rows = data[np.arange(start, committed) % capacity]  # a copy of those rows only
     claimed = int(counters[0])
-    first = max(0, claimed - capacity)
-    if committed <= first:
-        return np.empty((0, data.shape[1]))
-    idx = np.arange(first, committed) % capacity
-    return copy[idx]
+    first = max(start, claimed - capacity)
+    return rows[first - start:] if first < committed else np.empty((0, data.shape[1]))
 
 
 # --- row kernels ----------------------------------------------------------------------------
