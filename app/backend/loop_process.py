@@ -51,10 +51,9 @@ class _StartInterrupted(Exception):
 class LoopCore:
     """Runs in the loop process: owns the Emulator, paces it, answers requests."""
 
-    def __init__(self, cmd_conn, resp_conn, shm_name: str, config: EmulatorConfig,
+    def __init__(self, cmd_conn, shm_name: str, config: EmulatorConfig,
                  scenario: str, mode: str, settings: dict) -> None:
         self.cmd_conn = cmd_conn
-        self.resp_conn = resp_conn
         self.shm = shared_memory.SharedMemory(name=shm_name)
         self.writer = SnapshotWriter(self.shm)
         self._beats = 0
@@ -380,7 +379,7 @@ def boost_priority(rt_priority: int | None, nice: int | None) -> str:
     return "default"
 
 
-def _loop_main(cmd_conn, resp_conn, shm_name, config, scenario, mode, settings) -> None:
+def _loop_main(cmd_conn, shm_name, config, scenario, mode, settings) -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s loop: %(message)s")
-    core = LoopCore(cmd_conn, resp_conn, shm_name, config, scenario, mode, settings)
+    core = LoopCore(cmd_conn, shm_name, config, scenario, mode, settings)
     core.serve()

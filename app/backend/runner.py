@@ -26,7 +26,6 @@ process, which starts and stops the process and
 from __future__ import annotations
 
 import collections
-import itertools
 import multiprocessing as mp
 import threading
 import time
@@ -85,8 +84,6 @@ class Runner:
         }
         self._send_lock = threading.Lock()
         self._state_lock = threading.RLock()
-        self._ids = itertools.count(1)
-        self._waiting: dict[int, list] = {}
         self._proc: mp.process.BaseProcess | None = None
         self._shm: shared_memory.SharedMemory | None = None
         self._cache: tuple[int, dict] = (-1, {})
@@ -109,21 +106,14 @@ class Runner:
         self._shm = shared_memory.SharedMemory(create=True, size=snapshots.SHM_BYTES)
         snapshots.clear(self._shm.buf)
         cmd_parent, cmd_child = ctx.Pipe(duplex=False)  # (receive end, send end)
-        resp_parent, resp_child = ctx.Pipe(duplex=False)
         config, scenario, mode = self._initial
         self._proc = ctx.Process(
             target=_loop_main, name="emulator-loop", daemon=True,
-            args=(cmd_parent, resp_child, self._shm.name, config, scenario, mode,
-                  self._settings),
+            args=(cmd_parent, self._shm.name, config, scenario, mode, self._settings),
         )
         self._proc.start()
         cmd_parent.close()
-        resp_child.close()
         self._cmd = cmd_child
-        self._resp = resp_parent
-        self._reader = threading.Thread(target=self._read_responses, name="runner-resp",
-                                        daemon=True)
-        self._reader.start()
         deadline = time.monotonic() + timeout_s
         while self._read_snapshot()[1] is None:
             if not self._proc.is_alive():
@@ -215,8 +205,7 @@ class Runner:
             self._proc.terminate()
             self._proc.join(2.0)
         self._proc = None
-        for conn in (self._cmd, self._resp):
-            conn.close()
+        self._cmd.close()
         self._release_rings()
         if self._shm is not None:
             self._shm.close()
@@ -238,21 +227,6 @@ class Runner:
                 self._cmd.send(msg)
         except (OSError, EOFError) as err:  # the process died between the check and now
             raise LoopDown(f"the loop process is gone ({type(err).__name__})") from None
-
-    def _read_responses(self) -> None:
-        while True:
-            try:
-                msg = self._resp.recv()
-            except (EOFError, OSError):
-                break
-            _, req_id, ok, payload = msg
-            slot = self._waiting.get(req_id)
-            if slot is not None:
-                slot[1] = (ok, payload)
-                slot[0].set()
-        for slot in list(self._waiting.values()):  # wake whoever still waits
-            slot[1] = (False, "the loop process exited")
-            slot[0].set()
 
     # --- state --------------------------------------------------------------------------
 
