@@ -1,7 +1,7 @@
 # orbit-emulator web app: REST API + control page on 8000, viser 3D viewer on 8080.
 #
 #   docker build -t orbit-emulator .
-#   docker run --rm -p 8000:8000 -p 8080:8080 --ulimit rtprio=20 orbit-emulator
+#   docker run --rm -p 127.0.0.1:8000:8000 -p 127.0.0.1:8080:8080 --ulimit rtprio=20 orbit-emulator
 #
 # --ulimit rtprio=20 lets the emulator loop process (non-root) run SCHED_FIFO, which keeps
 # its 2 ms deadlines on a loaded host; without it the loop runs with default scheduling.

@@ -220,3 +220,43 @@ def test_the_viewer_panels_start_settings_are_a_valid_override(live):
     config = live.app.state.service.config_for("collision", scene._gui_overrides())
     assert config.satellites[0].velocity_mps == pytest.approx((0.02, -0.01, 0.0))
     assert len(config.satellites) == 2
+
+
+@pytest.mark.parametrize(("headers", "status", "detail"), [
+    ({"Host": "evil.example"}, 400, "host 'evil.example' is not allowed"),
+    ({"Host": "evil.example:8000"}, 400, "host 'evil.example:8000' is not allowed"),
+    ({"Origin": "http://evil.example"}, 403, "origin 'http://evil.example' is not allowed"),
+    ({"Origin": "null"}, 403, "origin 'null' is not allowed"),
+])
+def test_foreign_hosts_and_origins_are_refused_and_change_nothing(live, headers, status,
+                                                                  detail):
+    """DNS rebinding (a foreign Host) and cross-site pages (a foreign Origin) reach
+    nothing: not the state, not a start."""
+    live.client.post("/api/stop")
+    gen = live.state()["generation"]
+    for method, path in [("get", "/api/state"), ("post", "/api/scenarios/collision/start"),
+                         ("post", "/api/stop")]:
+        r = getattr(live.client, method)(path, headers=headers)
+        assert r.status_code == status and r.json()["detail"] == detail, (path, r.text)
+    assert live.state()["generation"] == gen
+
+
+def test_a_same_origin_page_and_loopback_names_are_served(live):
+    port = live.port
+    for headers in [{"Origin": f"http://127.0.0.1:{port}"}, {"Host": f"localhost:{port}"},
+                    {"Host": f"[::1]:{port}"}]:
+        assert live.client.get("/api/health", headers=headers).status_code == 200, headers
+
+
+def test_a_body_that_is_not_json_is_refused_before_anything_reads_it(live):
+    """A cross-site form or text/plain post needs no preflight in a browser: refused."""
+    live.client.post("/api/stop")
+    gen = live.state()["generation"]
+    for kind in ["text/plain", "application/x-www-form-urlencoded", None]:
+        headers = {} if kind is None else {"Content-Type": kind}
+        r = live.client.post("/api/scenarios/collision/start", content=b"{}",
+                             headers=headers)
+        assert r.status_code == 415, (kind, r.text)
+        assert r.json()["detail"] == "a request body must be application/json"
+    assert live.state()["generation"] == gen
+    assert live.client.post("/api/stop").status_code == 200  # no body: no type needed

@@ -9,6 +9,7 @@ thread, and stops all three on shutdown.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import math
 import os
@@ -192,6 +193,82 @@ class BodyLimit:
         await send({"type": "http.response.body", "body": body})
 
 
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+ALLOWED_HOSTS_ENV = "ORBIT_EMULATOR_ALLOWED_HOSTS"
+"""Comma-separated host names the server answers to beside loopback (and its bind host)."""
+
+
+def allowed_hosts(bind_host: str) -> frozenset[str]:
+    """The host names a request's Host and Origin may name: loopback, the address bound
+    (unless a wildcard) and those in $ORBIT_EMULATOR_ALLOWED_HOSTS."""
+    extra = [h.strip().lower() for h in os.environ.get(ALLOWED_HOSTS_ENV, "").split(",")]
+    names = set(LOOPBACK_HOSTS) | {h for h in extra if h}
+    if bind_host not in ("0.0.0.0", "::", ""):
+        names.add(bind_host.lower().strip("[]"))
+    return frozenset(names)
+
+
+def _host_name(authority: str) -> str:
+    """'example.org:8000' -> 'example.org', '[::1]:8000' -> '::1'."""
+    authority = authority.strip().lower()
+    if authority.startswith("["):
+        return authority[1:].split("]", 1)[0]
+    return authority.rsplit(":", 1)[0] if authority.count(":") == 1 else authority
+
+
+class SameOrigin:
+    """ASGI middleware against DNS rebinding and cross-site requests (HTTP and websocket).
+
+    The Host header must name an allowed host (400 otherwise): a page on a foreign name
+    that resolves to this machine cannot reach the API. An Origin header, which browsers
+    send with cross-site and state-changing requests, must name an allowed host too (403).
+    A request with a body must declare ``application/json`` (415): a cross-site form or
+    ``text/plain`` post, which browsers send without asking first, is refused.
+    """
+
+    def __init__(self, app, hosts: frozenset[str]) -> None:
+        self.app = app
+        self.hosts = hosts
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] not in ("http", "websocket"):
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or ())
+        host = headers.get(b"host", b"").decode("latin-1")
+        if _host_name(host) not in self.hosts:
+            return await self._reject(scope, send, 400, f"host {host!r} is not allowed")
+        origin = headers.get(b"origin")
+        if origin is not None:
+            authority = origin.decode("latin-1").split("://", 1)[-1]
+            if _host_name(authority) not in self.hosts:
+                return await self._reject(scope, send, 403,
+                                          f"origin {origin.decode('latin-1')!r} is not allowed")
+        if scope["type"] == "http" and _has_body(headers):
+            kind = headers.get(b"content-type", b"").split(b";")[0].strip().lower()
+            if kind != b"application/json":
+                return await self._reject(scope, send, 415,
+                                          "a request body must be application/json")
+        return await self.app(scope, receive, send)
+
+    @staticmethod
+    async def _reject(scope, send, status: int, detail: str) -> None:
+        if scope["type"] == "websocket":
+            await send({"type": "websocket.close", "code": 1008})
+            return
+        body = json.dumps({"detail": detail}).encode()
+        await send({"type": "http.response.start", "status": status,
+                    "headers": [(b"content-type", b"application/json"),
+                                (b"content-length", str(len(body)).encode())]})
+        await send({"type": "http.response.body", "body": body})
+
+
+def _has_body(headers: dict) -> bool:
+    length = headers.get(b"content-length")
+    if length is not None:
+        return length.strip() not in (b"0", b"")
+    return b"transfer-encoding" in headers
+
+
 def create_app(
     viser_port: int = 0,
     host: str = "127.0.0.1",
@@ -235,6 +312,7 @@ def create_app(
         lifespan=lifespan,
     )
     app.add_middleware(BodyLimit)
+    app.add_middleware(SameOrigin, hosts=allowed_hosts(host))
 
     def service(request: Request) -> EmulatorService:
         return request.app.state.service
