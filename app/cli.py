@@ -85,7 +85,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
     bar.close()
     print(run_summary(result.metrics))
     print(f"\nwrote {', '.join(str(p) for p in result.files)}")
+    stop = result.metrics["safety_stop"]
+    if stop:
+        print(f"error: the run ended in a safety stop at t = {stop['t_s']:.3f} s (robot "
+              f"{stop['robot']}: {stop['reason']}); everything up to it is written",
+              file=sys.stderr)
+        return EXIT_SAFETY_STOP
     return 0
+
+
+EXIT_SAFETY_STOP = 3
+"""`run`'s exit status when the run ended in a safety stop (2: the user's mistake)."""
 
 
 MAX_PROPAGATE_STEPS = 10_000_000

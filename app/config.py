@@ -245,6 +245,11 @@ class WrenchProcessingConfig(_Model):
     payload_compensation: StrictBool = True
     inertial_compensation: StrictBool = True
     lowpass_hz: Positive = 30.0
+    calibration_s: Annotated[float, AfterValidator(_finite), Field(ge=0.01, le=60.0)] = 2.0
+    """Seconds of readings at rest averaged for the bias calibration at start-up. What is
+    left of the bias is about noise_force_N / sqrt(calibration_s · rate_hz) per axis
+    (0.04 N at the defaults, 0.15 N after 0.25 s): an offset the ODS receives wherever a
+    deadband is lifted (the contact gate, or a zero deadband)."""
     deadband_force_N: NonNegative = 4.0
     deadband_torque_Nm: NonNegative = 0.25
     """On the torque about the COM, which carries the sensor's torque noise and the lever
@@ -280,9 +285,10 @@ class CompensationConfig(_Model):
     """
 
     enabled: StrictBool = False
-    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=0.1)] | None = None
+    lead_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=0.1)] | None = None
     """None: the loop's own lag model (servo delay and bandwidth, VFDM, sensor delay,
-    filter, zero-order hold). Only with ``enabled``."""
+    filter, zero-order hold). Only with ``enabled`` (a lead of 0 would be ``enabled =
+    false``)."""
 
     @model_validator(mode="after")
     def _lead_needs_enabled(self) -> CompensationConfig:

@@ -103,9 +103,16 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     biggest = max(np.linalg.norm(ja), np.linalg.norm(jb))
     balance = float(np.linalg.norm(ja + jb) / biggest) if biggest > 0 else None
     warnings = []
-    restitution, before_rel = _restitution(rows, index, a, b, first,
-                                           window.stop - 1 + int(round(0.02 / dt_s)),
-                                           ended, warnings)
+    restitution, before_rel = _restitution(rows, index, a, b, first, window.stop - 1,
+                                           int(round(0.02 / dt_s)), dt_s, ended, warnings)
+    touches = _touches(touching[first:last + 1]) + first
+    if len(touches) > 1:
+        gaps_ms = 1e3 * dt_s * (touches[1:, 0] - touches[:-1, 1])
+        warnings.append(
+            f"the bodies touched {len(touches)} times within this contact (apart for "
+            f"{gaps_ms.max():.0f} ms at most, under the {1e3 * quiet * dt_s:.0f} ms that "
+            f"end a contact): chatter or a re-touch; contact_duration_s spans them all, "
+            f"the first touch alone lasted {1e3 * dt_s * (touches[0, 1] - touches[0, 0]):.0f} ms")
     again = np.nonzero(touching[window.stop:])[0]
     if len(again):
         warnings.append(f"the bodies touched again at t = {rows[window.stop + again[0], 0]:.3f}"
@@ -122,6 +129,11 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     v_rel = body_v[b] - body_v[a]
     v_mid = 0.5 * (v_rel[k0:k1] + v_rel[k0 + 1:k1 + 1])
     energy = -float(np.sum(np.einsum("ij,ij->i", true[b][k0:k1], v_mid)) * dt_s)
+    if restitution is not None and restitution > 1.0:
+        warnings.append(
+            f"restitution {restitution:.3f} > 1: the satellites left faster than they came, "
+            f"which a dissipative contact cannot do (the contact itself absorbed "
+            f"{1e3 * energy:.2f} mJ): the emulation put energy into the collision")
     return {
         "pair": [f"sat{a}", f"sat{b}"],
         "impulse_Ns": {f"sat{a}": ja.tolist(), f"sat{b}": jb.tolist()},
@@ -130,6 +142,7 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
                             for s_ in (a, b)},
         "peak_force_N": float(np.linalg.norm(true[a][window], axis=1).max()),
         "contact_duration_s": float((touch[-1] - touch[0] + 1) * dt_s),
+        "touches": len(touches),
         "contact_energy_J": energy,
         "restitution": restitution,
         "approach_speed_mps": -before_rel,
@@ -141,9 +154,12 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     }
 
 
-def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, after: int,
-                 ended: bool, warnings: list[str]) -> tuple[float | None, float]:
-    """(e, the relative normal velocity before the contact m/s): see collision_metrics."""
+def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, end: int,
+                 wait: int, dt_s: float, ended: bool, warnings: list[str],
+                 ) -> tuple[float | None, float]:
+    """(e, the relative normal velocity before the contact m/s): see collision_metrics;
+    end: the window's last row; the velocities after are read `wait` rows later."""
+    after = end + wait
     pos = {s: _cols(rows, index, f"sat{s}", ("x_m", "y_m", "z_m")) for s in (a, b)}
     vel = {s: _cols(rows, index, f"sat{s}", ("vx_mps", "vy_mps", "vz_mps")) for s in (a, b)}
     n = pos[b][first] - pos[a][first]
@@ -154,7 +170,13 @@ def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, afte
                         f"normal velocity {1e3 * before_rel:+.1f} mm/s at t = "
                         f"{rows[first, 0]:.3f} s): no restitution")
         return None, before_rel
-    if not ended or after >= len(rows):
+    if not ended:
+        return None, before_rel  # collision_metrics says so
+    if after >= len(rows):
+        warnings.append(f"the run stopped at t = {rows[-1, 0]:.3f} s, before the velocities "
+                        f"after the contact could be read (t = "
+                        f"{rows[end, 0] + wait * dt_s:.3f} s, {1e3 * wait * dt_s:.0f} ms past the "
+                        f"contact window): no restitution")
         return None, before_rel
     after_rel = float((vel[b][after] - vel[a][after]) @ n)
     if after_rel <= 0.0:
@@ -163,6 +185,12 @@ def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, afte
                         f"{rows[after, 0]:.3f} s): no restitution")
         return None, before_rel
     return -after_rel / before_rel, before_rel
+
+
+def _touches(touching: np.ndarray) -> np.ndarray:
+    """The runs of True in a boolean array: (n, 2) [start, stop) indices."""
+    edges = np.diff(np.concatenate([[0], touching.astype(np.int8), [0]]))
+    return np.stack([np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]], axis=1)
 
 
 def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
@@ -319,4 +347,21 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
             compare_with_ideal(coll, ideal, *_sensing_limits(config, bool(facts.arm_of),
                                                              pair))
         metrics["collision"] = coll
+    metrics["warnings"] = _run_warnings(metrics, ideal_collision)
     return metrics
+
+
+def _run_warnings(metrics: dict, ideal_collision: dict | None) -> list[str]:
+    """What a reader of the run's metrics must not miss beyond the collision's own
+    warnings: a collision the ideal run has and this run does not."""
+    if metrics["collision"] is not None or ideal_collision is None:
+        return []
+    a, b = ideal_collision["pair"]
+    text = (f"in the ideal run {a} and {b} collide at t = "
+            f"{ideal_collision['contact_start_s']:.3f} s; this run had no contact")
+    stop = metrics["safety_stop"]
+    if stop:
+        text += f": it ended in a safety stop at t = {stop['t_s']:.3f} s"
+    elif metrics["duration_s"] < ideal_collision["contact_start_s"]:
+        text += f": it ended at t = {metrics['duration_s']:.3f} s"
+    return [text]

@@ -86,6 +86,7 @@ def run_summary(metrics: dict) -> str:
         d = pc["dissipated_J"]
         lines.append(f"passivity layer removed {d['force'] * 1e3:.2f} mJ (force ports), "
                      f"{sum(d['torque'].values()) * 1e3:.3f} mJ (torque ports)")
+    lines += [f"WARNING: {w}" for w in metrics.get("warnings", [])]
     stop = metrics.get("safety_stop")
     if stop:
         lines.append(

@@ -3,6 +3,7 @@
     .venv/bin/python -m benchmarks.contact_fidelity             # the table (seeds 0-4)
     .venv/bin/python -m benchmarks.contact_fidelity --map       # + the fidelity map (PNG)
     .venv/bin/python -m benchmarks.contact_fidelity --quick     # seed 0 only
+    .venv/bin/python -m benchmarks.contact_fidelity --calibration 30   # bias calibration
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -14,10 +15,15 @@ delays, servo bandwidth and limits):
 * ``passivity``: + the passivity layer alone (the landed default before lag compensation);
 * ``compensated``: the collision scenario's chain: lag compensation + contact gate + pair
   fusion + passivity layer (README "Fidelity");
+* ``comp. without the lead``: the compensated chain with ``[compensation] enabled = false``
+  (contact gate, pair fusion and passivity layer kept): what the lead itself does;
 * ``comp. + VFDM sync``: the compensated chain with the VFDM restarted from the measured
   joints every cycle ([vfdm] sync_to_measured);
 * ``comp., noise/10`` and ``comp., no noise``: the compensated chain with a sensor ten times
   quieter, and without noise: what limits it.
+
+"chatter": the runs whose first contact is two or more touches less than 50 ms apart
+(metrics ``touches``; the ideal contact is one touch).
 
 Free-floating: tracking, each push's Δv against impulse × force_scale / mass, and the
 spin left after the force-only pushes.
@@ -54,6 +60,7 @@ CHAINS = {
     "paper": PAPER,
     "passivity": PASSIVITY,
     "compensated": [],
+    "comp. without the lead": ["compensation.enabled=false"],
     "comp. + VFDM sync": ["vfdm.sync_to_measured=true"],
     "comp., noise/10": NOISE_10,
     "comp., no noise": NO_NOISE,
@@ -109,8 +116,8 @@ def _fmt(values: list[float | None], pct: bool = True) -> str:
 def collision_table(pool, seeds: list[int]) -> list[str]:
     lines = ["| case | chain | restitution error: mean % (SE of the mean) ± sd (worst) "
              "| true impulse ratio "
-             "| impulse balance (worst) | safety stops | passivity removed (mean) |",
-             "|---|---|---|---|---|---|---|"]
+             "| impulse balance (worst) | safety stops | chatter | passivity removed (mean) |",
+             "|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for case, extra in (("sponge vs rigid", []), ("rigid vs rigid", RIGID)):
         ideal = _ideal(extra)
@@ -122,16 +129,34 @@ def collision_table(pool, seeds: list[int]) -> list[str]:
                      for c in colls]
             bal = [c["impulse_balance"] for c in colls if c and c["impulse_balance"] is not None]
             stops = sum(r["status"] == "safety_stop" for r in runs)
+            chatter = sum(c["touches"] > 1 for c in colls if c)
             removed = [r["removed_J"] for r in runs if r["removed_J"] is not None]
             lines.append(
                 f"| {case} (e_ideal {ideal['restitution']:.3f}) | {chain} | {_fmt(err)} | "
-                f"{_fmt(ratio, pct=False)} | {max(bal):.3f} | {stops}/{len(runs)} | "
-                f"{(1e3 * statistics.fmean(removed)):.2f} mJ |" if removed else
-                f"| {case} (e_ideal {ideal['restitution']:.3f}) | {chain} | {_fmt(err)} | "
                 f"{_fmt(ratio, pct=False)} | {max(bal) if bal else float('nan'):.3f} | "
-                f"{stops}/{len(runs)} | — |")
+                f"{stops}/{len(runs)} | {chatter}/{len(runs)} | "
+                + (f"{(1e3 * statistics.fmean(removed)):.2f} mJ |" if removed else "— |"))
             print(lines[-1], flush=True)
     return lines
+
+
+def calibration_table(pool, seeds: list[int]) -> None:
+    """The compensated sponge with the start-up bias calibration averaged over 0.5 s and
+    2 s: what the bias left after it does to the restitution."""
+    ideal = _ideal([])
+    print(f"| calibration | restitution error over {len(seeds)} seeds: mean % (SE) ± sd "
+          f"(worst) | true impulse ratio | chatter |")
+    print("|---|---|---|---|")
+    for seconds in (0.5, 2.0):
+        runs = pool.map(collision_run, [([f"wrench.calibration_s={seconds}"], s, ideal)
+                                        for s in seeds])
+        colls = [r["collision"] for r in runs]
+        err = [c["restitution_error"] if c else None for c in colls]
+        ratio = [c["true_impulse_ratio"]["sat1"] if c and c["true_impulse_ratio"] else None
+                 for c in colls]
+        chatter = sum(c["touches"] > 1 for c in colls if c)
+        print(f"| {seconds:g} s | {_fmt(err)} | {_fmt(ratio, pct=False)} | "
+              f"{chatter}/{len(runs)} |", flush=True)
 
 
 def free_floating(assignments: list[str]) -> dict:
@@ -261,10 +286,17 @@ def main() -> None:
     parser.add_argument("--map", action="store_true", help="also the fidelity map")
     parser.add_argument("--png", default="benchmarks/fidelity_map.png")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--calibration", type=int, metavar="SEEDS", default=None,
+                        help="instead: the compensated sponge over SEEDS seeds with the bias "
+                             "calibration averaged over 0.5 s and over 2 s (the default)")
     args = parser.parse_args()
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
+        if args.calibration:
+            calibration_table(pool, list(range(args.calibration)))
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
         print("## Collision (500 Hz, seeds " + ", ".join(map(str, seeds)) + ")\n")
         collision_table(pool, seeds)
         print("\n## Free-floating\n")

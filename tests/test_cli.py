@@ -3,6 +3,7 @@ no traceback (and nothing run or written)."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -28,7 +29,7 @@ MISTAKES = {
                       "--duration", "1", "--out", "OUT"],
                      "robot 1: start pose of satellite 'cubesat' not reached"),
     "bad value": (["run", "collision", "--set", "compensation.lead_s=-1"],
-                  "compensation.lead_s: Input should be greater than or equal to 0"),
+                  "compensation.lead_s: Input should be greater than 0"),
 }
 
 
@@ -52,3 +53,26 @@ def test_an_empty_list_override_clears_the_list():
     assert len(cfg.pulses) == 10
     assert merge_overrides(cfg, {"pulses": []}).pulses == []
     assert merge_overrides(cfg, assignment_override("pulses=[]")).pulses == []
+
+
+def test_a_safety_stop_exits_3_and_names_the_collision_it_never_reached(tmp_path):
+    """A run stopped before its collision: exit 3, files written, and the warning that the
+    ideal run collides while this one had no contact (no silent `collision: null`)."""
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [EXE, "run", "collision", "--duration", "4", "--out", str(out), "--quiet",
+         "--set", "loop.max_tracking_error_m=1e-5"],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 3, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "error: the run ended in a safety stop at t = " in proc.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    stop = metrics["safety_stop"]
+    assert stop["reason"].startswith("tracking error ") and stop["t_s"] < 3.0
+    assert metrics["collision"] is None
+    [warning] = metrics["warnings"]
+    assert warning.startswith("in the ideal run sat1 and sat2 collide at t = 3.1")
+    assert warning.endswith(f"this run had no contact: it ended in a safety stop at t = "
+                            f"{stop['t_s']:.3f} s")
+    assert f"WARNING: {warning}" in proc.stdout
+    assert (out / "telemetry.csv").exists()

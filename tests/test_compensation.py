@@ -53,9 +53,11 @@ def test_a_lag_that_cannot_be_identified_or_made_up_is_refused():
     """At 125 Hz the arm's tracking oscillates (no steady lag to lead by); a 1 Hz
     low-pass lags 160 ms, beyond what a prediction can make up: each says so before the
     clock starts, and names the way out."""
-    with pytest.raises(LagModelError, match=r"did not settle .* at 125 Hz .* lead_s by hand"):
+    with pytest.raises(LagModelError,
+                       match=r"did not settle .* at loop.rate_hz = 125 Hz .* raise loop.rate_hz"):
         Emulator(_collision("loop.rate_hz=125")).prepare()
-    with pytest.raises(LagModelError, match=r"beyond the 100 ms a lead can make up"):
+    with pytest.raises(LagModelError,
+                       match=r"wrench.lowpass_hz = 1 Hz.*beyond the 100 ms a lead can make up"):
         Emulator(_collision("wrench.lowpass_hz=1")).prepare()
 
 

@@ -207,8 +207,52 @@ def test_hil_metrics_compare_the_actual_mockups_with_the_ideal_run(hil, ideal):
     dv = 5.0 / 3.0 * np.sqrt(ref["contact_duration_s"] * 0.002) * np.sqrt(2.0)
     spread = dv / (ref["approach_speed_mps"] * ref["restitution"])
     assert ref["approach_speed_mps"] == pytest.approx(0.16, rel=1e-3)
-    assert coll["warnings"] == [
+    assert ref["touches"] == 1 and ref["warnings"] == []
+    # the noise may part the bodies for a few ms near the contact's soft end: named if so
+    chatter = [f"the bodies touched {coll['touches']} times within this contact"]
+    assert [w[:len(chatter[0])] for w in coll["warnings"][:-1]] == chatter * (
+        coll["touches"] > 1)
+    assert coll["warnings"][-1:] == [
         f"the F/T noise (1.7 N per sample) adds up to about {dv * 1e3:.1f} mm/s to the "
         f"satellites' relative velocity over the {1e3 * ref['contact_duration_s']:.0f} ms "
         f"contact: one run's restitution is uncertain by up to about ±{100 * spread:.0f} % "
         "(an open-loop bound: while the bodies touch, the contact takes part of it back)"]
+
+
+def test_touches_closer_than_the_quiet_time_are_one_contact_with_a_chatter_warning():
+    """Two touches 10 ms apart (chatter): one contact, counted, and the first touch's own
+    length named beside the whole span."""
+    rows, index = _telemetry(_pulses((0.1, 0.12, 5.0), (0.13, 0.14, 5.0)))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["touches"] == 2
+    assert coll["contact_duration_s"] == pytest.approx(0.04)
+    assert coll["restitution"] == pytest.approx(0.5, rel=1e-9)  # 0.15 N s in all
+    assert coll["warnings"] == [
+        "the bodies touched 2 times within this contact (apart for 10 ms at most, under the "
+        "50 ms that end a contact): chatter or a re-touch; contact_duration_s spans them "
+        "all, the first touch alone lasted 20 ms"]
+    assert collision_metrics(*_telemetry(_pulses((0.1, 0.13, 5.0))), DT)["touches"] == 1
+
+
+def test_a_run_that_stops_right_after_the_contact_names_the_missing_restitution():
+    """The contact ended (50 ms quiet) but the run stopped within the 20 ms after the
+    window at which the velocities are read."""
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0), total_s=0.19))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["contact_open_at_end"] is False and coll["restitution"] is None
+    assert coll["warnings"] == [
+        "the run stopped at t = 0.188 s, before the velocities after the contact could be "
+        "read (t = 0.198 s, 20 ms past the contact window): no restitution"]
+
+
+def test_a_restitution_above_one_is_named_as_energy_the_emulation_put_in():
+    """A contact that pushes the bodies apart harder than they came (e 1.5; the impulse of
+    a dissipative contact cannot do that): the figure is kept, with a warning."""
+    rows, index = _telemetry(_pulses((0.1, 0.15, 5.0)))
+    coll = collision_metrics(rows, index, DT)
+    assert coll["restitution"] == pytest.approx(1.5, rel=1e-9)
+    [warning] = coll["warnings"]
+    assert warning.startswith("restitution 1.500 > 1: the satellites left faster than they "
+                              "came, which a dissipative contact cannot do (the contact "
+                              "itself absorbed -")
+    assert warning.endswith("mJ): the emulation put energy into the collision")

@@ -92,14 +92,16 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
         if 2.0 * ramp_s > MAX_RAMP_S:
             raise LagModelError(
                 f"the position lag did not settle within a {ramp_s:g} s ramp at "
-                f"{config.loop.rate_hz:g} Hz (it still "
-                f"moved {1e3 * drift_s:.2f} ms over the last quarter): set "
-                f"[compensation] lead_s by hand")
+                f"loop.rate_hz = {config.loop.rate_hz:g} Hz (it still moved "
+                f"{1e3 * drift_s:.2f} ms over the last quarter): the arm's tracking "
+                f"oscillates at this rate, and no lead would steady it; raise loop.rate_hz "
+                f"(it settles at 500 Hz and above) or set compensation.enabled = false")
         ramp_s *= 2.0
     lag_s = float(lags_s[-1])
     if not lag_s > 0.0:
         raise LagModelError(f"the mockup does not trail its target (lag {1e3 * lag_s:.2f} "
-                            f"ms): set [compensation] lead_s by hand")
+                            f"ms): set compensation.lead_s by hand, or "
+                            f"compensation.enabled = false")
     return lag_s
 
 
@@ -140,9 +142,12 @@ def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray) -> 
     if model.lead_s > MAX_LEAD_S:
         raise LagModelError(
             f"the loop's lag is {1e3 * model.lead_s:.0f} ms ({1e3 * model.position_s:.0f} ms "
-            f"to the mockup, {1e3 * model.force_s:.0f} ms back from the sensor), beyond the "
-            f"{1e3 * MAX_LEAD_S:.0f} ms a lead can make up: faster servo or filter, a higher "
-            f"rate, or [compensation] enabled = false")
+            f"to the mockup, {1e3 * model.force_s:.0f} ms back from the sensor with "
+            f"wrench.lowpass_hz = {config.wrench.lowpass_hz:g} Hz, "
+            f"sensor.delay_cycles = {config.sensor.delay_cycles} at loop.rate_hz = "
+            f"{config.loop.rate_hz:g} Hz), beyond the {1e3 * MAX_LEAD_S:.0f} ms a lead can "
+            f"make up: a faster filter or servo, a higher rate, or "
+            f"compensation.enabled = false")
     return model
 
 

@@ -235,16 +235,19 @@ class Emulator:
 
     # --- start-up -------------------------------------------------------------------------
 
-    def prepare(self, settle_s: float = 0.5, tick=None) -> None:
+    def prepare(self, settle_s: float | None = None, tick=None) -> None:
         """Move every arm to its start pose, calibrate its F/T sensor, start the clock.
 
         The start posture is found by the VFDM itself (run on its virtual model only until
         converged); the arm then makes a smooth joint move there within half its speed
-        limits, rests for `settle_s` while the sensor readings are averaged for the payload
-        calibration (bias with the known mockup mass and COM, as the paper's lab did).
+        limits, rests for `settle_s` (default ``[wrench] calibration_s``) while the sensor
+        readings are averaged for the payload calibration (bias with the known mockup mass
+        and COM, as the paper's lab did).
         ``tick``: called now and then while it works (a supervisor's heartbeat).
         """
         tick = tick or (lambda: None)
+        if settle_s is None:
+            settle_s = self.config.wrench.calibration_s
         steps = int(self.config.loop.approach_timeout_s * self.config.loop.rate_hz)
         for arm in self.arms:
             q, error_m = arm.solve_start_posture(arm.tcp_target_B(self.ods.y), steps, tick)
