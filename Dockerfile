@@ -1,7 +1,9 @@
-# orbit-emulator web app: REST API + control page on 8000, viser 3D viewer on 8080.
+# orbit-emulator web app: REST API, control page and the viser 3D viewer (/viewer/) on 8000.
+# Bound to 0.0.0.0, so every request needs the token: ORBIT_EMULATOR_TOKEN if given, else
+# one generated at start and printed in the log (the link that carries it).
 #
 #   docker build -t orbit-emulator .
-#   docker run --rm -p 127.0.0.1:8000:8000 -p 127.0.0.1:8080:8080 --ulimit rtprio=20 orbit-emulator
+#   docker run --rm -p 8000:8000 -e ORBIT_EMULATOR_TOKEN=<16+ characters> --ulimit rtprio=20 orbit-emulator
 #
 # --ulimit rtprio=20 lets the emulator loop process (non-root) run SCHED_FIFO, which keeps
 # its 2 ms deadlines on a loaded host; without it the loop runs with default scheduling.
@@ -27,9 +29,9 @@ USER emulator
 # static/ is found in the working directory (the installed package lives elsewhere)
 ENV ORBIT_EMULATOR_STATIC=/app/static
 
-EXPOSE 8000 8080
+EXPOSE 8000
 
 HEALTHCHECK --interval=15s --timeout=5s --start-period=60s --retries=3 \
-    CMD ["python", "-c", "import json, sys, urllib.request; r = urllib.request.urlopen('http://127.0.0.1:8000/api/health', timeout=4); sys.exit(0 if json.load(r)['status'] == 'ok' else 1)"]
+    CMD ["python", "-c", "import json, sys, urllib.request; t = open('/home/emulator/.orbit-emulator-token').read().strip(); r = urllib.request.urlopen(urllib.request.Request('http://127.0.0.1:8000/api/health', headers={'Authorization': 'Bearer ' + t}), timeout=4); sys.exit(0 if json.load(r)['status'] == 'ok' else 1)"]
 
-CMD ["orbit-emulator", "serve", "--host", "0.0.0.0"]
+CMD ["orbit-emulator", "serve", "--host", "0.0.0.0", "--generate-token", "--token-file", "/home/emulator/.orbit-emulator-token"]

@@ -1,4 +1,5 @@
-"""A live server for tests and demos: uvicorn + viser on ephemeral loopback ports.
+"""A live server for tests and demos: uvicorn + viser on ephemeral loopback ports (the
+viewer reached through the app at /viewer/).
 
     with LiveServer() as live:
         httpx.get(live.url + "/api/health")
@@ -27,10 +28,12 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 class LiveServer:
     def __init__(self, host: str = "127.0.0.1", default_scenario: str | None = None,
-                 startup_timeout_s: float = 90.0) -> None:
+                 startup_timeout_s: float = 90.0, token: str | None = None) -> None:
         self.host = host
         self.port = free_port(host)
-        self.app = create_app(viser_port=0, host=host, default_scenario=default_scenario)
+        self.token = token
+        self.app = create_app(viser_port=0, host=host, default_scenario=default_scenario,
+                              token=token)
         self.url = f"http://{host}:{self.port}"
         self._server = uvicorn.Server(
             uvicorn.Config(self.app, host=host, port=self.port, log_level="warning",
@@ -45,7 +48,9 @@ class LiveServer:
         self._thread = threading.Thread(target=self._server.run, name="uvicorn", daemon=True)
         self._thread.start()
         deadline = time.monotonic() + self.startup_timeout_s
-        self.client = httpx.Client(base_url=self.url, timeout=60.0)
+        self.client = httpx.Client(  # with the token, if any, on every request
+            base_url=self.url, timeout=60.0,
+            headers={"Authorization": f"Bearer {self.token}"} if self.token else None)
         while True:
             if not self._thread.is_alive():
                 raise RuntimeError("the server thread exited during start-up")
@@ -56,7 +61,8 @@ class LiveServer:
                 if time.monotonic() > deadline:
                     raise TimeoutError("the server did not start in time") from None
                 time.sleep(0.1)
-        self.viser_port = health["viser_port"]
+        assert health["viewer"] == "/viewer/"
+        self.viser_port = self.app.state.viser_port  # viser's own port: not for clients
         return self
 
     def __exit__(self, *exc) -> None:

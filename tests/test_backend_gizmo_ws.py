@@ -37,7 +37,7 @@ async def _drag(port: int, path: list[tuple[float, float, float]], hold_s: float
     Returns the number of frames received from the server (it must talk to us).
     """
     received = 0
-    uri = f"ws://127.0.0.1:{port}"
+    uri = f"ws://127.0.0.1:{port}/viewer"  # where viser's page connects: through the app
     async with websockets.connect(uri, subprotocols=[f"viser-v{viser.__version__}"],
                                   max_size=None) as ws:
 
@@ -87,7 +87,7 @@ def test_gizmo_drag_over_websocket_moves_the_satellite(live):
     mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"])
     # drag 10 cm along +y of the lab (= +y of R here: R is not rotated) in 5 steps
     path = [tuple(float(v) for v in mockup_W + [0.0, 0.02 * k, 0.0]) for k in range(1, 6)]
-    received = asyncio.run(_drag(live.viser_port, path, hold_s=1.0))
+    received = asyncio.run(_drag(live.port, path, hold_s=1.0))
     assert received > 0
     s1 = live.state()
     p1_R = np.array(s1["satellites"][0]["position_m"])
@@ -109,7 +109,7 @@ def test_gizmo_drag_when_stopped_changes_nothing(live):
     s0 = live.state()
     mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"])
     target = tuple(float(v) for v in mockup_W + [0.0, 0.1, 0.0])
-    asyncio.run(_drag(live.viser_port, [target], hold_s=0.2))
+    asyncio.run(_drag(live.port, [target], hold_s=0.2))
     s1 = live.state()
     assert s1["t_s"] == s0["t_s"]
     assert s1["satellites"] == s0["satellites"]

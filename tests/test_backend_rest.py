@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import httpx
 import numpy as np
 import pytest
 
@@ -23,7 +24,12 @@ def _post_raw(live, path: str, raw: str):
 def test_health_scenarios_and_page(live):
     health = live.client.get("/api/health").json()
     assert health["status"] == "ok" and health["loop_alive"]
-    assert health["viser_port"] == live.viser_port > 0
+    assert health["viewer"] == "/viewer/"
+    viewer = live.client.get("/viewer/")
+    assert viewer.status_code == 200 and "<html" in viewer.text[:200].lower()
+    # viser's own port answers no one but the app (a page on any site could reach it)
+    direct = httpx.get(f"http://127.0.0.1:{live.viser_port}/")
+    assert direct.status_code == 403 and "/viewer/" in direct.text
     names = [s["name"] for s in live.client.get("/api/scenarios").json()]
     assert {"free-floating", "collision"} <= set(names)
     page = live.client.get("/")

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
+
+from app.backend.access import TOKEN_ENV, access_token
 
 
 def _port(text: str) -> int:
@@ -25,10 +29,20 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     if args.scenario is not None and args.scenario not in scenario_names():
         raise ValueError(f"unknown scenario {args.scenario!r}; choose one of {scenario_names()}")
+    token, generated = access_token(args.host, generate=args.generate_token)
+    if args.token_file is not None:
+        if token is None:
+            raise ValueError("--token-file: there is no token to write (the server is on "
+                             f"loopback and {TOKEN_ENV} is not set)")
+        _write_secret(Path(args.token_file), token)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     app = create_app(viser_port=args.viser_port, host=args.host,
-                     default_scenario=args.scenario)
+                     default_scenario=args.scenario, token=token)
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+    if ":" in shown:
+        shown = f"[{shown}]"
+    link = ("" if token is None else
+            f"?token={token}" if generated else f"?token=${TOKEN_ENV}")
 
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level="info")
     server = uvicorn.Server(config)
@@ -37,15 +51,17 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     async def startup(sockets=None):  # after the lifespan ran: the viser port is known
         await original_startup(sockets=sockets)
-        viser_port = getattr(app.state, "viser_port", args.viser_port)
         port = args.port
         for srv in getattr(server, "servers", []):  # the port bound, also for --port 0
             for sock in srv.sockets:
                 port = sock.getsockname()[1]
         print(
-            f"\n  orbit-emulator web app   http://{shown}:{port}/\n"
-            f"  REST API docs (OpenAPI)  http://{shown}:{port}/docs\n"
-            f"  3D viewer (viser)        http://{shown}:{viser_port}/\n",
+            f"\n  orbit-emulator web app   http://{shown}:{port}/{link}\n"
+            f"  REST API docs (OpenAPI)  http://{shown}:{port}/docs{link}\n"
+            f"  3D viewer (viser)        http://{shown}:{port}/viewer/{link}\n"
+            + ("" if token is None else
+               "  every request needs the token: the link sets a cookie; API clients send "
+               "Authorization: Bearer <token>\n"),
             flush=True,
         )
 
@@ -54,17 +70,36 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_secret(path: Path, token: str) -> None:
+    """The token into a file only its owner can read (for a health check in a container)."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as out:
+            out.write(token + "\n")
+    except OSError as err:
+        raise ValueError(f"--token-file: cannot write {str(path)!r}: "
+                         f"{err.strerror or err}") from None
+
+
 def register_serve(subparsers) -> argparse.ArgumentParser:
     """Add `serve` to the `orbit-emulator` subcommands (an argparse subparsers object)."""
     p = subparsers.add_parser(
         "serve", help="run the web app: REST API, control page and 3D viewer",
         description="Run the web app: REST API (OpenAPI at /docs), the control page at / "
-        "and the viser 3D viewer on its own port.",
+        "and the viser 3D viewer at /viewer/. Beyond loopback (--host 0.0.0.0) every "
+        f"request needs a token: ${TOKEN_ENV}, or --generate-token.",
     )
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1)")
     p.add_argument("--port", type=_port, default=8000, help="HTTP port (default 8000)")
-    p.add_argument("--viser-port", type=_port, default=8080,
-                   help="viser port (default 8080; the next free one if taken; 0: any)")
+    p.add_argument("--viser-port", type=_port, default=0,
+                   help="viser's own port on 127.0.0.1 (default: any free one); the viewer "
+                        "is reached through the web app at /viewer/, never directly")
+    p.add_argument("--generate-token", action="store_true",
+                   help=f"on a bind beyond loopback without {TOKEN_ENV}: make a random token "
+                        "and print the link that carries it")
+    p.add_argument("--token-file", default=None,
+                   help="also write the token to this file (mode 0600), e.g. for a container "
+                        "health check")
     p.add_argument("--scenario", default=None,
                    help="scenario shown at start-up (default: collision)")
     p.set_defaults(func=_cmd_serve)

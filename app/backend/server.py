@@ -1,15 +1,13 @@
-"""FastAPI app: REST API (OpenAPI at /docs), the static page, and the viser server.
+"""FastAPI app: REST API (OpenAPI at /docs), the static page, and the 3D viewer.
 
-viser is not an ASGI app and runs its own websocket/HTTP server on another port; the
-lifespan starts it (reading the port it actually bound back: it moves to the next free
-port when taken, and port 0 gives an ephemeral one), builds the scene, starts the loop
-thread, and stops all three on shutdown.
+The lifespan starts the loop process's supervisor, viser on a loopback port that only this
+app can use (app/backend/viewer.py: the viewer is served at /viewer/), and the scene, and
+stops all three on shutdown. What may reach the app: app/backend/access.py.
 """
 
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import math
 import os
@@ -24,6 +22,15 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTex
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from app.backend.access import (
+    AccessError,
+    BodyLimit,
+    SameOrigin,
+    TokenGate,
+    allowed_hosts,
+    check_token,
+    is_loopback,
+)
 from app.backend.runner import RunnerError
 from app.backend.service import (
     MAX_PUSH_DURATION_S,
@@ -33,6 +40,8 @@ from app.backend.service import (
     RunnerBusy,
     UnknownScenario,
 )
+from app.backend.viewer import PATH as VIEWER_PATH
+from app.backend.viewer import add_viewer_routes, start_viser
 
 log = logging.getLogger("orbit_emulator.server")
 
@@ -86,7 +95,7 @@ class Health(BaseModel):
     deadline_miss_ratio_10s: float | None = Field(
         description="share of the cycles of the last 10 s that missed their deadline "
         "(null when none ran); above 0.01 the status is 'degraded'")
-    viser_port: int
+    viewer: str = Field(description="path of the 3D viewer (viser) on this server")
     loop_alive: bool
     emulator_status: str
     scene_generation: int | None = Field(
@@ -139,153 +148,32 @@ def _field_errors(errors) -> str:
 # --- the app ----------------------------------------------------------------------------
 
 
-MAX_BODY_BYTES = 64 * 1024
-"""Request bodies beyond this get 413 before anything reads them whole."""
-
-
-class BodyLimit:
-    """ASGI middleware: 413 for an HTTP request whose body exceeds ``limit`` bytes, by its
-    Content-Length or, without one, once the chunks read pass it (a body within the limit
-    is read here and handed on whole)."""
-
-    def __init__(self, app, limit: int = MAX_BODY_BYTES) -> None:
-        self.app = app
-        self.limit = limit
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] != "http":
-            return await self.app(scope, receive, send)
-        declared = dict(scope.get("headers") or ()).get(b"content-length")
-        if declared is not None:
-            try:
-                if int(declared) > self.limit:
-                    return await self._reject(send)
-            except ValueError:
-                pass
-        chunks, size = [], 0
-        while True:
-            message = await receive()
-            if message["type"] != "http.request":  # the client went away
-                return
-            chunks.append(message.get("body", b""))
-            size += len(chunks[-1])
-            if size > self.limit:
-                return await self._reject(send)
-            if not message.get("more_body", False):
-                break
-        body = b"".join(chunks)
-        replayed = False
-
-        async def replay():
-            nonlocal replayed
-            if not replayed:
-                replayed = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()  # after the body: wait for a disconnect, as usual
-
-        await self.app(scope, replay, send)
-
-    async def _reject(self, send) -> None:
-        body = b'{"detail":"request body over %d KiB"}' % (self.limit // 1024)
-        await send({"type": "http.response.start", "status": 413,
-                    "headers": [(b"content-type", b"application/json"),
-                                (b"content-length", str(len(body)).encode())]})
-        await send({"type": "http.response.body", "body": body})
-
-
-LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
-ALLOWED_HOSTS_ENV = "ORBIT_EMULATOR_ALLOWED_HOSTS"
-"""Comma-separated host names the server answers to beside loopback (and its bind host)."""
-
-
-def allowed_hosts(bind_host: str) -> frozenset[str]:
-    """The host names a request's Host and Origin may name: loopback, the address bound
-    (unless a wildcard) and those in $ORBIT_EMULATOR_ALLOWED_HOSTS."""
-    extra = [h.strip().lower() for h in os.environ.get(ALLOWED_HOSTS_ENV, "").split(",")]
-    names = set(LOOPBACK_HOSTS) | {h for h in extra if h}
-    if bind_host not in ("0.0.0.0", "::", ""):
-        names.add(bind_host.lower().strip("[]"))
-    return frozenset(names)
-
-
-def _host_name(authority: str) -> str:
-    """'example.org:8000' -> 'example.org', '[::1]:8000' -> '::1'."""
-    authority = authority.strip().lower()
-    if authority.startswith("["):
-        return authority[1:].split("]", 1)[0]
-    return authority.rsplit(":", 1)[0] if authority.count(":") == 1 else authority
-
-
-class SameOrigin:
-    """ASGI middleware against DNS rebinding and cross-site requests (HTTP and websocket).
-
-    The Host header must name an allowed host (400 otherwise): a page on a foreign name
-    that resolves to this machine cannot reach the API. An Origin header, which browsers
-    send with cross-site and state-changing requests, must name an allowed host too (403).
-    A request with a body must declare ``application/json`` (415): a cross-site form or
-    ``text/plain`` post, which browsers send without asking first, is refused.
-    """
-
-    def __init__(self, app, hosts: frozenset[str]) -> None:
-        self.app = app
-        self.hosts = hosts
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] not in ("http", "websocket"):
-            return await self.app(scope, receive, send)
-        headers = dict(scope.get("headers") or ())
-        host = headers.get(b"host", b"").decode("latin-1")
-        if _host_name(host) not in self.hosts:
-            return await self._reject(scope, send, 400, f"host {host!r} is not allowed")
-        origin = headers.get(b"origin")
-        if origin is not None:
-            authority = origin.decode("latin-1").split("://", 1)[-1]
-            if _host_name(authority) not in self.hosts:
-                return await self._reject(scope, send, 403,
-                                          f"origin {origin.decode('latin-1')!r} is not allowed")
-        if scope["type"] == "http" and _has_body(headers):
-            kind = headers.get(b"content-type", b"").split(b";")[0].strip().lower()
-            if kind != b"application/json":
-                return await self._reject(scope, send, 415,
-                                          "a request body must be application/json")
-        return await self.app(scope, receive, send)
-
-    @staticmethod
-    async def _reject(scope, send, status: int, detail: str) -> None:
-        if scope["type"] == "websocket":
-            await send({"type": "websocket.close", "code": 1008})
-            return
-        body = json.dumps({"detail": detail}).encode()
-        await send({"type": "http.response.start", "status": status,
-                    "headers": [(b"content-type", b"application/json"),
-                                (b"content-length", str(len(body)).encode())]})
-        await send({"type": "http.response.body", "body": body})
-
-
-def _has_body(headers: dict) -> bool:
-    length = headers.get(b"content-length")
-    if length is not None:
-        return length.strip() not in (b"0", b"")
-    return b"transfer-encoding" in headers
-
-
 def create_app(
     viser_port: int = 0,
     host: str = "127.0.0.1",
     default_scenario: str | None = None,
     scene_rate_hz: float = 30.0,
+    token: str | None = None,
 ) -> FastAPI:
-    """The FastAPI app; its lifespan runs viser on `viser_port` (0: ephemeral) at `host`."""
+    """The FastAPI app for a server bound to `host`; its lifespan runs viser on loopback
+    port `viser_port` (0: any free one). With `token`, every request must carry it; a
+    `host` beyond loopback requires one (AccessError)."""
+    if token is not None:
+        check_token(token)
+    elif not is_loopback(host):
+        raise AccessError(f"host {host!r} is not loopback: a token is required")
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        import viser
-
         from app.backend.scene import EmulatorScene
 
         service = await asyncio.to_thread(EmulatorService, default_scenario)
         await asyncio.to_thread(service.start_thread)  # the loop process: first snapshot
-        server = viser.ViserServer(host=host, port=viser_port, verbose=False)
+        try:
+            server, app.state.viewer_secret = await asyncio.to_thread(start_viser, viser_port)
+        except BaseException:
+            service.shutdown()
+            raise
         try:
             scene = await asyncio.to_thread(EmulatorScene, server, service, scene_rate_hz)
             app.state.service = service
@@ -305,14 +193,18 @@ def create_app(
         title="orbit-emulator",
         description=(
             "On-orbit interaction emulator with two UR10e arms (Clohessy-Wiltshire ODS + "
-            "VFDM). The 3D view is a viser server on its own port (GET /api/health "
-            "gives it)."
+            "VFDM). The 3D view (viser) is served at /viewer/. A server bound beyond "
+            "loopback requires its token on every request: Authorization: Bearer <token>."
         ),
         version="0.1.0",
         lifespan=lifespan,
     )
+    # outermost last: Host/Origin, then the token, then the body's size
     app.add_middleware(BodyLimit)
+    if token is not None:
+        app.add_middleware(TokenGate, token=token)
     app.add_middleware(SameOrigin, hosts=allowed_hosts(host))
+    add_viewer_routes(app)
 
     def service(request: Request) -> EmulatorService:
         return request.app.state.service
@@ -367,7 +259,7 @@ def create_app(
         return {
             "status": "ok" if alive and not late else "degraded",
             "deadline_miss_ratio_10s": ratio,
-            "viser_port": request.app.state.viser_port,
+            "viewer": VIEWER_PATH,
             "loop_alive": alive,
             "emulator_status": svc.runner.status,
             "scene_generation": request.app.state.scene.generation,

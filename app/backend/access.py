@@ -1,0 +1,249 @@
+"""Who and what may reach the web app: body size, Host and Origin, and the access token.
+
+Three ASGI middlewares, outermost first in ``create_app``:
+
+* :class:`BodyLimit`: 413 for a request body over 64 KiB, before anything reads it whole;
+* :class:`SameOrigin`: the Host header must name an allowed host (DNS rebinding: 400), an
+  Origin header too (cross-site pages, on HTTP and websocket alike: 403), and a request
+  body must be ``application/json`` (a cross-site form or ``text/plain`` post: 415);
+* :class:`TokenGate`: with a token (required for a bind beyond loopback), every request,
+  the 3D viewer's included, must carry it (401): ``Authorization: Bearer <token>``, the
+  ``orbit_emulator_token`` cookie, or ``?token=<token>`` in the URL, which also sets the
+  cookie, so that the page opened from the printed link can call the API and open the
+  viewer's websocket.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+import os
+import secrets
+from http.cookies import SimpleCookie
+from urllib.parse import parse_qsl
+
+MAX_BODY_BYTES = 64 * 1024
+"""Request bodies beyond this get 413 before anything reads them whole."""
+
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+ALLOWED_HOSTS_ENV = "ORBIT_EMULATOR_ALLOWED_HOSTS"
+"""Comma-separated host names the server answers to beside loopback (and its bind host)."""
+TOKEN_ENV = "ORBIT_EMULATOR_TOKEN"
+"""The access token, where one is given rather than generated."""
+TOKEN_COOKIE = "orbit_emulator_token"
+MIN_TOKEN_CHARS = 16
+
+
+class AccessError(ValueError):
+    """A bind or token that would leave the arms open to anyone: the user's mistake."""
+
+
+def is_loopback(host: str) -> bool:
+    """Whether binding `host` keeps the server to this machine."""
+    name = host.strip().strip("[]").lower()
+    if name == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False  # a host name, or a wildcard such as 0.0.0.0: reachable from outside
+
+
+def access_token(host: str, generate: bool = False) -> tuple[str | None, bool]:
+    """(the token the server requires, whether it was generated now) for a bind on host.
+
+    $ORBIT_EMULATOR_TOKEN if set (on any bind); otherwise, beyond loopback, a new random
+    token with ``generate``, else AccessError; on loopback without one: no token."""
+    given = os.environ.get(TOKEN_ENV)
+    if given is not None:
+        return check_token(given, TOKEN_ENV), False
+    if is_loopback(host):
+        return None, False
+    if generate:
+        return secrets.token_urlsafe(24), True
+    raise AccessError(
+        f"--host {host}: not a loopback address, so anyone who can reach it could drive the "
+        f"arms; set {TOKEN_ENV} to a secret of at least {MIN_TOKEN_CHARS} characters, or pass "
+        f"--generate-token to have one made and printed")
+
+
+def check_token(token: str, source: str = "token") -> str:
+    if len(token) < MIN_TOKEN_CHARS or not token.isprintable() or " " in token:
+        raise AccessError(f"{source}: at least {MIN_TOKEN_CHARS} printable characters, no "
+                          f"spaces")
+    return token
+
+
+def allowed_hosts(bind_host: str) -> frozenset[str]:
+    """The host names a request's Host and Origin may name: loopback, the address bound
+    (unless a wildcard) and those in $ORBIT_EMULATOR_ALLOWED_HOSTS."""
+    extra = [h.strip().lower() for h in os.environ.get(ALLOWED_HOSTS_ENV, "").split(",")]
+    names = set(LOOPBACK_HOSTS) | {h for h in extra if h}
+    if bind_host not in ("0.0.0.0", "::", ""):
+        names.add(bind_host.lower().strip("[]"))
+    return frozenset(names)
+
+
+def _host_name(authority: str) -> str:
+    """'example.org:8000' -> 'example.org', '[::1]:8000' -> '::1'."""
+    authority = authority.strip().lower()
+    if authority.startswith("["):
+        return authority[1:].split("]", 1)[0]
+    return authority.rsplit(":", 1)[0] if authority.count(":") == 1 else authority
+
+
+async def _reject(scope, send, status: int, detail: str,
+                  headers: tuple[tuple[bytes, bytes], ...] = ()) -> None:
+    """An HTTP error answer, or for a websocket a refused handshake (HTTP 403)."""
+    if scope["type"] == "websocket":
+        await send({"type": "websocket.close", "code": 1008})
+        return
+    body = json.dumps({"detail": detail}).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()), *headers]})
+    await send({"type": "http.response.body", "body": body})
+
+
+class BodyLimit:
+    """413 for an HTTP request whose body exceeds ``limit`` bytes, by its Content-Length
+    or, without one, once the chunks read pass it (a body within the limit is read here
+    and handed on whole)."""
+
+    def __init__(self, app, limit: int = MAX_BODY_BYTES) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        too_big = f"request body over {self.limit // 1024} KiB"
+        declared = dict(scope.get("headers") or ()).get(b"content-length")
+        if declared is not None:
+            try:
+                if int(declared) > self.limit:
+                    return await _reject(scope, send, 413, too_big)
+            except ValueError:
+                pass
+        chunks, size = [], 0
+        while True:
+            message = await receive()
+            if message["type"] != "http.request":  # the client went away
+                return
+            chunks.append(message.get("body", b""))
+            size += len(chunks[-1])
+            if size > self.limit:
+                return await _reject(scope, send, 413, too_big)
+            if not message.get("more_body", False):
+                break
+        body = b"".join(chunks)
+        replayed = False
+
+        async def replay():
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()  # after the body: wait for a disconnect, as usual
+
+        await self.app(scope, replay, send)
+
+
+class SameOrigin:
+    """Against DNS rebinding and cross-site requests (HTTP and websocket).
+
+    The Host header must name an allowed host (400 otherwise): a page on a foreign name
+    that resolves to this machine cannot reach the API. An Origin header, which browsers
+    send with cross-site and state-changing requests, must name an allowed host too (403).
+    A request with a body must declare ``application/json`` (415): a cross-site form or
+    ``text/plain`` post, which browsers send without asking first, is refused.
+    """
+
+    def __init__(self, app, hosts: frozenset[str]) -> None:
+        self.app = app
+        self.hosts = hosts
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] not in ("http", "websocket"):
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or ())
+        host = headers.get(b"host", b"").decode("latin-1")
+        if _host_name(host) not in self.hosts:
+            return await _reject(scope, send, 400, f"host {host!r} is not allowed")
+        origin = headers.get(b"origin")
+        if origin is not None:
+            authority = origin.decode("latin-1").split("://", 1)[-1]
+            if _host_name(authority) not in self.hosts:
+                return await _reject(scope, send, 403,
+                                     f"origin {origin.decode('latin-1')!r} is not allowed")
+        if scope["type"] == "http" and _has_body(headers):
+            kind = headers.get(b"content-type", b"").split(b";")[0].strip().lower()
+            if kind != b"application/json":
+                return await _reject(scope, send, 415,
+                                     "a request body must be application/json")
+        return await self.app(scope, receive, send)
+
+
+def _has_body(headers: dict) -> bool:
+    length = headers.get(b"content-length")
+    if length is not None:
+        return length.strip() not in (b"0", b"")
+    return b"transfer-encoding" in headers
+
+
+class TokenGate:
+    """Every HTTP request and websocket must carry the token (401 / refused handshake).
+
+    Accepted as ``Authorization: Bearer <token>``, the ``orbit_emulator_token`` cookie, or
+    ``?token=<token>``; a valid ``?token=`` on an HTTP request sets the cookie (HttpOnly,
+    SameSite=Strict), so the page opened from the printed link works on without it.
+    Compared in constant time.
+    """
+
+    def __init__(self, app, token: str) -> None:
+        self.app = app
+        self.token = token.encode()
+
+    def _valid(self, candidate: str | bytes | None) -> bool:
+        if candidate is None:
+            return False
+        if isinstance(candidate, str):
+            candidate = candidate.encode("utf-8", "replace")
+        return hmac.compare_digest(candidate, self.token)
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] not in ("http", "websocket"):
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or ())
+        auth = headers.get(b"authorization", b"")
+        if auth[:7].lower() == b"bearer " and self._valid(auth[7:].strip()):
+            return await self.app(scope, receive, send)
+        cookie = SimpleCookie()
+        try:
+            cookie.load(headers.get(b"cookie", b"").decode("latin-1"))
+        except Exception:  # a malformed Cookie header carries no token
+            cookie = SimpleCookie()
+        if TOKEN_COOKIE in cookie and self._valid(cookie[TOKEN_COOKIE].value):
+            return await self.app(scope, receive, send)
+        query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
+        if self._valid(query.get("token")):
+            if scope["type"] == "websocket":
+                return await self.app(scope, receive, send)
+            return await self.app(scope, receive, self._setting_cookie(send))
+        return await _reject(scope, send, 401,
+                             "a token is required: Authorization: Bearer <token>, or open the "
+                             "link the server printed (…/?token=<token>)",
+                             headers=((b"www-authenticate", b"Bearer"),))
+
+    def _setting_cookie(self, send):
+        value = (f"{TOKEN_COOKIE}={self.token.decode()}; Path=/; HttpOnly; "
+                 f"SameSite=Strict").encode()
+
+        async def wrapped(message):
+            if message["type"] == "http.response.start":
+                message = {**message,
+                           "headers": [*message.get("headers", []), (b"set-cookie", value)]}
+            await send(message)
+
+        return wrapped

@@ -1,0 +1,173 @@
+"""Access to the web app (app/backend/access.py, app/backend/viewer.py): a server beyond
+loopback needs a token; with one, no request or websocket gets through without it, and
+the 3D viewer is reachable only through the app."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import httpx
+import pytest
+import viser
+import websockets
+
+from app.backend.access import AccessError, access_token, is_loopback
+from app.backend.server import create_app
+from tests.live_server import LiveServer
+
+TOKEN = "t0ken-for-the-access-tests-0123456789"
+EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
+SUBPROTOCOL = [f"viser-v{viser.__version__}"]
+
+
+@pytest.fixture(scope="module")
+def live():
+    with LiveServer(token=TOKEN) as server:
+        yield server
+
+
+def test_loopback_is_told_from_what_others_can_reach():
+    assert all(map(is_loopback, ["127.0.0.1", "127.1.2.3", "::1", "[::1]", "localhost"]))
+    assert not any(map(is_loopback, ["0.0.0.0", "::", "192.168.1.10", "lab-pc.local"]))
+
+
+def test_a_bind_beyond_loopback_without_a_token_is_refused(monkeypatch):
+    monkeypatch.delenv("ORBIT_EMULATOR_TOKEN", raising=False)
+    with pytest.raises(AccessError, match=r"--host 0.0.0.0: not a loopback address, so "
+                                          r"anyone who can reach it could drive the arms"):
+        access_token("0.0.0.0")
+    with pytest.raises(AccessError, match="a token is required"):
+        create_app(host="0.0.0.0")
+    token, generated = access_token("0.0.0.0", generate=True)
+    assert generated and len(token) >= 32
+    assert access_token("127.0.0.1") == (None, False)
+    monkeypatch.setenv("ORBIT_EMULATOR_TOKEN", "short")
+    with pytest.raises(AccessError, match="ORBIT_EMULATOR_TOKEN: at least 16 printable"):
+        access_token("0.0.0.0")
+
+
+def test_requests_without_the_token_get_401_and_change_nothing(live):
+    before = live.state()
+    for headers in ({}, {"Authorization": "Bearer wrong-token-0123456789"},
+                    {"Authorization": f"Basic {TOKEN}"}, {"Cookie": "orbit_emulator_token=x"}):
+        for method, path in (("GET", "/api/health"), ("GET", "/api/state"),
+                             ("GET", "/api/metrics"), ("GET", "/api/telemetry"),
+                             ("POST", "/api/scenarios/collision/start"), ("POST", "/api/stop"),
+                             ("GET", "/"), ("GET", "/viewer/"), ("GET", "/docs")):
+            r = httpx.request(method, live.url + path, headers=headers,
+                              json={} if method == "POST" else None)
+            assert r.status_code == 401, (method, path, headers, r.status_code)
+            assert r.headers["www-authenticate"] == "Bearer"
+            assert r.json()["detail"].startswith("a token is required")
+    after = live.state()
+    assert after["status"] == before["status"] == "idle"
+    assert after["generation"] == before["generation"]
+
+
+def test_the_printed_link_sets_a_cookie_that_opens_the_page_the_api_and_the_viewer(live):
+    with httpx.Client(base_url=live.url) as browser:
+        page = browser.get(f"/?token={TOKEN}")
+        assert page.status_code == 200 and 'id="start-button"' in page.text
+        cookie = page.headers["set-cookie"]
+        assert cookie.startswith(f"orbit_emulator_token={TOKEN};")
+        assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
+        assert browser.get("/api/health").json()["viewer"] == "/viewer/"  # the cookie alone
+        assert browser.get("/viewer/").status_code == 200
+
+
+def _viewer_frames(url: str, **kwargs) -> int:
+    """Connect to the viewer websocket; the number of frames the scene sends in 2 s."""
+
+    async def go() -> int:
+        async with websockets.connect(url, subprotocols=SUBPROTOCOL, max_size=None,
+                                      **kwargs) as ws:
+            frames = 0
+            try:
+                async with asyncio.timeout(2.0):
+                    async for _ in ws:
+                        frames += 1
+            except TimeoutError:
+                pass
+            return frames
+
+    return asyncio.run(go())
+
+
+def test_the_viewer_websocket_needs_the_token(live):
+    url = f"ws://127.0.0.1:{live.port}/viewer"
+    with pytest.raises(websockets.InvalidStatus, match="HTTP 403"):
+        _viewer_frames(url)
+    with pytest.raises(websockets.InvalidStatus, match="HTTP 403"):
+        _viewer_frames(url, additional_headers={"Cookie": "orbit_emulator_token=nope"})
+    assert _viewer_frames(url, additional_headers={"Authorization": f"Bearer {TOKEN}"}) > 0
+    assert _viewer_frames(url, additional_headers={
+        "Cookie": f"orbit_emulator_token={TOKEN}"}) > 0
+    # a page on another site carries the cookie but names its origin: refused
+    with pytest.raises(websockets.InvalidStatus, match="HTTP 403"):
+        _viewer_frames(url, additional_headers={"Cookie": f"orbit_emulator_token={TOKEN}",
+                                                "Origin": "http://evil.example"})
+
+
+def test_viser_itself_answers_no_one_but_the_app(live):
+    """viser listens on loopback only, and refuses every request without the app's
+    secret: the page, and the websocket a page from any site could open to it."""
+    direct = f"127.0.0.1:{live.viser_port}"
+    assert httpx.get(f"http://{direct}/").status_code == 403
+    with pytest.raises(websockets.InvalidStatus, match="HTTP 403"):
+        _viewer_frames(f"ws://{direct}/")
+
+
+def _serve(env: dict, *args: str) -> tuple[subprocess.Popen, str]:
+    proc = subprocess.Popen([EXE, "serve", "--port", "0", *args], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    out, deadline = "", time.monotonic() + 120
+    while "3D viewer" not in out:
+        line = proc.stdout.readline()
+        if not line:
+            if proc.poll() is not None:
+                raise AssertionError(proc.stderr.read())
+        out += line
+        assert time.monotonic() < deadline, out
+    return proc, out
+
+
+def test_serve_prints_the_real_port_and_the_token_link_and_stops_cleanly_on_ctrl_c(tmp_path):
+    env = {**os.environ, "ORBIT_EMULATOR_TOKEN": TOKEN}
+    proc, out = _serve(env, "--token-file", str(tmp_path / "token"))
+    try:
+        port = int(re.search(r"web app\s+http://127\.0\.0\.1:(\d+)/", out).group(1))
+        assert port > 0
+        assert f"http://127.0.0.1:{port}/viewer/?token=$ORBIT_EMULATOR_TOKEN" in out
+        assert TOKEN not in out  # a token given is not printed
+        assert (tmp_path / "token").read_text() == TOKEN + "\n"
+        assert oct((tmp_path / "token").stat().st_mode & 0o777) == "0o600"
+        url = f"http://127.0.0.1:{port}/api/health"
+        assert httpx.get(url).status_code == 401
+        assert httpx.get(url, headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 200
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err  # the shell's code for Ctrl+C, after a clean stop
+    assert "Application shutdown complete" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(("env_token", "args", "message"), [
+    (None, ["--host", "0.0.0.0"], "error: --host 0.0.0.0: not a loopback address"),
+    ("short", ["--host", "0.0.0.0"], "error: ORBIT_EMULATOR_TOKEN: at least 16 printable"),
+    (None, ["--token-file", "/tmp/x"], "error: --token-file: there is no token to write"),
+])
+def test_serve_refuses_an_open_bind_or_a_weak_token_before_binding(env_token, args, message):
+    env = {k: v for k, v in os.environ.items() if k != "ORBIT_EMULATOR_TOKEN"}
+    if env_token is not None:
+        env["ORBIT_EMULATOR_TOKEN"] = env_token
+    proc = subprocess.run([EXE, "serve", "--port", "0", *args], env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
