@@ -22,6 +22,7 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTex
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from app.backend import openapi
 from app.backend.access import (
     AccessError,
     BodyLimit,
@@ -42,6 +43,7 @@ from app.backend.service import (
 )
 from app.backend.viewer import PATH as VIEWER_PATH
 from app.backend.viewer import add_viewer_routes, start_viser
+from app.config import MAX_SATELLITES
 
 log = logging.getLogger("orbit_emulator.server")
 
@@ -70,7 +72,8 @@ class PushRequest(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    satellite: StrictInt = Field(description="1-based satellite index", examples=[1])
+    satellite: StrictInt = Field(ge=1, le=MAX_SATELLITES, description="1-based satellite index",
+                                 examples=[1])
     force_N: list[FiniteFloat] = Field(
         min_length=3, max_length=3,
         description=f"force in R (N), magnitude at most {MAX_PUSH_FORCE_N:g} N (sensor range)",
@@ -145,6 +148,10 @@ def _field_errors(errors) -> str:
     return "; ".join(parts)
 
 
+class CsvResponse(PlainTextResponse):
+    media_type = "text/csv"
+
+
 # --- the app ----------------------------------------------------------------------------
 
 
@@ -199,6 +206,7 @@ def create_app(
         version="0.1.0",
         lifespan=lifespan,
     )
+    openapi.install(app, token_required=token is not None)
     # outermost last: Host/Origin, then the token, then the body's size
     app.add_middleware(BodyLimit)
     if token is not None:
@@ -341,13 +349,11 @@ def create_app(
         except ImportError as err:  # pragma: no cover
             raise _http(503, err) from None
 
-    @app.get("/api/telemetry", tags=["status"], response_class=PlainTextResponse)
+    @app.get("/api/telemetry", tags=["status"], response_class=CsvResponse)
     def telemetry(request: Request, format: Literal["csv"] = "csv"):
         """Telemetry of the current (or last) run as CSV (one row per cycle)."""
         text = service(request).telemetry_csv()
-        return PlainTextResponse(
-            text, media_type="text/csv",
-            headers={"Content-Disposition": "attachment; filename=telemetry.csv"},
-        )
+        return CsvResponse(
+            text, headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
 
     return app
