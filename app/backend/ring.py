@@ -4,7 +4,7 @@ The web process creates the ring when it asks for a run (:class:`RunTelemetry`, 
 the run's configuration) and sends its name along; the loop process attaches to it
 (:func:`attach_ring`) and the Emulator's telemetry buffer keeps its rows there
 (``TelemetryBuffer.use_storage``). Telemetry downloads and metrics are then computed in the
-web process from a copy (:func:`app.sim.telemetry.ring_rows`), and cost the loop nothing.
+web process from a copy (:func:`app.sim.telemetry.numbered_ring_rows`), and cost the loop nothing.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from multiprocessing import shared_memory
 import numpy as np
 
 from app.config import EmulatorConfig
-from app.sim.telemetry import loop_columns, ring_rows
+from app.sim.telemetry import loop_columns, numbered_ring_rows
 
 __all__ = ["COUNTER_BYTES", "RunTelemetry", "attach_ring"]
 
@@ -38,11 +38,16 @@ class RunTelemetry:
 
     def rows(self):
         """A copy of the rows committed so far, oldest first."""
+        return self.numbered_rows()[1]
+
+    def numbered_rows(self) -> tuple[int, np.ndarray]:
+        """(the number of the first row since the run began, a copy of the rows committed
+        so far, oldest first)."""
         counters = np.ndarray((2,), dtype=np.int64, buffer=self.shm.buf)
         data = np.ndarray((self.capacity, len(self.columns)), dtype=np.float64,
                           buffer=self.shm.buf, offset=COUNTER_BYTES)
         try:
-            return ring_rows(data, counters)
+            return numbered_ring_rows(data, counters)
         finally:
             del counters, data  # no view may outlive the mapping (close needs none)
 

@@ -313,13 +313,16 @@ class Runner:
                 ring.release()
             self._rings.clear()
 
-    def run_telemetry(self) -> tuple[dict, RunTelemetry | None, Any]:
-        """(the latest state, the ring of its run or None, a copy of the ring's committed
-        rows or None): read here, in the web process; the loop is not asked."""
+    def run_telemetry(self) -> tuple[dict, RunTelemetry | None, int, Any]:
+        """(the latest state, the ring of its run or None, the number of the first row
+        copied, a copy of the ring's committed rows or None): read here, in the web
+        process; the loop is not asked."""
         snap = self.snapshot()
         with self._ring_lock:
             ring = self._rings.get(snap.get("generation", -1))
-            return snap, ring, None if ring is None else ring.rows()
+            if ring is None:
+                return snap, None, 0, None
+            return snap, ring, *ring.numbered_rows()
 
     def request_stop(self) -> None:
         self._send(("stop",))

@@ -6,8 +6,10 @@ request changes nothing.
 
 from __future__ import annotations
 
+import collections
 import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -44,6 +46,8 @@ class EmulatorService:
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
+        self._reads = SharedReads(self.runner.snapshot)
+        self._csv: tuple[Any, CsvLines] | None = None  # (the run's ring, its CSV lines)
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -155,11 +159,14 @@ class EmulatorService:
 
     def telemetry_csv(self) -> str:
         """The current run's telemetry as CSV (computed here, from the shared ring)."""
-        from app.report import telemetry_csv_text
+        return self._reads.get("telemetry", self._telemetry_csv)
 
-        snap, ring, rows = self.runner.run_telemetry()
+    def _telemetry_csv(self) -> str:
+        snap, ring, first, rows = self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
-        return telemetry_csv_text(columns, rows)
+        if self._csv is None or self._csv[0] is not ring:
+            self._csv = (ring, CsvLines(columns))
+        return self._csv[1].text(first, rows)
 
     def _rows_of(self, snap: dict, ring, rows) -> tuple[list[str], np.ndarray]:
         """(columns, rows) of the current run; none yet before the first start."""
@@ -171,9 +178,12 @@ class EmulatorService:
     def metrics(self) -> dict[str, Any]:
         """The current run's metrics (computed here, from the shared ring and the state the
         loop published; the cycle times are those of its last 10 s)."""
+        return self._reads.get("metrics", self._metrics)
+
+    def _metrics(self) -> dict[str, Any]:
         from app.metrics import RunFacts, metrics_of
 
-        snap, ring, rows = self.runner.run_telemetry()
+        snap, ring, _, rows = self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
         config = ring.config if ring is not None else self.last_config
         loop = snap["loop"]
@@ -186,6 +196,67 @@ class EmulatorService:
             arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])})
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
+
+
+class CsvLines:
+    """One run's telemetry CSV, formatted as its rows come: each read formats only the
+    rows committed since the one before (a 30 s ring took 0.7 s to format whole, every
+    time), and lets go of those the ring has dropped. The bytes are those of
+    :func:`app.report.telemetry_csv_text`."""
+
+    def __init__(self, columns: list[str]) -> None:
+        from app.report import csv_row_format
+
+        self.header = ",".join(columns) + "\n"
+        self.row_format = csv_row_format(len(columns))
+        self.lines: collections.deque[str] = collections.deque()
+        self.first = 0
+        """The number (since the run began) of the row of lines[0]."""
+
+    def text(self, first: int, rows: np.ndarray) -> str:
+        """The CSV of rows numbered first, first + 1, … (a later read never starts
+        earlier)."""
+        have = self.first + len(self.lines)
+        if not self.first <= first <= have:  # a gap: begin again from these rows
+            self.lines.clear()
+            self.first = have = first
+        fmt = self.row_format
+        self.lines.extend(fmt % row for row in map(tuple, rows[have - first:].tolist()))
+        while self.first < first:
+            self.lines.popleft()
+            self.first += 1
+        return self.header + "".join(self.lines)
+
+
+class SharedReads:
+    """The heavy reads (metrics, telemetry CSV), computed one at a time and shared.
+
+    One at a time: on a two-core machine the other core stays the loop's, whatever the
+    number of clients. Shared: a client that asks while the run is in the same state
+    (generation and status) gets the last answer if no cycle ran since, or if it is at most
+    ``max_age_s`` old; a run that finished, stopped or was replaced is computed anew, so
+    its last rows are never missed. Eight clients polling cost about one computation per
+    ``max_age_s``, and hold one answer in memory, not eight.
+    """
+
+    def __init__(self, snapshot, max_age_s: float = 0.5) -> None:
+        self._snapshot = snapshot
+        self.max_age_s = max_age_s
+        self._lock = threading.Lock()
+        self._last: dict[str, tuple] = {}
+
+    def get(self, name: str, compute):
+        with self._lock:
+            snap = self._snapshot()
+            state, cycles = (snap["generation"], snap["status"]), snap["loop"]["cycles"]
+            now = time.monotonic()
+            last = self._last.get(name)
+            if last is not None and last[0] == state and (
+                    last[1] == cycles or now - last[2] <= self.max_age_s):
+                return last[3]
+            value = compute()
+            self._last[name] = (state, cycles, now, value)
+            return value
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:

@@ -139,13 +139,20 @@ def ring_rows(data: np.ndarray, counters: np.ndarray) -> np.ndarray:
     again while the copy ran may be torn, so the rows kept are those numbered
     ``[claimed_after − capacity, committed_before)``.
     """
+    return numbered_ring_rows(data, counters)[1]
+
+
+def numbered_ring_rows(data: np.ndarray, counters: np.ndarray) -> tuple[int, np.ndarray]:
+    """(the number of the first row since the run began, the rows): see ring_rows."""
     capacity = data.shape[0]
     committed = int(counters[1])
     start = max(0, committed - capacity)
     rows = data[np.arange(start, committed) % capacity]  # a copy of those rows only
     claimed = int(counters[0])
     first = max(start, claimed - capacity)
-    return rows[first - start:] if first < committed else np.empty((0, data.shape[1]))
+    if first >= committed:
+        return committed, np.empty((0, data.shape[1]))
+    return first, rows[first - start:]
 
 
 # --- row kernels ----------------------------------------------------------------------------

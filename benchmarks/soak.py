@@ -1,0 +1,202 @@
+"""Soak: the web app with a 3D viewer open and eight polling clients, for minutes.
+
+    .venv/bin/python -m benchmarks.soak                 # 10 minutes (issue 12's target)
+    .venv/bin/python -m benchmarks.soak --minutes 2     # shorter
+
+What it runs: ``orbit-emulator serve --port 0`` as a real process tree (the web process and
+its loop process), the free-floating scenario for the whole soak at 500 Hz (no scripted
+pulses; one client pushes the satellite +x then -x every 20 s, 5 N for 0.3 s), the control
+page and its 3D viewer in headless Chromium, and 8 client threads that poll
+``/api/state``, ``/api/metrics`` and ``/api/telemetry`` in turn with 1 s between rounds
+(the telemetry ring holds the last ``--ring-s`` seconds, so each CSV is that long). All
+traffic goes to 127.0.0.1; it stops by itself.
+
+Every 10 s it samples the loop's cycles, deadline misses and resyncs (``/api/state``), and
+the resident memory (VmRSS) of the web and loop processes. It prints the samples, the
+CPU time the host took away meanwhile (steal, from /proc/stat: deadline misses follow it on
+a shared VM), and the verdict against the targets: deadline misses < 0.1 %, no resync,
+each process's memory within 10 % of its value at the end of the first minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import httpx
+
+EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu",
+                 "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]
+CLIENTS = 8
+SAMPLE_S = 10.0
+
+
+def rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as status:
+        kb = next(int(line.split()[1]) for line in status if line.startswith("VmRSS:"))
+    return kb / 1024.0
+
+
+def steal_ticks() -> tuple[int, int]:
+    """(steal, total) CPU ticks of the whole machine so far."""
+    with open("/proc/stat") as stat:
+        fields = [int(v) for v in stat.readline().split()[1:]]
+    return fields[7], sum(fields)
+
+
+def start_server() -> tuple[subprocess.Popen, str]:
+    """`orbit-emulator serve --port 0` and its URL; its output goes on being read (to
+    $SOAK_SERVER_LOG if set): a full pipe would stall the server's access log."""
+    log = open(os.environ.get("SOAK_SERVER_LOG", os.devnull), "w")
+    proc = subprocess.Popen([EXE, "serve", "--port", "0"], text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 180
+    for line in proc.stdout:
+        log.write(line)
+        match = re.search(r"web app\s+(http://127\.0\.0\.1:\d+)/", line)
+        if match:
+            threading.Thread(target=lambda: log.writelines(proc.stdout), daemon=True).start()
+            return proc, match.group(1)
+        if time.monotonic() > deadline:
+            break
+    proc.kill()
+    raise RuntimeError("the server did not print its URL")
+
+
+def poll(url: str, stop: threading.Event, counts: dict, errors: list) -> None:
+    with httpx.Client(base_url=url, timeout=60.0) as client:
+        while not stop.is_set():
+            for path in ("/api/state", "/api/metrics", "/api/telemetry"):
+                try:
+                    status = client.get(path).status_code
+                    counts[status] = counts.get(status, 0) + 1
+                except httpx.HTTPError as err:
+                    errors.append(f"{path}: {err!r}")
+            stop.wait(1.0)
+
+
+def push(url: str, stop: threading.Event, errors: list) -> None:
+    with httpx.Client(base_url=url, timeout=60.0) as client:
+        sign = 1.0
+        while not stop.wait(20.0):
+            r = client.post("/api/push", json={"satellite": 1, "force_N": [5.0 * sign, 0, 0],
+                                               "duration_s": 0.3})
+            if r.status_code != 200:
+                errors.append(f"push: {r.status_code} {r.text[:200]}")
+            sign = -sign
+
+
+def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = True) -> int:
+    from playwright.sync_api import sync_playwright
+
+    proc, url = start_server()
+    stop = threading.Event()
+    counts: dict[int, int] = {}
+    errors: list[str] = []
+    try:
+        api = httpx.Client(base_url=url, timeout=60.0)
+        body = {"pulses": [], "loop": {"duration_s": minutes * 60 + 60,
+                                       "telemetry_capacity": int(ring_s * 500)}}
+        state = api.post("/api/scenarios/free-floating/start", json=body).json()
+        assert state["status"] == "running", state
+        loop_pid = state["loop"]["pid"]
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path="/usr/bin/chromium",
+                                         args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            if viewer:
+                page.goto(url + "/")
+                page.frame_locator("#viewer").locator("canvas").first.wait_for(timeout=60_000)
+            threads = [threading.Thread(target=poll, args=(url, stop, counts, errors))
+                       for _ in range(clients)]
+            threads.append(threading.Thread(target=push, args=(url, stop, errors)))
+            for t in threads:
+                t.start()
+            samples = []
+            t0, steal0 = time.monotonic(), steal_ticks()
+            first = api.get("/api/state").json()["loop"]
+            base = (first["cycles"], first["deadline_misses"], first["resyncs"])
+            print(f"soak: {minutes:g} min, {clients} polling clients, "
+                  f"{'a Chromium viewer' if viewer else 'no viewer'}, telemetry ring "
+                  f"{ring_s:g} s; loop scheduling: {first['scheduling']}; counted from "
+                  f"here (the start-up's {base[0]} cycles left out)\n")
+            print("| t (s) | cycles | deadline misses | resyncs | web RSS (MB) | "
+                  "loop RSS (MB) | steal |")
+            print("|---|---|---|---|---|---|---|")
+            while time.monotonic() - t0 < minutes * 60:
+                page.wait_for_timeout(SAMPLE_S * 1000)  # the page keeps rendering
+                loop = api.get("/api/state").json()["loop"]
+                steal = steal_ticks()
+                samples.append((time.monotonic() - t0, loop["cycles"] - base[0],
+                                loop["deadline_misses"] - base[1], loop["resyncs"] - base[2],
+                                rss_mb(proc.pid), rss_mb(loop_pid),
+                                (steal[0] - steal0[0]) / max(1, steal[1] - steal0[1])))
+                print("| {:.0f} | {} | {} | {} | {:.0f} | {:.0f} | {:.2%} |".format(
+                    *samples[-1]), flush=True)
+            stop.set()
+            for t in threads:
+                t.join(120)
+            browser.close()
+        api.close()
+    finally:
+        stop.set()
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return report(samples, counts, errors)
+
+
+def report(samples: list[tuple], counts: dict, errors: list) -> int:
+    t, cycles, misses, resyncs = samples[-1][:4]
+    after_1min = [s for s in samples if s[0] >= 60.0] or samples
+    ratio = misses / cycles if cycles else 0.0
+    drift = {}
+    for name, col in (("web", 4), ("loop", 5)):
+        base = after_1min[0][col]
+        drift[name] = max(abs(s[col] - base) / base for s in after_1min)
+    steal = samples[-1][6]
+    answers = ", ".join(f"{code}: {n}" for code, n in sorted(counts.items()))
+    print(f"\nrequests: {sum(counts.values())} ({answers}); errors: {len(errors)}"
+          + (f" (first: {errors[0]})" if errors else ""))
+    print(f"host steal over the soak: {steal:.2%} of the CPU time")
+    verdicts = [
+        (f"deadline misses {misses} of {cycles} cycles = {ratio:.3%}", ratio < 0.001,
+         "< 0.1 %"),
+        (f"resyncs {resyncs}", resyncs == 0, "none"),
+        (f"web process memory within {drift['web']:.1%} of its value at 1 min",
+         drift["web"] <= 0.10, "≤ 10 %"),
+        (f"loop process memory within {drift['loop']:.1%} of its value at 1 min",
+         drift["loop"] <= 0.10, "≤ 10 %"),
+        (f"failed requests {len(errors)}", not errors, "none"),
+    ]
+    for text, ok, target in verdicts:
+        print(f"{'met    ' if ok else 'NOT MET'}  {text} (target {target})")
+    return 0 if all(ok for _, ok, _ in verdicts) else 1
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=10.0)
+    parser.add_argument("--ring-s", type=float, default=30.0,
+                        help="seconds of telemetry the ring keeps (each CSV poll is that long)")
+    parser.add_argument("--clients", type=int, default=CLIENTS)
+    parser.add_argument("--no-viewer", action="store_true", help="no page open in Chromium")
+    args = parser.parse_args()
+    if os.environ.get("ORBIT_EMULATOR_TOKEN"):
+        sys.exit("unset ORBIT_EMULATOR_TOKEN: the soak talks to a loopback server without one")
+    sys.exit(soak(args.minutes, args.ring_s, args.clients, not args.no_viewer))
+
+
+if __name__ == "__main__":
+    main()

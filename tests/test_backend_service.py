@@ -1,0 +1,60 @@
+"""The web process's heavy reads (app/backend/service.py): the incremental telemetry CSV
+and the shared, one-at-a-time computation of metrics and telemetry."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.backend.service import CsvLines, SharedReads
+from app.report import telemetry_csv_text
+
+COLUMNS = ["t_s", "a", "b"]
+
+
+def _rows(first: int, last: int) -> np.ndarray:
+    """Rows numbered first..last-1 of a run, with awkward floats."""
+    k = np.arange(first, last, dtype=float)[:, None]
+    return np.hstack([0.002 * k, np.sqrt(k + 1e-3), -k / 7.0])
+
+
+def test_the_csv_grows_row_by_row_and_equals_the_whole_formatting():
+    csv = CsvLines(COLUMNS)
+    for first, last in [(0, 0), (0, 5), (0, 9), (3, 20), (12, 40), (12, 40), (39, 41)]:
+        text = csv.text(first, _rows(first, last))
+        assert text == telemetry_csv_text(COLUMNS, _rows(first, last))
+    assert len(csv.lines) == 2 and csv.first == 39  # the dropped rows are let go
+
+
+def test_a_gap_in_the_rows_begins_again():
+    csv = CsvLines(COLUMNS)
+    csv.text(0, _rows(0, 10))
+    assert csv.text(50, _rows(50, 60)) == telemetry_csv_text(COLUMNS, _rows(50, 60))
+
+
+class _Loop:
+    def __init__(self):
+        self.snap = {"generation": 1, "status": "running", "loop": {"cycles": 0}}
+
+    def __call__(self):
+        return self.snap
+
+
+def test_reads_are_shared_while_fresh_and_recomputed_when_the_run_changes():
+    loop, calls = _Loop(), []
+    reads = SharedReads(loop, max_age_s=60.0)
+
+    def compute():
+        calls.append(dict(loop.snap, loop=dict(loop.snap["loop"])))
+        return len(calls)
+
+    assert reads.get("m", compute) == 1
+    loop.snap["loop"]["cycles"] = 500
+    assert reads.get("m", compute) == 1  # within max_age_s: the same answer
+    loop.snap["status"] = "finished"
+    assert reads.get("m", compute) == 2  # the run finished: its last rows are not missed
+    assert reads.get("m", compute) == 2  # nothing ran since
+    loop.snap["generation"] = 2
+    assert reads.get("m", compute) == 3
+    reads.max_age_s = 0.0
+    loop.snap["loop"]["cycles"] = 501
+    assert reads.get("m", compute) == 4  # stale and rows came: computed anew
