@@ -245,11 +245,12 @@ class WrenchProcessingConfig(_Model):
     payload_compensation: StrictBool = True
     inertial_compensation: StrictBool = True
     lowpass_hz: Positive = 30.0
-    calibration_s: Annotated[float, AfterValidator(_finite), Field(ge=0.01, le=60.0)] = 2.0
+    calibration_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=60.0)] = 2.0
     """Seconds of readings at rest averaged for the bias calibration at start-up. What is
     left of the bias is about noise_force_N / sqrt(calibration_s · rate_hz) per axis
     (0.04 N at the defaults, 0.15 N after 0.25 s): an offset the ODS receives wherever a
-    deadband is lifted (the contact gate, or a zero deadband)."""
+    deadband is lifted (the contact gate, or a zero deadband). At least 0.1 s: shorter,
+    the bias left (0.75 N per axis after 10 ms) plus the noise clear the deadband."""
     deadband_force_N: NonNegative = 4.0
     deadband_torque_Nm: NonNegative = 0.25
     """On the torque about the COM, which carries the sensor's torque noise and the lever
@@ -343,7 +344,9 @@ class HandConfig(_Model):
 class LoopConfig(_Model):
     """The emulation loop."""
 
-    rate_hz: Annotated[float, AfterValidator(_finite), Field(ge=10.0, le=5000.0)] = 500.0
+    rate_hz: Annotated[float, AfterValidator(_finite), Field(ge=100.0, le=5000.0)] = 500.0
+    """At least 100 Hz: below, a servo step is longer than the servo's own response and a
+    contact lasts a cycle or two (the paper: 500 Hz)."""
     duration_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1e6)] = 30.0
     mode: Literal["hil", "ideal"] = "hil"
     seed: Annotated[int, Field(ge=0)] = 0

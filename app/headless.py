@@ -20,13 +20,14 @@ class RunResult:
     files: list[Path]
 
 
-def ideal_collision(config: EmulatorConfig, duration_s: float) -> dict | None:
-    """The collision metrics of the same scenario run in ideal mode (the reference)."""
+def ideal_collision(config: EmulatorConfig, duration_s: float) -> dict:
+    """The collision metrics of the same scenario run in ideal mode (the reference); {}
+    when the ideal run has no contact."""
     em = Emulator(config, mode="ideal")
     em.run(duration_s)
     rows, index = em.telemetry.rows(), em.telemetry.index
     pair = contact_pair(rows, index, em.n_sat) if em.n_sat >= 2 and len(rows) else None
-    return None if pair is None else collision_metrics(rows, index, em.dt_s, *pair)
+    return {} if pair is None else collision_metrics(rows, index, em.dt_s, *pair) or {}
 
 
 def run_scenario(

@@ -67,7 +67,9 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     received force integrated over it. The window closes whatever the ODS keeps receiving
     (e.g. noise through a zero deadband). Restitution
     e = -(v_b - v_a)_after . n / (v_b - v_a)_before . n, with n the line of centres at
-    first contact and "after" 20 ms past the window. None, with a warning, if the run
+    first contact, "before" at the window's start (50 ms before the first touch: the
+    undisturbed approach, before a contact gate lets noise through) and "after" 20 ms
+    past the window. None, with a warning, if the run
     ended before (``contact_open_at_end``) or the satellites were not moving apart then;
     a later touch is named too (the figures cover the first contact only).
 
@@ -103,8 +105,17 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     biggest = max(np.linalg.norm(ja), np.linalg.norm(jb))
     balance = float(np.linalg.norm(ja + jb) / biggest) if biggest > 0 else None
     warnings = []
-    restitution, before_rel = _restitution(rows, index, a, b, first, window.stop - 1,
+    restitution, before_rel = _restitution(rows, index, a, b, first, window,
                                            int(round(0.02 / dt_s)), dt_s, ended, warnings)
+    if biggest == 0.0:
+        warnings.append("the ODS received no force over the contact window: the satellites "
+                        "never felt this contact (a deadband or a sensor that did not see it)")
+    others = _other_bodies_touching(rows, index, (a, b), window)
+    if others:
+        warnings.append(
+            f"{', '.join(others)} also felt a force during this contact: the true force "
+            f"columns are each satellite's total, so the pair's impulses, balance and energy "
+            f"include the third body's")
     touches = _touches(touching[first:last + 1]) + first
     if len(touches) > 1:
         gaps_ms = 1e3 * dt_s * (touches[1:, 0] - touches[:-1, 1])
@@ -118,8 +129,12 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         warnings.append(f"the bodies touched again at t = {rows[window.stop + again[0], 0]:.3f}"
                         " s: the collision metrics cover the first contact only")
     if not ended:
+        apart = ("" if touching[-1] else
+                 f" (the bodies parted at t = {rows[last + 1, 0]:.3f} s, less than the "
+                 f"{1e3 * quiet * dt_s:.0f} ms that end a contact before the stop)")
         warnings.append(f"the contact had not ended when the run stopped at t = "
-                        f"{rows[-1, 0]:.3f} s: its impulse is incomplete, no restitution")
+                        f"{rows[-1, 0]:.3f} s{apart}: its impulse is incomplete, no "
+                        f"restitution")
     bodies = bodies or {}
     body_v = {s_: _cols(rows, index, bodies.get(s_, f"sat{s_}"), ("vx_mps", "vy_mps", "vz_mps"))
               for s_ in (a, b)}
@@ -143,6 +158,7 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         "peak_force_N": float(np.linalg.norm(true[a][window], axis=1).max()),
         "contact_duration_s": float((touch[-1] - touch[0] + 1) * dt_s),
         "touches": len(touches),
+        "dt_s": dt_s,
         "contact_energy_J": energy,
         "restitution": restitution,
         "approach_speed_mps": -before_rel,
@@ -154,21 +170,24 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     }
 
 
-def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, end: int,
+def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, window: slice,
                  wait: int, dt_s: float, ended: bool, warnings: list[str],
                  ) -> tuple[float | None, float]:
-    """(e, the relative normal velocity before the contact m/s): see collision_metrics;
-    end: the window's last row; the velocities after are read `wait` rows later."""
+    """(e, the relative normal velocity before the contact m/s): see collision_metrics.
+    The velocities before are read at the window's start, those after `wait` rows past
+    its end."""
+    end = window.stop - 1
     after = end + wait
     pos = {s: _cols(rows, index, f"sat{s}", ("x_m", "y_m", "z_m")) for s in (a, b)}
     vel = {s: _cols(rows, index, f"sat{s}", ("vx_mps", "vy_mps", "vz_mps")) for s in (a, b)}
     n = pos[b][first] - pos[a][first]
     n /= np.linalg.norm(n)
-    before_rel = float((vel[b][first] - vel[a][first]) @ n)
+    before = window.start
+    before_rel = float((vel[b][before] - vel[a][before]) @ n)
     if before_rel >= 0.0:
-        warnings.append(f"the satellites were not closing in at the first touch (relative "
-                        f"normal velocity {1e3 * before_rel:+.1f} mm/s at t = "
-                        f"{rows[first, 0]:.3f} s): no restitution")
+        warnings.append(f"the satellites were not closing in before the first touch "
+                        f"(relative normal velocity {1e3 * before_rel:+.1f} mm/s at t = "
+                        f"{rows[before, 0]:.3f} s): no restitution")
         return None, before_rel
     if not ended:
         return None, before_rel  # collision_metrics says so
@@ -187,10 +206,29 @@ def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, end:
     return -after_rel / before_rel, before_rel
 
 
+def _other_bodies_touching(rows: np.ndarray, index: dict, pair: tuple[int, int],
+                           window: slice) -> list[str]:
+    """The satellites beside the pair that feel a true external force in the window."""
+    names = []
+    s = 1
+    while f"sat{s}_true_fx_N" in index:
+        if s not in pair:
+            f = _cols(rows[window], index, f"sat{s}", ("true_fx_N", "true_fy_N", "true_fz_N"))
+            if np.any(f != 0.0):
+                names.append(f"sat{s}")
+        s += 1
+    return names
+
+
 def _touches(touching: np.ndarray) -> np.ndarray:
     """The runs of True in a boolean array: (n, 2) [start, stop) indices."""
     edges = np.diff(np.concatenate([[0], touching.astype(np.int8), [0]]))
     return np.stack([np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]], axis=1)
+
+
+MIN_CONTACT_CYCLES = 6
+"""An ideal contact shorter than this many loop cycles is sampled too coarsely (peak,
+duration) and its reference is not converged (rigid at 100 Hz: e 0.57 against 0.95)."""
 
 
 def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
@@ -198,7 +236,7 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
     """Add the comparison with the converged ideal run (in place): ``restitution_ideal``,
     ``restitution_error`` (e − e_ideal) / e_ideal, ``true_impulse_ratio`` |J_true| /
     |J_true,ideal| per satellite (None while either contact was still open at the end),
-    and more ``warnings``.
+    and more ``warnings``. ideal: the ideal run's collision metrics; None: not compared.
 
     deadband_N: the F/T force deadband the contact meets (0 where the contact gate lifts
     it, or without a sensor); noise: (σ of the sensor force noise per sample N, dt s,
@@ -206,12 +244,22 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
     adds over the ideal contact, σ·sqrt(T·dt), on both satellites, as an open-loop bound on
     the restitution's spread (while the bodies touch, the contact takes part of it back).
     """
+    ideal = ideal or None  # {}: the ideal run had no contact
     coll["restitution_ideal"] = None if ideal is None else ideal["restitution"]
     e, ei = coll["restitution"], coll["restitution_ideal"]
     coll["restitution_error"] = (e - ei) / ei if e is not None and ei else None
     coll["true_impulse_ratio"] = None
     warnings = list(coll.get("warnings", []))
     if ideal is not None:
+        if ei is None:
+            warnings.append("the ideal run gives no restitution to compare with ("
+                            + "; ".join(ideal.get("warnings", [])) + ")")
+        cycles = ideal["contact_duration_s"] / ideal["dt_s"]
+        if cycles < MIN_CONTACT_CYCLES:
+            warnings.append(
+                f"the ideal contact lasts {cycles:.1f} cycles at this rate: its peak force "
+                f"and duration are sampled once per cycle, and the reference is not "
+                f"converged; raise loop.rate_hz")
         if not (coll.get("contact_open_at_end") or ideal.get("contact_open_at_end")):
             coll["true_impulse_ratio"] = {
                 name: float(np.linalg.norm(j) / np.linalg.norm(ideal["true_impulse_Ns"][name]))
@@ -343,9 +391,18 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
         if coll is not None:
             ideal = dict(coll) if facts.mode == "ideal" else ideal_collision
             if ideal is not None and ideal.get("pair") != coll["pair"]:
-                ideal = None  # the ideal run's first contact was another pair's
+                coll["warnings"].append(
+                    f"the ideal run has no contact between {' and '.join(coll['pair'])}"
+                    + (f" (its first contact is between {' and '.join(ideal['pair'])})"
+                       if ideal else "") + ": nothing to compare this one with")
+                ideal = None
             compare_with_ideal(coll, ideal, *_sensing_limits(config, bool(facts.arm_of),
                                                              pair))
+            if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
+                coll["warnings"].append(
+                    f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the F/T "
+                    f"sensor's {config.sensor.range_force_N:g} N range: its readings "
+                    f"clipped, and the ODS received less than the mockups exchanged")
         metrics["collision"] = coll
     metrics["warnings"] = _run_warnings(metrics, ideal_collision)
     return metrics
@@ -354,7 +411,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
 def _run_warnings(metrics: dict, ideal_collision: dict | None) -> list[str]:
     """What a reader of the run's metrics must not miss beyond the collision's own
     warnings: a collision the ideal run has and this run does not."""
-    if metrics["collision"] is not None or ideal_collision is None:
+    if metrics["collision"] is not None or not ideal_collision:
         return []
     a, b = ideal_collision["pair"]
     text = (f"in the ideal run {a} and {b} collide at t = "

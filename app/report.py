@@ -73,7 +73,7 @@ def run_summary(metrics: dict) -> str:
             f"collision at {coll['contact_start_s']:.3f} s: restitution "
             f"{'-' if e is None else f'{e:.3f}'} (ideal {'-' if ei is None else f'{ei:.3f}'}, "
             f"error {'-' if err is None else f'{100 * err:+.1f} %'}); the ODS's impulse "
-            f"balance {coll['impulse_balance']:.3f}",
+            f"balance {num(coll['impulse_balance'], '.3f')}",
             f"what the mockups went through: impulse {true_j} N s"
             + ("" if not ratio else " (x ideal: " + ", ".join(
                 f"{name} {r:.2f}" for name, r in ratio.items()) + ")")

@@ -256,7 +256,7 @@ def test_a_mockup_that_no_longer_shows_its_satellite_stops_the_run():
     em.run(3.0)  # the first push (1.0-1.3 s) makes the arm lag by more than 0.1 mm
     assert em.status == "safety_stop"
     assert em.safety_stop["reason"].startswith("tracking error ")
-    assert "beyond 0 mm / 250 mrad" in em.safety_stop["reason"]
+    assert "beyond 0.1 mm / 250 mrad" in em.safety_stop["reason"]
     assert 1.0 < em.safety_stop["t_s"] < 1.4
     rows = em.telemetry.rows()
     assert rows[-1, 0] == pytest.approx(em.safety_stop["t_s"])  # kept up to the stop

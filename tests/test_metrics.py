@@ -151,8 +151,8 @@ def test_a_touch_while_moving_apart_gives_no_restitution_but_a_warning():
     coll = collision_metrics(rows, index, DT)
     assert coll["restitution"] is None
     assert coll["warnings"][0].startswith(
-        "the satellites were not closing in at the first touch (relative normal velocity "
-        "+100.0 mm/s at t = 0.100 s)")
+        "the satellites were not closing in before the first touch (relative normal "
+        "velocity +100.0 mm/s at t = 0.050 s)")
 
 
 def test_a_second_touch_is_named_and_left_out():
@@ -256,3 +256,63 @@ def test_a_restitution_above_one_is_named_as_energy_the_emulation_put_in():
                               "came, which a dissipative contact cannot do (the contact "
                               "itself absorbed -")
     assert warning.endswith("mJ): the emulation put energy into the collision")
+
+
+def test_a_contact_the_ods_never_felt_is_named_and_the_summary_prints():
+    """True force on the mockups, none received by the ODS (a deadband that hid it): no
+    impulse balance, a warning, and the printed summary copes."""
+    from app.report import run_summary
+
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0)))
+    for s in (1, 2):
+        rows[:, index[f"sat{s}_fx_N"]] = 0.0
+    coll = collision_metrics(rows, index, DT)
+    assert coll["impulse_balance"] is None
+    assert coll["warnings"][-1].startswith("the ODS received no force over the contact window")
+    metrics = {"scenario": "x", "mode": "hil", "status": "finished", "duration_s": 1.0,
+               "cycles": 500, "rate_hz": 500.0, "realtime_factor": 1.0,
+               "cycle_time_us": {"p50": 1.0, "p99": 2.0}, "satellites": [],
+               "force_scale": 1.0, "torque_scale": 1.0,
+               "collision": {**coll, "restitution_ideal": None, "restitution_error": None,
+                             "true_impulse_ratio": None}, "safety_stop": None,
+               "passivity": None, "warnings": []}
+    assert "impulse balance -" in run_summary(metrics)
+
+
+def test_a_third_body_in_the_contact_is_named():
+    rows, index = _telemetry(_pulses((0.1, 0.13, 5.0)), n_sat=3)
+    rows[60:62, index["sat3_true_fx_N"]] = 1.0  # within the window (0.05 .. 0.18 s)
+    coll = collision_metrics(rows, index, DT)
+    assert any(w.startswith("sat3 also felt a force during this contact")
+               for w in coll["warnings"])
+
+
+def test_what_the_ideal_run_cannot_give_is_named():
+    """An ideal run without a restitution, and one whose contact spans few cycles."""
+    coll = collision_metrics(*_telemetry(_pulses((0.1, 0.13, 5.0))), DT)
+    ideal = collision_metrics(*_telemetry(_pulses((0.1, 0.112, 5.0))), DT)  # no parting
+    compare_with_ideal(coll, ideal, deadband_N=0.0)
+    assert coll["restitution_error"] is None
+    assert coll["warnings"] == [
+        "the ideal run gives no restitution to compare with (the satellites were not "
+        "moving apart after the contact (relative normal velocity -80.0 mm/s at t = "
+        "0.180 s): no restitution)"]
+    coll = collision_metrics(*_telemetry(_pulses((0.1, 0.13, 5.0))), DT)
+    short = collision_metrics(*_telemetry(_pulses((0.1, 0.108, 18.75))), DT)  # 4 cycles
+    compare_with_ideal(coll, short, deadband_N=0.0)
+    assert coll["warnings"] == [
+        "the ideal contact lasts 4.0 cycles at this rate: its peak force and duration are "
+        "sampled once per cycle, and the reference is not converged; raise loop.rate_hz"]
+
+
+def test_a_contact_beyond_the_sensor_range_and_a_missing_ideal_pair_are_named():
+    """Rigid mockups closing at 1 m/s: the contact peaks far beyond the F/T range of
+    100 N; the readings clip."""
+    cfg = merge_overrides(load_scenario("collision"), {
+        "satellites": {"0": {"velocity_mps": [0.5, 0.0, 0.0]},
+                       "1": {"velocity_mps": [-0.5, 0.0, 0.0], "material": "rigid"}}})
+    coll = run_scenario(cfg, duration_s=2.0).metrics["collision"]
+    assert coll["peak_force_N"] > 100.0
+    assert any(w.startswith(f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the "
+                            f"F/T sensor's 100 N range: its readings clipped")
+               for w in coll["warnings"])

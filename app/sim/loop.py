@@ -159,10 +159,10 @@ class Emulator:
         if k < 0:
             return True
         d_m, d_rad = errors[k]
-        self._safety_stop(self.arms[k], f"tracking error {1e3 * d_m:.0f} mm / "
-                                        f"{1e3 * d_rad:.0f} mrad beyond "
-                                        f"{1e3 * loop.max_tracking_error_m:.0f} mm / "
-                                        f"{1e3 * loop.max_tracking_error_rad:.0f} mrad")
+        self._safety_stop(self.arms[k], f"tracking error {1e3 * d_m:.3g} mm / "
+                                        f"{1e3 * d_rad:.3g} mrad beyond "
+                                        f"{1e3 * loop.max_tracking_error_m:.3g} mm / "
+                                        f"{1e3 * loop.max_tracking_error_rad:.3g} mrad")
         return False
 
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
