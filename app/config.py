@@ -359,6 +359,9 @@ class LoopConfig(_Model):
     can no longer show the orbit (the paper's lab tracked within 0.01 m)."""
     max_tracking_error_rad: Positive = 0.25
     """The same for the attitude."""
+    stop_at_sensor_range: StrictBool = True
+    """A raw F/T force reading at ``[sensor] range_force_N`` stops the run (hil): beyond
+    it the readings clip, and a lab's arms would press the mockups together blind."""
     reference_substeps: Annotated[int, Field(ge=1, le=1000)] = 20
     """Ideal runs: a cycle that starts or ends in contact is integrated in this many
     sub-steps with the contact law inside (app/sim/reference.py), so that the reference

@@ -305,12 +305,18 @@ def test_what_the_ideal_run_cannot_give_is_named():
         "sampled once per cycle, and the reference is not converged; raise loop.rate_hz"]
 
 
-def test_a_contact_beyond_the_sensor_range_and_a_missing_ideal_pair_are_named():
+def test_a_contact_beyond_the_sensor_range_stops_the_run_or_is_named():
     """Rigid mockups closing at 1 m/s: the contact peaks far beyond the F/T range of
-    100 N; the readings clip."""
-    cfg = merge_overrides(load_scenario("collision"), {
-        "satellites": {"0": {"velocity_mps": [0.5, 0.0, 0.0]},
-                       "1": {"velocity_mps": [-0.5, 0.0, 0.0], "material": "rigid"}}})
+    100 N. By default the reading at the range stops the run; with
+    ``stop_at_sensor_range`` off the run goes on and the metrics say the readings clipped."""
+    fast = {"satellites": {"0": {"velocity_mps": [0.5, 0.0, 0.0]},
+                           "1": {"velocity_mps": [-0.5, 0.0, 0.0], "material": "rigid"}}}
+    stopped = run_scenario(merge_overrides(load_scenario("collision"), fast), duration_s=2.0)
+    assert stopped.metrics["safety_stop"]["reason"] == (
+        "F/T force reading at the sensor's 100 N range: the contact pushes harder than it "
+        "can measure")
+    cfg = merge_overrides(load_scenario("collision"),
+                          {**fast, "loop": {"stop_at_sensor_range": False}})
     coll = run_scenario(cfg, duration_s=2.0).metrics["collision"]
     assert coll["peak_force_N"] > 100.0
     assert any(w.startswith(f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the "

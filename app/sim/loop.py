@@ -128,6 +128,8 @@ class Emulator:
         external_W = self.interaction.wrenches_W(bodies, t_s)  # contact + operator's hand
         self.true_force_R = external_W[:, :3] @ self.R_W_R
         force_R, torque_B = self.ods_input(bodies, external_W)  # F/T chains + coupling
+        if not self._within_sensor_range():
+            return
         y_next, force_R, torque_B = self.ods_advance(force_R, torque_B)  # the ODS step
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
         self._record()
@@ -164,6 +166,21 @@ class Emulator:
                                         f"{1e3 * loop.max_tracking_error_m:.3g} mm / "
                                         f"{1e3 * loop.max_tracking_error_rad:.3g} mrad")
         return False
+
+    def _within_sensor_range(self) -> bool:
+        """``[loop] stop_at_sensor_range``: a raw F/T force reading at the sensor's range
+        stops the run: the contact pushes harder than the sensor measures, the ODS gets
+        less than the mockups exchange, and the arms would press them on blind."""
+        if not self.config.loop.stop_at_sensor_range:
+            return True
+        limit = self.config.sensor.range_force_N
+        for arm in self.arms:
+            peak = float(np.max(np.abs(arm.last_raw_S[:3])))
+            if peak >= limit:
+                self._safety_stop(arm, f"F/T force reading at the sensor's {limit:g} N range: "
+                                       f"the contact pushes harder than it can measure")
+                return False
+        return True
 
     def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
