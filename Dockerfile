@@ -11,23 +11,34 @@ FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
-    PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
-    NUMBA_CACHE_DIR=/tmp/numba-cache
+    NUMBA_CACHE_DIR=/opt/numba-cache
 
 WORKDIR /app
 
-# dependencies first (better layer caching), then the project itself
+# libgomp1: Pinocchio's wheel links OpenMP's runtime, which slim images do not ship
+# (a base that has it already, such as scripts/container-test's, needs no package index)
+RUN dpkg -s libgomp1 >/dev/null 2>&1 \
+    || (apt-get update && apt-get install -y --no-install-recommends libgomp1 \
+        && rm -rf /var/lib/apt/lists/*)
+
 COPY pyproject.toml README.md ./
 COPY app ./app
 COPY static ./static
 # pycollada: trimesh needs it to load the UR10 .dae meshes of the 3D view
-RUN pip install . pycollada \
-    && useradd --create-home --uid 1000 emulator
+# (a cache mount: a rebuild on the same machine downloads nothing again, and the image
+# keeps no pip cache)
+RUN --mount=type=cache,target=/root/.cache/pip pip install . pycollada \
+    && useradd --create-home --uid 1000 emulator \
+    && mkdir -p /opt/numba-cache && chown emulator /opt/numba-cache
 
 USER emulator
 # static/ is found in the working directory (the installed package lives elsewhere)
 ENV ORBIT_EMULATOR_STATIC=/app/static
+# compile the numba kernels now, into the image: a first run then loads them in
+# milliseconds instead of compiling for seconds
+RUN orbit-emulator run collision --duration 0.1 --out /tmp/warm-up --quiet > /dev/null \
+    && rm -rf /tmp/warm-up
 
 EXPOSE 8000
 
