@@ -49,8 +49,12 @@ def test_a_bind_beyond_loopback_without_a_token_is_refused(monkeypatch):
     assert generated and len(token) >= 32
     assert access_token("127.0.0.1") == (None, False)
     monkeypatch.setenv("ORBIT_EMULATOR_TOKEN", "short")
-    with pytest.raises(AccessError, match="ORBIT_EMULATOR_TOKEN: at least 16 printable"):
+    with pytest.raises(AccessError, match="ORBIT_EMULATOR_TOKEN: at least 16 characters"):
         access_token("0.0.0.0")
+    for unsafe in ("q1+Zt/9kLm3xYw2Pa8Bc", "abcdefghijklmnop;x=1", "abcdefghijklmnop q"):
+        monkeypatch.setenv("ORBIT_EMULATOR_TOKEN", unsafe)  # would not survive URL/cookie
+        with pytest.raises(AccessError, match=r"only letters, digits and \. _ ~ -"):
+            access_token("0.0.0.0")
 
 
 def test_requests_without_the_token_get_401_and_change_nothing(live):
@@ -80,6 +84,39 @@ def test_the_printed_link_sets_a_cookie_that_opens_the_page_the_api_and_the_view
         assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
         assert browser.get("/api/health").json()["viewer"] == "/viewer/"  # the cookie alone
         assert browser.get("/viewer/").status_code == 200
+
+
+def test_a_browser_opening_the_link_is_sent_on_without_the_token_in_its_url(live):
+    r = httpx.get(f"{live.url}/?token={TOKEN}&x=1", headers={"Accept": "text/html"})
+    assert r.status_code == 303 and r.headers["location"] == "/?x=1"
+    assert r.headers["set-cookie"].startswith(f"orbit_emulator_token={TOKEN};")
+
+
+def test_other_cookies_do_not_hide_the_token_cookie(live):
+    for cookie in ("theme=dark mode; orbit_emulator_token=" + TOKEN,
+                   'x={"a":1}; orbit_emulator_token=' + TOKEN,
+                   "t=a\\b; orbit_emulator_token=" + TOKEN):
+        r = httpx.get(live.url + "/api/health", headers={"Cookie": cookie})
+        assert r.status_code == 200, cookie
+
+
+def test_odd_viewer_paths_get_an_answer_not_a_server_error(live):
+    for path in ("/viewer/a%20b", "/viewer/%00", "/viewer/..%2f..%2fetc/passwd"):
+        r = live.client.get(path)
+        assert r.status_code < 500 or r.status_code == 502, (path, r.status_code)
+        assert r.status_code != 500
+
+
+def test_the_access_log_never_shows_the_token():
+    import logging
+
+    from app.backend.cli import RedactToken
+
+    record = logging.LogRecord("uvicorn.access", logging.INFO, "", 0, '%s - "%s %s HTTP/%s" %d',
+                               ("127.0.0.1:5", "GET", f"/?x=1&token={TOKEN}&y=2", "1.1", 303),
+                               None)
+    assert RedactToken().filter(record)
+    assert TOKEN not in record.getMessage() and "token=<token>&y=2" in record.getMessage()
 
 
 def _viewer_frames(url: str, **kwargs) -> int:
@@ -158,9 +195,25 @@ def test_serve_prints_the_real_port_and_the_token_link_and_stops_cleanly_on_ctrl
     assert "Application shutdown complete" in err and "Traceback" not in err
 
 
+def test_the_token_file_is_never_written_through_a_link_nor_left_readable(tmp_path):
+    from app.backend.cli import _write_secret
+
+    old = tmp_path / "old"
+    old.write_text("x")
+    old.chmod(0o644)
+    _write_secret(old, TOKEN)
+    assert old.read_text() == TOKEN + "\n" and oct(old.stat().st_mode & 0o777) == "0o600"
+    victim = tmp_path / "victim"
+    victim.write_text("precious")
+    (tmp_path / "link").symlink_to(victim)
+    with pytest.raises(ValueError, match="--token-file: cannot write"):
+        _write_secret(tmp_path / "link", TOKEN)
+    assert victim.read_text() == "precious"
+
+
 @pytest.mark.parametrize(("env_token", "args", "message"), [
     (None, ["--host", "0.0.0.0"], "error: --host 0.0.0.0: not a loopback address"),
-    ("short", ["--host", "0.0.0.0"], "error: ORBIT_EMULATOR_TOKEN: at least 16 printable"),
+    ("short", ["--host", "0.0.0.0"], "error: ORBIT_EMULATOR_TOKEN: at least 16 characters"),
     (None, ["--token-file", "/tmp/x"], "error: --token-file: there is no token to write"),
 ])
 def test_serve_refuses_an_open_bind_or_a_weak_token_before_binding(env_token, args, message):

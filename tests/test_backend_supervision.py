@@ -197,3 +197,39 @@ def test_clients_reading_metrics_and_telemetry_cost_the_loop_nothing(live):
     # to 4.7 % (README): far from the 31 % of reads answered by the loop, not yet the 1 %
     assert busy[0] / busy[1] < baseline + 0.06, (quiet, busy)
     live.client.post("/api/stop")
+
+
+def test_a_start_too_large_for_the_pipe_to_a_stalled_loop_does_not_wedge_the_server(live):
+    """1000 pulses pickle to more than the pipe's 64 KiB: to a stopped loop the send would
+    block the request, and with it (through the state lock) health and reset."""
+    live.client.post("/api/reset")
+    pulses = [{"satellite": "cubesat", "start_s": k + 0.5, "end_s": k + 1.0}
+              for k in range(1000)]
+    pid = _loop_pid(live)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        t0 = time.monotonic()
+        r = live.client.post("/api/scenarios/collision/start", json={"pulses": pulses},
+                             timeout=10)
+        assert time.monotonic() - t0 < 3.0, "the start blocked"
+        assert r.status_code in (200, 503), r.text  # 200: noticed first and replaced
+        t0 = time.monotonic()
+        live.client.get("/api/health", timeout=5)
+        assert time.monotonic() - t0 < 1.0, "health blocked"
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/free-floating/start", json={"pulses": []}).json()
+    assert s["status"] == "running"
+    live.client.post("/api/stop")
+
+
+def test_a_long_start_up_keeps_the_heartbeat(live):
+    """A 20 s bias calibration (40,000 rest readings) and the lag identification are
+    start-up work, not a stall: no fault, and the run starts."""
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/collision/start",
+                         json={"wrench": {"calibration_s": 20.0}}).json()
+    assert s["status"] == "running", s
+    assert live.client.get("/api/health").json()["status"] in ("ok", "degraded")
+    live.client.post("/api/stop")

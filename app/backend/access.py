@@ -19,9 +19,9 @@ import hmac
 import ipaddress
 import json
 import os
+import re
 import secrets
-from http.cookies import SimpleCookie
-from urllib.parse import parse_qsl
+from urllib.parse import parse_qsl, urlencode
 
 MAX_BODY_BYTES = 64 * 1024
 """Request bodies beyond this get 413 before anything reads them whole."""
@@ -68,10 +68,15 @@ def access_token(host: str, generate: bool = False) -> tuple[str | None, bool]:
         f"--generate-token to have one made and printed")
 
 
+TOKEN_CHARS = re.compile(r"[A-Za-z0-9._~-]+")
+"""What a token may hold: it travels in a URL and a cookie unchanged (`openssl rand -hex
+16` or Python's secrets.token_urlsafe make such tokens)."""
+
+
 def check_token(token: str, source: str = "token") -> str:
-    if len(token) < MIN_TOKEN_CHARS or not token.isprintable() or " " in token:
-        raise AccessError(f"{source}: at least {MIN_TOKEN_CHARS} printable characters, no "
-                          f"spaces")
+    if len(token) < MIN_TOKEN_CHARS or not TOKEN_CHARS.fullmatch(token):
+        raise AccessError(f"{source}: at least {MIN_TOKEN_CHARS} characters, only letters, "
+                          f"digits and . _ ~ - (e.g. openssl rand -hex 16)")
     return token
 
 
@@ -185,6 +190,17 @@ class SameOrigin:
         return await self.app(scope, receive, send)
 
 
+def _cookies(headers: dict, name: str) -> list[str]:
+    """The values of every cookie called `name` in the Cookie header, read leniently: a
+    cookie of another app that a strict parser would reject does not hide this one."""
+    values = []
+    for part in headers.get(b"cookie", b"").decode("latin-1").split(";"):
+        key, sep, value = part.strip().partition("=")
+        if sep and key == name:
+            values.append(value.strip().strip('"'))
+    return values
+
+
 def _has_body(headers: dict) -> bool:
     length = headers.get(b"content-length")
     if length is not None:
@@ -219,26 +235,36 @@ class TokenGate:
         auth = headers.get(b"authorization", b"")
         if auth[:7].lower() == b"bearer " and self._valid(auth[7:].strip()):
             return await self.app(scope, receive, send)
-        cookie = SimpleCookie()
-        try:
-            cookie.load(headers.get(b"cookie", b"").decode("latin-1"))
-        except Exception:  # a malformed Cookie header carries no token
-            cookie = SimpleCookie()
-        if TOKEN_COOKIE in cookie and self._valid(cookie[TOKEN_COOKIE].value):
+        if any(self._valid(value) for value in _cookies(headers, TOKEN_COOKIE)):
             return await self.app(scope, receive, send)
-        query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
-        if self._valid(query.get("token")):
+        query = parse_qsl(scope.get("query_string", b"").decode("latin-1"))
+        if any(name == "token" and self._valid(value) for name, value in query):
             if scope["type"] == "websocket":
                 return await self.app(scope, receive, send)
+            if b"text/html" in headers.get(b"accept", b""):  # a browser opening the link
+                return await self._to_page_without_token(scope, send, query)
             return await self.app(scope, receive, self._setting_cookie(send))
         return await _reject(scope, send, 401,
                              "a token is required: Authorization: Bearer <token>, or open the "
                              "link the server printed (…/?token=<token>)",
                              headers=((b"www-authenticate", b"Bearer"),))
 
+    async def _to_page_without_token(self, scope, send, query) -> None:
+        """303 to the same page without the token in its URL (nor in the browser's
+        history), with the cookie that carries it from now on."""
+        rest = urlencode([(k, v) for k, v in query if k != "token"])
+        location = (scope.get("root_path", "") + scope["path"] + (f"?{rest}" if rest else ""))
+        await send({"type": "http.response.start", "status": 303,
+                    "headers": [(b"location", location.encode("latin-1")),
+                                (b"set-cookie", self._cookie()), (b"content-length", b"0")]})
+        await send({"type": "http.response.body", "body": b""})
+
+    def _cookie(self) -> bytes:
+        return (f"{TOKEN_COOKIE}={self.token.decode()}; Path=/; HttpOnly; "
+                f"SameSite=Strict").encode()
+
     def _setting_cookie(self, send):
-        value = (f"{TOKEN_COOKIE}={self.token.decode()}; Path=/; HttpOnly; "
-                 f"SameSite=Strict").encode()
+        value = self._cookie()
 
         async def wrapped(message):
             if message["type"] == "http.response.start":

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
+import re
 from pathlib import Path
 
 from app.backend.access import TOKEN_ENV, access_token
@@ -20,8 +22,6 @@ def _port(text: str) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    import logging
-
     import uvicorn
 
     from app.backend.server import create_app
@@ -36,6 +36,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
                              f"loopback and {TOKEN_ENV} is not set)")
         _write_secret(Path(args.token_file), token)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("uvicorn.access").addFilter(RedactToken())
     app = create_app(viser_port=args.viser_port, host=args.host,
                      default_scenario=args.scenario, token=token)
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
@@ -70,10 +71,24 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+class RedactToken(logging.Filter):
+    """Keeps a ``token=`` in a request's URL out of the access log."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.args, tuple):
+            record.args = tuple(TOKEN_IN_URL.sub(r"\1<token>", a) if isinstance(a, str)
+                                else a for a in record.args)
+        return True
+
+
+TOKEN_IN_URL = re.compile(r"((?:^|[?&])token=)[^&\s]*")
+
+
 def _write_secret(path: Path, token: str) -> None:
     """The token into a file only its owner can read (for a health check in a container)."""
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:  # not through a symbolic link, and 0600 even where the file was there before
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
+        os.fchmod(fd, 0o600)
         with os.fdopen(fd, "w") as out:
             out.write(token + "\n")
     except OSError as err:

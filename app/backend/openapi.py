@@ -70,9 +70,9 @@ def _document(app: FastAPI, token_required: bool) -> dict:
         components["securitySchemes"] = {"bearer": {"type": "http", "scheme": "bearer"}}
         schema["security"] = [{"bearer": []}]
     for path, operations in schema.get("paths", {}).items():
-        for operation in operations.values():
+        for method, operation in operations.items():
             answers = dict(ALWAYS)
-            if "requestBody" in operation:
+            if "requestBody" in operation or method in ("post", "put", "patch"):
                 answers.update(WITH_BODY)
             if token_required:
                 answers["401"] = TOKEN

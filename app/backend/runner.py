@@ -59,6 +59,8 @@ class LoopDown(RunnerError):
 MISS_WINDOW_S = 10.0
 """Health reports the deadline-miss ratio over this window."""
 STALL_S = 0.5
+SEND_TIMEOUT_S = 1.0
+"""A loop process that takes no command for this long is at fault (see Runner._send)."""
 """A loop process whose heartbeat has not moved for this long is stalled."""
 
 
@@ -217,16 +219,34 @@ class Runner:
         return self._proc is not None and self._proc.is_alive()
 
     def _send(self, msg: tuple) -> None:
+        """Hand the loop a command, or raise LoopDown. The pipe takes 64 KiB before the
+        loop reads; a larger message to a stalled loop would block the caller (who may
+        hold the state lock that health needs), so the send runs in a thread and a loop
+        that does not take it within SEND_TIMEOUT_S is a fault."""
         if self._proc is None:
             raise RunnerError("the loop process is not running")
         reason = self.fault()
         if reason is not None:
             raise LoopDown(reason)
-        try:
-            with self._send_lock:
-                self._cmd.send(msg)
-        except (OSError, EOFError) as err:  # the process died between the check and now
-            raise LoopDown(f"the loop process is gone ({type(err).__name__})") from None
+        done, failed = threading.Event(), []
+
+        def send() -> None:
+            try:
+                with self._send_lock:
+                    self._cmd.send(msg)
+            except (OSError, EOFError, ValueError) as err:  # the process died meanwhile
+                failed.append(err)
+            finally:
+                done.set()
+
+        threading.Thread(target=send, name="loop-command", daemon=True).start()
+        if not done.wait(SEND_TIMEOUT_S):
+            with self._state_lock:
+                self._fault = (f"the loop process has not taken a command for "
+                               f"{SEND_TIMEOUT_S:g} s")
+            raise LoopDown(self._fault)
+        if failed:
+            raise LoopDown(f"the loop process is gone ({type(failed[0]).__name__})")
 
     # --- state --------------------------------------------------------------------------
 
@@ -269,10 +289,15 @@ class Runner:
         return self.snapshot()["loop"]["wall_s"]
 
     def wait_until(self, predicate: Callable[[dict], bool], timeout_s: float) -> bool:
+        """Wait for the published state to satisfy predicate; raises LoopDown as soon as
+        the loop process dies or stalls meanwhile."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if predicate(self.snapshot()):
                 return True
+            reason = self.fault()
+            if reason is not None:
+                raise LoopDown(reason)
             time.sleep(0.01)
         return predicate(self.snapshot())
 
@@ -341,6 +366,9 @@ class Runner:
 
         Raises RunnerBusy when nothing runs and ValueError for a bad satellite index.
         """
+        reason = self.fault()
+        if reason is not None:
+            raise LoopDown(reason)
         snap = self.snapshot()
         if self.status != "running":
             raise RunnerBusy(f"no scenario is running (status {self.status!r})")

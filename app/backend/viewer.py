@@ -13,12 +13,14 @@ from __future__ import annotations
 import asyncio
 import hmac
 import http
+import http.client
 import inspect
 import logging
 import secrets
 import urllib.error
 import urllib.request
 from contextlib import contextmanager
+from urllib.parse import quote
 
 import websockets
 import websockets.asyncio.server
@@ -86,7 +88,7 @@ def add_viewer_routes(app: FastAPI) -> None:
 
     @app.get(PATH + "{path:path}", include_in_schema=False)
     async def viewer_page(path: str, request: Request):
-        url = f"http://127.0.0.1:{request.app.state.viser_port}/{path}"
+        url = f"http://127.0.0.1:{request.app.state.viser_port}/{quote(path)}"
         status, kind, body = await asyncio.to_thread(
             _fetch, url, request.app.state.viewer_secret)
         return Response(body, status_code=status, media_type=kind)
@@ -117,6 +119,8 @@ def _fetch(url: str, secret: str) -> tuple[int, str, bytes]:
             return answer.status, answer.headers.get_content_type(), answer.read()
     except urllib.error.HTTPError as err:
         return err.code, "text/plain", err.read()
+    except (urllib.error.URLError, http.client.HTTPException, ValueError, OSError) as err:
+        return 502, "text/plain", f"the 3D viewer did not answer: {err}\n".encode()
 
 
 async def _relay(client: WebSocket, upstream) -> None:

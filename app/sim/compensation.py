@@ -72,7 +72,7 @@ class LagModel:
 
 
 def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
-                            q0_rad: np.ndarray) -> float:
+                            q0_rad: np.ndarray, tick=None) -> float:
     """How far behind a steady ramp target the mockup follows, in seconds.
 
     Copies of the arm's VFDM and servo model (not the arm itself) start at rest at
@@ -85,7 +85,7 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
     dt_s = 1.0 / config.loop.rate_hz
     ramp_s = RAMP_S
     while True:
-        lags_s = _ramp_lags_s(config, T_F_C, q0_rad, dt_s, ramp_s)
+        lags_s = _ramp_lags_s(config, T_F_C, q0_rad, dt_s, ramp_s, tick or (lambda: None))
         drift_s = abs(lags_s[-1] - lags_s[0])
         if drift_s <= CONVERGED_S:
             break
@@ -106,8 +106,9 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
 
 
 def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
-                 dt_s: float, ramp_s: float) -> np.ndarray:
-    """The lag (s) at 3/4 of a ramp of ``ramp_s`` and at its end."""
+                 dt_s: float, ramp_s: float, tick) -> np.ndarray:
+    """The lag (s) at 3/4 of a ramp of ``ramp_s`` and at its end; tick() now and then
+    (a supervisor's heartbeat)."""
     vfdm = Vfdm(config.vfdm, T_F_C, q0_rad, JointLimits.of_servo(config.servo, dt_s))
     servo = UR10eServo(config.servo, dt_s, q0_rad)
     T0 = vfdm.tcp_pose()
@@ -120,6 +121,8 @@ def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
         if config.vfdm.sync_to_measured:  # as ArmRig.command does
             vfdm.q_rad[:] = servo.state.q_rad
         servo.step(vfdm.solve(T))
+        if k % 50 == 0:
+            tick()
         if k in check:
             mockup = tcp_pose_B(servo.state.q_rad, T_F_C)
             lags.append((T[0, 3] - mockup[0, 3]) / RAMP_SPEED_MPS)
@@ -134,11 +137,12 @@ def force_lag_s(config: EmulatorConfig, hold: bool = True) -> float:
     return (config.sensor.delay_cycles + (1.0 - alpha) / alpha + 0.5 * hold) * dt_s
 
 
-def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray) -> LagModel:
+def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
+              tick=None) -> LagModel:
     """The lags of the arm with mockup offset T_F_C, identified around posture q0_rad.
     Raises LagModelError if their sum is beyond MAX_LEAD_S (the largest lead the
     configuration accepts: a prediction that far ahead is no longer a small correction)."""
-    model = LagModel(identify_position_lag_s(config, T_F_C, q0_rad), force_lag_s(config))
+    model = LagModel(identify_position_lag_s(config, T_F_C, q0_rad, tick), force_lag_s(config))
     if model.lead_s > MAX_LEAD_S:
         raise LagModelError(
             f"the loop's lag is {1e3 * model.lead_s:.0f} ms ({1e3 * model.position_s:.0f} ms "

@@ -277,16 +277,18 @@ class Emulator:
             arm.q_start_rad = q
             if self.config.compensation.enabled:
                 lead = self.config.compensation.lead_s
-                arm.lead_s = (lag_model(self.config, arm.T_F_C, q).lead_s
+                arm.lead_s = (lag_model(self.config, arm.T_F_C, q, tick).lead_s
                               if lead is None else lead)
             tick()
             arm.move_to(q, self.dt_s)
             tick()
         rest = {arm.index: [] for arm in self.arms}
         tick()
-        for _ in range(int(round(settle_s / self.dt_s))):
+        for k in range(int(round(settle_s / self.dt_s))):
             for arm in self.arms:
                 rest[arm.index].append(arm.rest_reading())
+            if k % 100 == 99:
+                tick()
         for arm in self.arms:
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
