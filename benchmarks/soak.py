@@ -5,8 +5,9 @@
 
 What it runs: ``orbit-emulator serve --port 0`` as a real process tree (the web process and
 its loop process), the free-floating scenario for the whole soak at 500 Hz (no scripted
-pulses; one client pushes the satellite +x then -x every 20 s, 5 N for 0.3 s), the control
-page and its 3D viewer in headless Chromium, and 8 client threads that poll
+pulses; one client pushes the satellite every 20 s, 5 N for 0.3 s along +x, -x, -x, +x,
+so that it moves out and back), the control page and its 3D viewer in headless Chromium,
+and 8 client threads that poll
 ``/api/state``, ``/api/metrics`` and ``/api/telemetry`` in turn with 1 s between rounds
 (the telemetry ring holds the last ``--ring-s`` seconds, so each CSV is that long). All
 traffic goes to 127.0.0.1; it stops by itself.
@@ -21,6 +22,7 @@ each process's memory within 10 % of its value at the end of the first minute.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import re
 import shutil
@@ -86,13 +88,13 @@ def poll(url: str, stop: threading.Event, counts: dict, errors: list) -> None:
 
 def push(url: str, stop: threading.Event, errors: list) -> None:
     with httpx.Client(base_url=url, timeout=60.0) as client:
-        sign = 1.0
+        signs = itertools.cycle([1.0, -1.0, -1.0, 1.0])  # out and back: no drift
         while not stop.wait(20.0):
-            r = client.post("/api/push", json={"satellite": 1, "force_N": [5.0 * sign, 0, 0],
+            r = client.post("/api/push", json={"satellite": 1,
+                                               "force_N": [5.0 * next(signs), 0, 0],
                                                "duration_s": 0.3})
             if r.status_code != 200:
                 errors.append(f"push: {r.status_code} {r.text[:200]}")
-            sign = -sign
 
 
 def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = True) -> int:
@@ -134,7 +136,11 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
             print("|---|---|---|---|---|---|---|")
             while time.monotonic() - t0 < minutes * 60:
                 page.wait_for_timeout(SAMPLE_S * 1000)  # the page keeps rendering
-                loop = api.get("/api/state").json()["loop"]
+                state = api.get("/api/state").json()
+                loop = state["loop"]
+                if state["status"] != "running":
+                    print(f"the run ended: {state['status']}: {state['reason']}")
+                    break
                 steal = steal_ticks()
                 samples.append((time.monotonic() - t0, loop["cycles"] - base[0],
                                 loop["deadline_misses"] - base[1], loop["resyncs"] - base[2],
