@@ -233,3 +233,19 @@ def test_a_long_start_up_keeps_the_heartbeat(live):
     assert s["status"] == "running", s
     assert live.client.get("/api/health").json()["status"] in ("ok", "degraded")
     live.client.post("/api/stop")
+
+
+def test_resets_at_once_each_get_their_own_telemetry_ring(live):
+    """Four resets in flight before the loop reaches the first: each its own generation
+    and ring, none released before the loop opened it (it answered FileNotFoundError)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(4) as pool:
+        states = list(pool.map(lambda _: live.client.post("/api/reset").json(), range(4)))
+    for s in states:
+        assert s["status"] == "idle", s
+    s = live.client.post("/api/scenarios/free-floating/start", json={"pulses": []}).json()
+    assert s["status"] == "running", s
+    live.wait_for(lambda s: s["t_s"] > 0.2)
+    assert len(live.client.get("/api/telemetry").text.splitlines()) > 50
+    live.client.post("/api/stop")

@@ -190,7 +190,7 @@ class Runner:
         self.shutdown(timeout_s=0.5)
         with self._state_lock:
             self._initial = (config, scenario, mode)
-            self._pending = None
+            self._pending, self._pending_gen = None, -1  # the new process counts from 0
             self._cache = (-1, {})
             self._timing.clear()
         self.start_thread()
@@ -313,19 +313,22 @@ class Runner:
             busy = self._status(snap)
             if busy in ("starting", "running"):
                 raise RunnerBusy(f"a scenario is already {busy}; stop it first")
-            gen = snap["generation"] + 1
-            ring = self._new_ring(gen, config, mode)
+            gen = max(snap["generation"], self._pending_gen) + 1  # requests not yet seen
+            ring = self._new_ring(gen, config, mode, snap["generation"])
             self._send(("start", scenario, config, mode, ring.name))
             self._pending, self._pending_gen = "starting", gen
             return gen
 
-    def _new_ring(self, gen: int, config: EmulatorConfig, mode: str | None) -> RunTelemetry:
-        """The telemetry ring of run ``gen``; the rings of runs before ``gen − 1`` go."""
+    def _new_ring(self, gen: int, config: EmulatorConfig, mode: str | None,
+                  published: int) -> RunTelemetry:
+        """The telemetry ring of run ``gen``; the rings of runs before ``gen − 1`` go,
+        but none the loop may still have to open (requests it has not reached yet:
+        generations after the ``published`` one)."""
         ring = RunTelemetry(config, mode)
         with self._ring_lock:
             old = self._rings.pop(gen, None)
             self._rings[gen] = ring
-            stale = [g for g in self._rings if g < gen - 1]
+            stale = [g for g in self._rings if g < min(gen - 1, published)]
             for g in stale:
                 self._rings.pop(g).release()
             if old is not None:
@@ -355,8 +358,8 @@ class Runner:
     def request_reset(self, scenario: str, config: EmulatorConfig, mode: str | None) -> int:
         with self._state_lock:
             snap = self.snapshot()
-            gen = snap["generation"] + 1
-            ring = self._new_ring(gen, config, mode)
+            gen = max(snap["generation"], self._pending_gen) + 1  # requests not yet seen
+            ring = self._new_ring(gen, config, mode, snap["generation"])
             self._send(("reset", scenario, config, mode, ring.name))
             self._pending, self._pending_gen = "idle", gen
             return gen
