@@ -5,8 +5,8 @@
 
 What it runs: ``orbit-emulator serve --port 0`` as a real process tree (the web process and
 its loop process), the free-floating scenario for the whole soak at 500 Hz (no scripted
-pulses; one client pushes the satellite every 20 s, 5 N for 0.3 s along +x, -x, -x, +x,
-so that it moves out and back), the control page and its 3D viewer in headless Chromium,
+pulses; every 20 s one client pushes the satellite with 8 N, out and back, keeping it
+near its start as an operator would), the control page and its 3D viewer in headless Chromium,
 and 8 client threads that poll
 ``/api/state``, ``/api/metrics`` and ``/api/telemetry`` in turn with 1 s between rounds
 (the telemetry ring holds the last ``--ring-s`` seconds, so each CSV is that long). All
@@ -33,6 +33,7 @@ import threading
 import time
 
 import httpx
+import numpy as np
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu",
@@ -87,12 +88,23 @@ def poll(url: str, stop: threading.Event, counts: dict, errors: list) -> None:
 
 
 def push(url: str, stop: threading.Event, errors: list) -> None:
+    """An operator keeping the satellite near its start: every 20 s a push of 8 N (over
+    the 4 N deadband) against its drift, long enough to take out its velocity and a
+    twentieth of its offset, or, at rest there, a push out along x, y, -x, -y in turn
+    (pushes that only alternate in sign leave what the deadband and noise made of each,
+    and the satellite wandered out of the arm's reach in 5 to 8 minutes)."""
+    force_N, scale = 8.0, 0.005  # free-floating: 1 kg, [orbit] force_scale 0.005
+    directions = itertools.cycle(np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]))
     with httpx.Client(base_url=url, timeout=60.0) as client:
-        signs = itertools.cycle([1.0, -1.0, -1.0, 1.0])  # out and back: no drift
         while not stop.wait(20.0):
-            r = client.post("/api/push", json={"satellite": 1,
-                                               "force_N": [5.0 * next(signs), 0, 0],
-                                               "duration_s": 0.3})
+            sat = client.get("/api/state").json()["satellites"][0]
+            dv = -np.array(sat["velocity_mps"]) - np.array(sat["position_m"]) / 20.0
+            if np.linalg.norm(dv) < 2e-3:  # at rest near its start: an excursion
+                dv = 0.008 * next(directions)
+            duration = float(np.clip(np.linalg.norm(dv) / (scale * force_N), 0.05, 1.0))
+            r = client.post("/api/push", json={
+                "satellite": 1, "duration_s": duration,
+                "force_N": (force_N * dv / np.linalg.norm(dv)).tolist()})
             if r.status_code != 200:
                 errors.append(f"push: {r.status_code} {r.text[:200]}")
 
@@ -132,8 +144,8 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
                   f"{ring_s:g} s; loop scheduling: {first['scheduling']}; counted from "
                   f"here (the start-up's {base[0]} cycles left out)\n")
             print("| t (s) | cycles | deadline misses | resyncs | web RSS (MB) | "
-                  "loop RSS (MB) | steal |")
-            print("|---|---|---|---|---|---|---|")
+                  "loop RSS (MB) | steal | satellite offset (mm) |")
+            print("|---|---|---|---|---|---|---|---|")
             while time.monotonic() - t0 < minutes * 60:
                 page.wait_for_timeout(SAMPLE_S * 1000)  # the page keeps rendering
                 state = api.get("/api/state").json()
@@ -145,8 +157,10 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
                 samples.append((time.monotonic() - t0, loop["cycles"] - base[0],
                                 loop["deadline_misses"] - base[1], loop["resyncs"] - base[2],
                                 rss_mb(proc.pid), rss_mb(loop_pid),
-                                (steal[0] - steal0[0]) / max(1, steal[1] - steal0[1])))
-                print("| {:.0f} | {} | {} | {} | {:.0f} | {:.0f} | {:.2%} |".format(
+                                (steal[0] - steal0[0]) / max(1, steal[1] - steal0[1]),
+                                1e3 * float(np.linalg.norm(
+                                    state["satellites"][0]["position_m"]))))
+                print("| {:.0f} | {} | {} | {} | {:.0f} | {:.0f} | {:.2%} | {:.0f} |".format(
                     *samples[-1]), flush=True)
             stop.set()
             for t in threads:
