@@ -316,3 +316,18 @@ def test_cli_scenarios_and_bad_input(tmp_path):
                              capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and message in bad.stderr
     assert not out.exists()
+
+
+def test_cycle_times_kept_for_the_telemetry_capacity_only():
+    """A web run is long: the Emulator keeps the compute times of its last
+    telemetry_capacity cycles, not one more per cycle for ever."""
+    config = load_scenario("free-floating")
+    config = config.model_copy(update={"loop": config.loop.model_copy(
+        update={"telemetry_capacity": 200, "duration_s": 60.0})})
+    em = Emulator(config)
+    em.prepare()
+    for _ in range(450):
+        em.step()
+    assert em.cycles == 450
+    assert em.cycle_time_ns.shape == (200,)
+    assert (em.cycle_time_ns > 0).all()

@@ -104,7 +104,8 @@ class Emulator:
         self.status = "idle"
         self.safety_stop: dict | None = None
         self.cycles = 0
-        self.cycle_time_ns: list[int] = []
+        # the compute time of the last telemetry_capacity cycles (a ring: a web run is long)
+        self._cycle_time_ns = np.zeros(config.loop.telemetry_capacity, dtype=np.int64)
         self.applied_force_R = np.zeros((self.n_sat, 3))
         self.applied_torque_B = np.zeros((self.n_sat, 3))
         self.true_force_R = np.zeros((self.n_sat, 3))
@@ -141,8 +142,14 @@ class Emulator:
             arm.command(arm.tcp_target_B(predicted[arm.lead_s]))
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
+        self._cycle_time_ns[self.cycles % len(self._cycle_time_ns)] = time.perf_counter_ns() - t0
         self.cycles += 1
-        self.cycle_time_ns.append(time.perf_counter_ns() - t0)
+
+    @property
+    def cycle_time_ns(self) -> np.ndarray:
+        """The compute time of each cycle (ns): all of them in a run that fits the
+        telemetry capacity (a headless run), else the last telemetry_capacity, unordered."""
+        return self._cycle_time_ns[:min(self.cycles, len(self._cycle_time_ns))]
 
     def bodies_W(self) -> Bodies:
         """Where the bodies that touch are: the actual mockups in hil, the ODS's in ideal."""
