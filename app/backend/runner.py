@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import collections
 import multiprocessing as mp
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -84,7 +85,8 @@ class Runner:
             "snapshot_every": snapshot_every, "spin_s": spin_s, "max_lag_s": max_lag_s,
             "rt_priority": rt_priority, "nice": nice, "warm_up": warm_up,
         }
-        self._send_lock = threading.Lock()
+        self._outbox: queue.SimpleQueue = queue.SimpleQueue()  # for the sender thread
+        self._sender: threading.Thread | None = None
         self._state_lock = threading.RLock()
         self._proc: mp.process.BaseProcess | None = None
         self._shm: shared_memory.SharedMemory | None = None
@@ -221,25 +223,19 @@ class Runner:
     def _send(self, msg: tuple) -> None:
         """Hand the loop a command, or raise LoopDown. The pipe takes 64 KiB before the
         loop reads; a larger message to a stalled loop would block the caller (who may
-        hold the state lock that health needs), so the send runs in a thread and a loop
-        that does not take it within SEND_TIMEOUT_S is a fault."""
+        hold the state lock that health needs), so one sender thread writes to the pipe
+        and a loop that does not take a message within SEND_TIMEOUT_S is a fault."""
         if self._proc is None:
             raise RunnerError("the loop process is not running")
         reason = self.fault()
         if reason is not None:
             raise LoopDown(reason)
+        if self._sender is None:
+            self._sender = threading.Thread(target=self._sender_main, name="loop-commands",
+                                            daemon=True)
+            self._sender.start()
         done, failed = threading.Event(), []
-
-        def send() -> None:
-            try:
-                with self._send_lock:
-                    self._cmd.send(msg)
-            except (OSError, EOFError, ValueError) as err:  # the process died meanwhile
-                failed.append(err)
-            finally:
-                done.set()
-
-        threading.Thread(target=send, name="loop-command", daemon=True).start()
+        self._outbox.put((self._cmd, msg, done, failed))
         if not done.wait(SEND_TIMEOUT_S):
             with self._state_lock:
                 self._fault = (f"the loop process has not taken a command for "
@@ -247,6 +243,18 @@ class Runner:
             raise LoopDown(self._fault)
         if failed:
             raise LoopDown(f"the loop process is gone ({type(failed[0]).__name__})")
+
+    def _sender_main(self) -> None:
+        """The sender thread: writes each message to its pipe in order. A send blocked on
+        a stalled loop ends when restart() kills that process (BrokenPipeError)."""
+        while True:
+            conn, msg, done, failed = self._outbox.get()
+            try:
+                conn.send(msg)
+            except (OSError, EOFError, ValueError) as err:  # the process died meanwhile
+                failed.append(err)
+            finally:
+                done.set()
 
     # --- state --------------------------------------------------------------------------
 
