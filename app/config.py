@@ -7,6 +7,7 @@ with a message that names the field.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Annotated, Literal
@@ -462,9 +463,16 @@ def _format_error(err: ValidationError) -> str:
 
 
 def parse_config(data: dict) -> EmulatorConfig:
-    """Validate a plain dict (from TOML or JSON) into an EmulatorConfig."""
+    """Validate a plain dict (from TOML or JSON) into an EmulatorConfig.
+
+    Strictly, as JSON: a number must be a number (``"5"`` is refused, an integer is taken
+    where a float is expected), a flag ``true`` or ``false``; a list stands for a tuple."""
     try:
-        return EmulatorConfig.model_validate(data)
+        text = json.dumps(data, allow_nan=True)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"invalid configuration: not plain data: {err}") from None
+    try:
+        return EmulatorConfig.model_validate_json(text, strict=True)
     except ValidationError as err:
         raise ConfigError(_format_error(err)) from None
 
