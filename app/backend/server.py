@@ -18,7 +18,13 @@ from typing import Annotated, Any, Literal
 from fastapi import Body, FastAPI, HTTPException, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse
+from fastapi.responses import (
+    FileResponse,
+    HTMLResponse,
+    JSONResponse,
+    PlainTextResponse,
+    StreamingResponse,
+)
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
@@ -150,6 +156,12 @@ def _field_errors(errors) -> str:
 
 class CsvResponse(PlainTextResponse):
     media_type = "text/csv"
+
+
+def _csv_chunks(lines: list[str], lines_per_chunk: int = 2000):
+    """A CSV's lines as encoded chunks of a streamed response (never the whole text)."""
+    for i in range(0, len(lines), lines_per_chunk):
+        yield "".join(lines[i:i + lines_per_chunk]).encode()
 
 
 # --- the app ----------------------------------------------------------------------------
@@ -352,8 +364,9 @@ def create_app(
     @app.get("/api/telemetry", tags=["status"], response_class=CsvResponse)
     def telemetry(request: Request, format: Literal["csv"] = "csv"):
         """Telemetry of the current (or last) run as CSV (one row per cycle)."""
-        text = service(request).telemetry_csv()
-        return CsvResponse(
-            text, headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
+        lines = service(request).telemetry_csv()
+        return StreamingResponse(
+            _csv_chunks(lines), media_type=CsvResponse.media_type,
+            headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
 
     return app

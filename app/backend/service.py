@@ -157,16 +157,17 @@ class EmulatorService:
 
     # --- heavier reads --------------------------------------------------------------------
 
-    def telemetry_csv(self) -> str:
-        """The current run's telemetry as CSV (computed here, from the shared ring)."""
+    def telemetry_csv(self) -> list[str]:
+        """The current run's telemetry as CSV lines, header first (computed here, from the
+        shared ring; see CsvLines.document)."""
         return self._reads.get("telemetry", self._telemetry_csv)
 
-    def _telemetry_csv(self) -> str:
+    def _telemetry_csv(self) -> list[str]:
         snap, ring, first, rows = self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
         if self._csv is None or self._csv[0] is not ring:
             self._csv = (ring, CsvLines(columns))
-        return self._csv[1].text(first, rows)
+        return self._csv[1].document(first, rows)
 
     def _rows_of(self, snap: dict, ring, rows) -> tuple[list[str], np.ndarray]:
         """(columns, rows) of the current run; none yet before the first start."""
@@ -216,6 +217,12 @@ class CsvLines:
     def text(self, first: int, rows: np.ndarray) -> str:
         """The CSV of rows numbered first, first + 1, … (a later read never starts
         earlier)."""
+        return "".join(self.document(first, rows))
+
+    def document(self, first: int, rows: np.ndarray) -> list[str]:
+        """The CSV as its lines (the header first), for a response that streams them: a
+        list of the cached strings, not one more copy of the text (a full 1 GiB ring is
+        gigabytes of text)."""
         have = self.first + len(self.lines)
         if not self.first <= first <= have:  # a gap: begin again from these rows
             self.lines.clear()
@@ -225,7 +232,7 @@ class CsvLines:
         while self.first < first:
             self.lines.popleft()
             self.first += 1
-        return self.header + "".join(self.lines)
+        return [self.header, *self.lines]
 
 
 class SharedReads:

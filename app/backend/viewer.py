@@ -147,7 +147,18 @@ async def _relay(client: WebSocket, upstream) -> None:
     _, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
     for task in pending:
         task.cancel()
-    await _until_closed(client.close())
+    await _until_closed(client.close(code=_client_close_code(upstream.close_code)))
+
+
+def _client_close_code(upstream_code: int | None) -> int:
+    """The code the browser gets when viser ended the connection: viser's own, except the
+    codes that may not be sent (1005 no code: a normal close; 1006 the connection broke,
+    1015 TLS: viser is going away, 1001)."""
+    if upstream_code in (None, 1005):
+        return 1000
+    if upstream_code in (1006, 1015):
+        return 1001
+    return upstream_code
 
 
 async def _until_closed(work) -> None:
