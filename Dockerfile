@@ -23,7 +23,13 @@ RUN dpkg -s libgomp1 >/dev/null 2>&1 \
     || (apt-get update && apt-get install -y --no-install-recommends libgomp1 \
         && apt-get clean && rm -rf /var/lib/apt/lists/*)
 
+# optional build arguments for pip, not kept in the image: a certificate bundle, a
+# constraints file (scripts/container-test pins the host's versions with it)
+ARG PIP_CERT
+ARG PIP_CONSTRAINT
+
 COPY pyproject.toml README.md ./
+COPY scripts/container-entry /usr/local/bin/container-entry
 COPY app ./app
 COPY static ./static
 # pycollada: trimesh needs it to load the UR10 .dae meshes of the 3D view
@@ -45,6 +51,8 @@ RUN orbit-emulator run collision --duration 0.1 --out /tmp/warm-up --quiet > /de
 EXPOSE 8000
 
 HEALTHCHECK --interval=15s --timeout=5s --start-period=60s --retries=3 \
-    CMD ["python", "-c", "import json, sys, urllib.request; t = open('/home/emulator/.orbit-emulator-token').read().strip(); r = urllib.request.urlopen(urllib.request.Request('http://127.0.0.1:8000/api/health', headers={'Authorization': 'Bearer ' + t}), timeout=4); sys.exit(0 if json.load(r)['status'] in ('ok', 'degraded') else 1)"]
+    CMD ["python", "-c", "import json, sys, urllib.request; t = open('/tmp/orbit-emulator-token').read().strip(); r = urllib.request.urlopen(urllib.request.Request('http://127.0.0.1:8000/api/health', headers={'Authorization': 'Bearer ' + t}), timeout=4); sys.exit(0 if json.load(r)['status'] in ('ok', 'degraded') else 1)"]
 
-CMD ["orbit-emulator", "serve", "--host", "0.0.0.0", "--generate-token", "--token-file", "/home/emulator/.orbit-emulator-token"]
+# the entry point only makes the build's numba cache usable on a read-only file system
+ENTRYPOINT ["container-entry"]
+CMD ["orbit-emulator", "serve", "--host", "0.0.0.0", "--generate-token", "--token-file", "/tmp/orbit-emulator-token"]
