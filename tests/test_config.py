@@ -124,6 +124,8 @@ def test_overrides_are_a_merge_patch_with_item_indices():
     assert whole.satellites[0].mass_kg == SatelliteConfig(name="c").mass_kg
     assert merge_overrides(base, {"vfdm": {"kp_lin": None}}).vfdm.kp_lin == VfdmConfig().kp_lin
     assert merge_overrides(base, {}) == base
+    # an integer stands for a float, a list for a tuple
+    assert merge_overrides(base, {"loop": {"duration_s": 5}}).loop.duration_s == 5.0
     with pytest.raises(ConfigError, match="orbit.altitude_m"):
         merge_overrides(base, {"orbit": {"altitude_m": -1}})
 
@@ -135,6 +137,11 @@ def test_overrides_are_a_merge_patch_with_item_indices():
                                 "object of item indices, got the key 'x'"),
     ({"satellites": {"0": None}}, "satellites.0: an item cannot be removed by null"),
     ({"satellites": [{"mass_kg": 1.0}]}, "satellites.0.name"),
+    # strict, as JSON: a number in a string, 1 for true, a fraction for a count
+    ({"loop": {"duration_s": "5"}}, "loop.duration_s: Input should be a valid number"),
+    ({"passivity": {"enabled": 1}}, "passivity.enabled: Input should be a valid boolean"),
+    ({"loop": {"telemetry_capacity": 1000.0}},
+     "loop.telemetry_capacity: Input should be a valid integer"),
 ])
 def test_bad_patches_name_what_is_wrong(patch, message):
     base = parse_config({"satellites": [{"name": "a"}, {"name": "b"}]})
