@@ -6,6 +6,7 @@ import argparse
 import logging
 import os
 import re
+import signal
 from pathlib import Path
 
 from app.backend.access import TOKEN_ENV, access_token
@@ -67,7 +68,18 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         )
 
     server.startup = startup  # type: ignore[method-assign]
+    interrupted = []
+    original_exit = server.handle_exit
+
+    def handle_exit(sig, frame):  # uvicorn's handler, noting a Ctrl+C
+        if sig == signal.SIGINT:
+            interrupted.append(sig)
+        original_exit(sig, frame)
+
+    server.handle_exit = handle_exit  # type: ignore[method-assign]
     server.run()
+    if interrupted:  # uvicorn re-raises it after the shutdown, but asyncio may drop that
+        raise KeyboardInterrupt
     return 0
 
 

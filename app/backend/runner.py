@@ -211,10 +211,14 @@ class Runner:
         self._proc = None
         self._cmd.close()
         self._release_rings()
-        if self._shm is not None:
-            self._shm.close()
-            self._shm.unlink()
-            self._shm = None
+        with self._state_lock:  # fault() reads the heartbeat under this lock
+            shm, self._shm = self._shm, None
+        if shm is not None:
+            try:
+                shm.close()
+            except BufferError:  # a reader still holds a view: the mapping goes with it
+                pass
+            shm.unlink()
 
     @property
     def alive(self) -> bool:
@@ -260,19 +264,26 @@ class Runner:
 
     def snapshot(self) -> dict[str, Any]:
         """The latest published state (treat as read-only)."""
-        if self._shm is None:
+        shm = self._shm
+        if shm is None:
             raise RunnerError("the loop process is not running")
-        seq = snapshots.sequence(self._shm.buf)
+        try:
+            seq = snapshots.sequence(shm.buf)
+        except (TypeError, ValueError):  # shut down meanwhile: the mapping is gone
+            raise RunnerError("the loop process is not running") from None
         if seq != self._cache[0]:
-            seq, snap = self._read_snapshot()
+            seq, snap = self._read_snapshot(shm)
             self._cache = (seq, snap)
         return self._cache[1]
 
-    def _read_snapshot(self) -> tuple[int, dict | None]:
+    def _read_snapshot(self, shm: shared_memory.SharedMemory | None = None,
+                       ) -> tuple[int, dict | None]:
         try:
-            return snapshots.read_snapshot(self._shm.buf)
+            return snapshots.read_snapshot((shm or self._shm).buf)
         except snapshots.SnapshotError as err:
             raise RunnerError(str(err)) from err
+        except (AttributeError, TypeError, ValueError):  # shut down meanwhile
+            raise RunnerError("the loop process is not running") from None
 
     @property
     def status(self) -> str:
