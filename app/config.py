@@ -197,6 +197,10 @@ class VfdmConfig(_Model):
     velocity_mode: Literal["damped", "reset"] = "damped"
     damping: Annotated[float, AfterValidator(_finite), Field(ge=0.0, lt=1.0)] = 0.1
     """Fraction of virtual joint velocity removed per internal step (mode 'damped')."""
+    velocity_feedforward: StrictBool = True
+    """Add the target's velocity as a feedforward wrench (not in the paper): without it the
+    virtual damping leaves the arm a steady lag behind a moving target (app/sim/vfdm.py
+    Vfdm._feedforward)."""
     sync_to_measured: StrictBool = False
     """Each cycle, start the virtual arm from the measured joint positions (as FZI's
     cartesian_controllers can): the set-points then never drift from the real arm, at the

@@ -266,11 +266,14 @@ def main(argv: list[str] | None = None) -> int:
     n_sing = 1000 if args.quick else 2000  # cycles per singular path (2 s quick, 4 s full)
 
     vcfg = load_scenario("collision").vfdm
-    paper = vcfg.model_copy(update={"joint_armature_kgm2": 0.0})  # Table 1's model alone
+    no_ff = vcfg.model_copy(update={"velocity_feedforward": False})
+    no_armature = vcfg.model_copy(update={"joint_armature_kgm2": 0.0})
+    paper = no_ff.model_copy(update={"joint_armature_kgm2": 0.0})  # Table 1's model alone
     PinkIK, pink_note = pink_factory()  # noqa: N806
     methods = {
         "VFDM": lambda T_F_C, q0: Vfdm(vcfg, T_F_C, q0),
-        "VFDM, no armature": lambda T_F_C, q0: Vfdm(paper, T_F_C, q0),
+        "VFDM, no feedforward": lambda T_F_C, q0: Vfdm(no_ff, T_F_C, q0),
+        "VFDM, no armature": lambda T_F_C, q0: Vfdm(no_armature, T_F_C, q0),
         "VFDM, Table 1 alone (before)": lambda T_F_C, q0: Vfdm(paper, T_F_C, q0, limits=None),
         "pseudo-inverse": lambda T_F_C, q0: PseudoInverseIK(T_F_C, q0),
         "DLS (λ=0.05)": lambda T_F_C, q0: DampedLeastSquaresIK(T_F_C, q0),

@@ -213,12 +213,31 @@ class RefVfdm:
         self.qd = np.zeros(6)
         self.e_prev: np.ndarray | None = None
         self.last_error = np.zeros(6)
+        self.target_prev: np.ndarray | None = None
+        self.ff = np.zeros(6)
 
     def solve(self, T_target: np.ndarray) -> np.ndarray:
-        """One control cycle: ``iterations`` internal steps; the joint set-points."""
-        if self.cfg.velocity_mode == "reset":
+        """One control cycle: ``iterations`` internal steps; the joint set-points.
+
+        Feedforward (``velocity_feedforward``, damped mode): the target's velocity over the
+        cycle's virtual time ``V = Δ / (N h)`` (Δ: the target's displacement and rotation
+        vector since the last cycle) times the damping's drag coefficient per unit
+        inertia, ``(1 − k) / (k h)`` (a joint moving at q̇ keeps q̇ when q̈ h k = q̇ (1 − k)),
+        times Λ = diag(m_e, I_e): a constant wrench added to Eq. 13's for the cycle."""
+        cfg = self.cfg
+        if cfg.velocity_mode == "reset":
             self.qd[:] = 0.0
-        for _ in range(self.cfg.iterations):
+        self.ff = np.zeros(6)
+        if cfg.velocity_feedforward and self.keep < 1.0 and self.target_prev is not None:
+            P = self.target_prev
+            delta = np.concatenate([
+                clamp_norm(T_target[:3, 3] - P[:3, 3], cfg.max_error_lin_m),
+                clamp_norm(pin.log3(T_target[:3, :3] @ P[:3, :3].T), cfg.max_error_rot_rad)])
+            h = cfg.internal_dt_s
+            inertia = np.array([cfg.end_mass_kg] * 3 + [cfg.end_inertia_kgm2] * 3)
+            self.ff = inertia * delta / (cfg.iterations * h) * (1 - self.keep) / (self.keep * h)
+        self.target_prev = np.array(T_target, dtype=float)
+        for _ in range(cfg.iterations):
             self.step(T_target)
         return self.q.copy()
 
@@ -230,7 +249,7 @@ class RefVfdm:
         e = np.empty(6)
         e[:3] = clamp_norm(T_target[:3, 3] - oMc.translation, cfg.max_error_lin_m)
         e[3:] = clamp_norm(pin.log3(T_target[:3, :3] @ oMc.rotation.T), cfg.max_error_rot_rad)
-        f = self.kp * e
+        f = self.kp * e + self.ff
         if self.e_prev is not None:
             f += self.kd * (e - self.e_prev) / h
         self.e_prev, self.last_error = e, e.copy()

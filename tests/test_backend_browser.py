@@ -129,7 +129,9 @@ def test_start_button_starts_the_scenario(live, page):
 
 def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     live.client.post("/api/stop")
-    s = live.client.post("/api/scenarios/free-floating/start", json=QUIET).json()
+    # (120 s: the scenario's 24 s could run out before a second drag on a loaded machine)
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={**QUIET, "loop": {"duration_s": 120.0}}).json()
     assert s["status"] == "running"
     live.wait_for_scene()
     _wait_rendered(page, live)

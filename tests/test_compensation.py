@@ -149,7 +149,14 @@ def test_compensated_collision_matches_the_physics_with_a_quiet_sensor(ideal):
     assert apart["restitution"] == pytest.approx(coll["restitution"], rel=1e-6)
 
 
-def test_uncompensated_the_lagging_loop_makes_the_impact_gain_energy():
+def test_uncompensated_the_lagging_loop_makes_the_impact_gain_energy(ideal):
+    """DESIGN.md "Fidelity": the loop's lag adds energy to the contact. The sponge keeps
+    e² = 9 % of the approach's kinetic energy; the paper's chain hands it back several
+    times that (measured e 0.82: 67 %; above 1 before the VFDM's feedforward)."""
     m = run_scenario(_collision(*PAPER, *NO_NOISE), duration_s=4.0, with_ideal=False).metrics
     assert m["passivity"] is None
-    assert m["collision"]["restitution"] > 1.0  # DESIGN.md "Fidelity": lag adds energy
+    e_ideal = ideal["collision"]["restitution"]
+    assert m["collision"]["restitution"] > 2.0 * e_ideal
+    without_ff = run_scenario(_collision(*PAPER, *NO_NOISE, "vfdm.velocity_feedforward=false"),
+                              duration_s=4.0, with_ideal=False).metrics
+    assert without_ff["collision"]["restitution"] > 1.0  # a longer lag: more energy still

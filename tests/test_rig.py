@@ -250,6 +250,8 @@ def test_sync_to_measured_starts_each_cycle_from_the_measured_joints(free_floati
     twin.q_rad[:] = rig.servo.state.q_rad
     twin.qd_radps[:] = rig.vfdm.qd_radps
     twin._step_prev[:] = rig.vfdm._step_prev
+    twin._has_prev[:] = rig.vfdm._has_prev  # and the last target (the feedforward)
+    twin._R_prev[:], twin._p_prev[:] = rig.vfdm._R_prev, rig.vfdm._p_prev
     target[:3, 3] += [0.001, 0.0, 0.0]
     expected = twin.solve(target)
     rig.command(target)

@@ -235,6 +235,7 @@ def _target(T0, k):
 
 SOLVER_CASES = {
     "damped": VfdmConfig(),
+    "damped, no feedforward": VfdmConfig(velocity_feedforward=False),
     "reset": VfdmConfig(velocity_mode="reset"),
     "one step per cycle": VfdmConfig(iterations=1),
     "PD reset": VfdmConfig(velocity_mode="reset", kd_lin=0.5, kd_rot=0.05),
@@ -327,10 +328,46 @@ def test_tracks_moving_target_without_overshoot(mode):
             rot_err.append(np.linalg.norm(e[3:]))
         if k > n_move:
             ahead.append(-e[:3] @ u_dir)  # > 0: TCP past the (stopped) target
-    assert max(lag) < 1e-3  # measured: 0.27 mm (damped), 0.45 mm (reset)
-    assert max(rot_err) < 0.015  # measured: 5.5 mrad (damped), 9.0 mrad (reset)
-    assert max(ahead) < 1e-5  # no overshoot beyond 10 um (measured 2 um / 0)
+    if mode == "damped":  # with the target-velocity feedforward (the default)
+        assert max(lag) < 1e-4  # measured 0.05 mm (0.28 mm without the feedforward)
+        assert max(rot_err) < 1e-3  # measured 0.1 mrad (5.5 mrad without)
+        # it moves with the target, so an abrupt stop carries it on by about one cycle's
+        # travel (measured 0.10 mm; 0.5 um without the feedforward)
+        assert max(ahead) < np.linalg.norm(vel) * DT
+    else:  # no feedforward in the reset mode
+        assert max(lag) < 1e-3  # measured 0.45 mm
+        assert max(rot_err) < 0.015  # measured 9.0 mrad
+        assert max(ahead) < 1e-5  # no overshoot beyond 10 um (measured 0)
     assert np.linalg.norm(e) < 1e-5  # and it settles on the final target
+
+
+def test_without_feedforward_the_damping_leaves_a_steady_lag():
+    """Table 1's model alone (velocity_feedforward = false) lags a target moving at a
+    constant speed by what the damping's drag asks of the P term: the target moves
+    v·dt per cycle, i.e. V = v·dt / (N h) per virtual second, and the damped arm keeps V
+    with a force Λ V (1 − k) / (k h); the P term gives it at e = that / K_P."""
+    cfg = VfdmConfig(velocity_feedforward=False)
+    v = Vfdm(cfg, T_F_C, Q0)
+    T0 = tcp_pose_B(Q0, T_F_C)
+    speed = 0.05
+    for k in range(1000):
+        T = T0.copy()
+        T[0, 3] += speed * k * DT
+        q = v.solve(T)
+    lag = np.linalg.norm(pose_error(T, tcp_pose_B(q, T_F_C))[:3])
+    keep, h = 1 - cfg.damping, cfg.internal_dt_s
+    V = speed * DT / (cfg.iterations * h)
+    mean_lag = cfg.end_mass_kg * V * (1 - keep) / (keep * h) / cfg.kp_lin
+    # that is the lag averaged over a cycle; the target steps once a cycle and the arm
+    # closes the step as the cycle goes on, so at its end the lag is about half a step
+    # less (the arm's mass is Λ only approximately: links, armature): within 5 %
+    assert lag == pytest.approx(mean_lag - 0.5 * speed * DT, rel=0.05)
+    with_ff = Vfdm(VfdmConfig(), T_F_C, Q0)
+    for k in range(1000):
+        T = T0.copy()
+        T[0, 3] += speed * k * DT
+        q = with_ff.solve(T)
+    assert np.linalg.norm(pose_error(T, tcp_pose_B(q, T_F_C))[:3]) < 0.25 * lag
 
 
 def test_error_is_clamped():
@@ -450,12 +487,18 @@ def singular():
     return _singular_paths()
 
 
-# measured bounds of the position error (benchmarks/README.md, "Singular paths"), with margin
-SINGULAR_BOUND_MM = {"singular/wrist q5=0": 3.0, "singular/elbow stretched": 1.5,
-                     "singular/shoulder (over base)": 4.0, "singular/wrist+elbow": 8.0}
-# measured peak joint speed / limit: the armature keeps the wrist from swinging (0.95 without)
-SINGULAR_PEAK_SPEED = {"singular/wrist q5=0": 0.5, "singular/elbow stretched": 0.3,
-                       "singular/shoulder (over base)": 0.4, "singular/wrist+elbow": 0.4}
+# measured bounds of the position error (benchmarks/README.md, "Singular paths"), with
+# margin: over the whole path (0.53, 0.77, 1.52, 3.08 mm) ...
+SINGULAR_BOUND_MM = {"singular/wrist q5=0": 0.8, "singular/elbow stretched": 1.0,
+                     "singular/shoulder (over base)": 2.0, "singular/wrist+elbow": 4.0}
+# ... and outside the 10 mrad singular region: issue 16's 1 mm on the wrist and elbow paths
+# (the shoulder's 1.5 mm is the servo's lag: the exact per-cycle pseudo-inverse leaves 1.75)
+SINGULAR_OUTSIDE_MM = {"singular/wrist q5=0": 1.0, "singular/elbow stretched": 1.0,
+                       "singular/shoulder (over base)": 2.0, "singular/wrist+elbow": 4.0}
+# measured peak joint speed / limit (0.10, 0.22, 0.14, 0.21): the armature keeps the wrist
+# from swinging (0.95 without)
+SINGULAR_PEAK_SPEED = {"singular/wrist q5=0": 0.15, "singular/elbow stretched": 0.3,
+                       "singular/shoulder (over base)": 0.2, "singular/wrist+elbow": 0.3}
 
 
 @pytest.mark.parametrize("k", range(4))
@@ -467,7 +510,7 @@ def test_vfdm_rides_through_each_singular_path_within_the_joint_limits(singular,
     cfg = load_scenario("collision").vfdm
     v = Vfdm(cfg, T_F_C, q0)
     servo = UR10eServo(ServoConfig(), 0.002, q0)
-    sp_prev, err_mm, closest, peak = q0.copy(), [], np.inf, 0.0
+    sp_prev, err_mm, closest, peak, outside_mm = q0.copy(), [], np.inf, 0.0, 0.0
     for T in targets:
         sp = v.solve(T)
         assert np.all(np.abs(sp - sp_prev) <= SPEED_LIMITS_RADPS * 0.002 * (1 + 1e-12)), label
@@ -478,7 +521,10 @@ def test_vfdm_rides_through_each_singular_path_within_the_joint_limits(singular,
         peak = max(peak, float(np.max(np.abs(st.qd_radps) / SPEED_LIMITS_RADPS)))
         err_mm.append(1e3 * np.linalg.norm(pose_error(T, tcp_pose_B(st.q_rad, T_F_C))[:3]))
         closest = min(closest, measure(st.q_rad))
+        if measure(st.q_rad) >= 0.010:
+            outside_mm = max(outside_mm, err_mm[-1])
     assert max(err_mm) < SINGULAR_BOUND_MM[label], label
+    assert outside_mm < SINGULAR_OUTSIDE_MM[label], label
     assert peak < SINGULAR_PEAK_SPEED[label], label
     assert err_mm[-1] < 1.0, label  # made up by the end
     if label != "singular/elbow stretched":  # the arm really went through the singularity
@@ -491,14 +537,37 @@ def test_vfdm_rides_through_each_singular_path_within_the_joint_limits(singular,
 ])
 def test_the_armature_keeps_the_wrist_from_swinging_into_a_speed_stop(singular, armature,
                                                                       limits, stop):
-    """The wrist path without the set-point limits: Table 1's model trips the servo's
-    speed stop on joint 4 as q5 passes 0; with the joints' armature it passes."""
+    """The wrist path without the set-point limits (and without the feedforward): Table 1's
+    model trips the servo's speed stop on joint 4 as q5 passes 0; with the joints'
+    armature it passes."""
     T_F_C, paths = singular
     label, targets, q0, _ = paths[0]
-    cfg = load_scenario("collision").vfdm.model_copy(update={"joint_armature_kgm2": armature})
+    cfg = load_scenario("collision").vfdm.model_copy(
+        update={"joint_armature_kgm2": armature, "velocity_feedforward": False})
     v = Vfdm(cfg, T_F_C, q0, limits=None)
     servo = UR10eServo(ServoConfig(), 0.002, q0)
     for T in targets:
         if servo.step(v.solve(T)).stopped:
             break
     assert servo.reason == stop
+
+
+def test_vfdm_carries_a_spinning_satellite_through_its_arm_s_wrist_singularity():
+    """Scenario level (issue 16): the free-floating satellite spinning at 0.2 rad/s lines
+    the ceiling arm's wrist up (q5 through −π) after a quarter turn. The collision
+    scenario's VFDM takes it through with no stop and within the speed limits, where the
+    pseudo-inverse and DLS stop (benchmarks/README.md); the error (measured 5.6 mm: the
+    target asks joint 6 for 0.95 of its limit there) is made up afterwards."""
+    from benchmarks.ik_compare import run_method, spin_through_wrist, start_q, wrist_measure
+
+    _, targets, robot = spin_through_wrist(15.0)
+    T_F_C = T_F_C_from_config(robot)
+    q0 = start_q(targets[0], T_F_C, np.array(robot.q_home_rad))
+    r = run_method(Vfdm(load_scenario("collision").vfdm, T_F_C, q0), T_F_C, q0, targets,
+                   wrist_measure)
+    assert not r["stop"]  # no protective stop ("" : none)
+    assert r["cycles"] == len(targets)
+    assert r["qd_peak"] <= 1.0
+    assert r["closest_mrad"] < 1.0  # it went through the singularity
+    assert r["pos_max_mm"] < 7.0
+    assert r["recover_ms"] is not None and r["recover_ms"] < 1000.0

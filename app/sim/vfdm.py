@@ -292,21 +292,67 @@ def _joint_acceleration(q, tau, pR, pp, mass, lever, Icom, armature, qdd):
 
 @njit(cache=True, fastmath=False)
 def vfdm_cycle(q, qd, e_prev, state, last_e, Rt, pt, iterations,
-               pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd, keep, h, qlim,
-               max_lin, max_rot, max_dq, step_prev, max_step, max_change):
-    """One control cycle: :func:`vfdm_steps`, then :func:`limit_joint_step` on the cycle's
-    joint step; returns the uniform scale the speed limit put on it."""
+               pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd, ff, keep, h, qlim,
+               max_lin, max_rot, max_dq, step_prev, max_step, max_change,
+               ff_gain, R_prev, p_prev):
+    """One control cycle: :func:`target_feedforward`, :func:`vfdm_steps`, then
+    :func:`limit_joint_step` on the cycle's joint step; returns the uniform scale the speed
+    limit put on it. state[1] is 1.0 when (R_prev, p_prev) hold the last cycle's target."""
+    target_feedforward(Rt, pt, R_prev, p_prev, state, ff_gain, max_lin, max_rot, ff)
     q0 = q.copy()
     vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations, pR, pp, mass, lever, Icom,
-               tR, tp, armature, kp, kdh, use_kd, keep, h, qlim, max_lin, max_rot, max_dq)
+               tR, tp, armature, kp, kdh, use_kd, ff, keep, h, qlim, max_lin, max_rot, max_dq)
     return limit_joint_step(q, qd, q0, step_prev, max_step, max_change, qlim)
 
 
 @njit(cache=True, fastmath=False)
+def target_feedforward(Rt, pt, R_prev, p_prev, state, ff_gain, max_lin, max_rot, ff):
+    """ff := the target-velocity feedforward wrench of this cycle (not in the paper).
+
+    The target's motion since the last cycle, ``Δ = [p* − p*_prev; log(R* R*_prevᵀ)]``
+    (each part clamped like Eq. 13's error), times ``ff_gain = Λ / (N h) · (1 − k) / (k h)``
+    (Λ = diag(m_e, I_e), N internal steps of h, k = 1 − damping): the target's velocity in
+    the virtual model's time, and the force that holds the damped virtual arm at that
+    velocity (a joint moving at q̇ keeps q̇ when ``h k q̈ = (1 − k) q̇``). Without it the P
+    term alone pulls against the damping's drag with a steady lag (24 mrad on the wrist
+    path at Table 1's rotational gain). With ``H = Jᵀ Λ J`` it makes ``J q̇ = V*`` a steady
+    state; the armature's part of H keeps it out of the directions a singular arm cannot
+    move (no inverse of J). None on the first cycle after a reset (state[1] = 0); then
+    (R_prev, p_prev) := the target.
+    """
+    if state[1] > 0.5:
+        d = np.empty(3)
+        for a in range(3):
+            d[a] = pt[a] - p_prev[a]
+        _clamp(d, max_lin)
+        Rd = np.empty((3, 3))
+        for a in range(3):
+            for b in range(3):
+                Rd[a, b] = (Rt[a, 0] * R_prev[b, 0] + Rt[a, 1] * R_prev[b, 1]
+                            + Rt[a, 2] * R_prev[b, 2])
+        w = log3(Rd)
+        _clamp(w, max_rot)
+        for a in range(3):
+            ff[a] = ff_gain[a] * d[a]
+            ff[3 + a] = ff_gain[3 + a] * w[a]
+    else:
+        for a in range(6):
+            ff[a] = 0.0
+    for a in range(3):
+        p_prev[a] = pt[a]
+        for b in range(3):
+            R_prev[a, b] = Rt[a, b]
+    state[1] = 1.0
+
+
+@njit(cache=True, fastmath=False)
 def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
-               pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd, keep, h, qlim,
+               pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd, ff, keep, h, qlim,
                max_lin, max_rot, max_dq):
     """Run ``iterations`` internal VFDM steps in place on q, qd, e_prev, last_e.
+
+    ff (6,): a constant wrench added to Eq. 13's (the target-velocity feedforward, see
+    Vfdm.solve).
 
     state[0] is 1.0 when e_prev holds a previous error (the D term is active), else 0.0.
     max_dq (6,): the largest move of each virtual joint in one internal step (the real
@@ -331,7 +377,7 @@ def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
         # 2. Eq. 13 on the clamped pose error; the D term on (e - e_prev) / h
         clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr)
         for a in range(6):
-            f[a] = kp[a] * e[a]
+            f[a] = kp[a] * e[a] + ff[a]
         if use_kd and state[0] > 0.5:
             for a in range(6):
                 f[a] += kdh[a] * (e[a] - e_prev[a])
@@ -471,8 +517,14 @@ class Vfdm:
         self._kd_over_h = s * np.array([cfg.kd_lin] * 3 + [cfg.kd_rot] * 3) / h
         self._use_kd = bool(np.any(self._kd_over_h))
         self._keep = 1.0 - cfg.damping if cfg.velocity_mode == "damped" else 1.0
+        # target-velocity feedforward (target_feedforward): Λ / (N h) · (1 − k) / (k h)
+        lam = np.array([cfg.end_mass_kg] * 3 + [cfg.end_inertia_kgm2] * 3)
+        drag = (1.0 - self._keep) / (self._keep * h) if cfg.velocity_feedforward else 0.0
+        self._ff_gain = lam * drag / (cfg.iterations * h)
+        self._ff = np.zeros(6)
+        self._R_prev, self._p_prev = np.eye(3), np.zeros(3)  # the last cycle's target
         self._e_prev = np.zeros(6)
-        self._has_prev = np.zeros(1)
+        self._has_prev = np.zeros(2)  # [an e_prev (D term), a last target (feedforward)]
         self.q_rad = np.zeros(N_JOINTS)
         self.qd_radps = np.zeros(N_JOINTS)
         self.last_error = np.zeros(6)
@@ -484,7 +536,7 @@ class Vfdm:
         self.q_rad = np.clip(np.array(q_rad, dtype=float), -POSITION_LIMIT_RAD,
                              POSITION_LIMIT_RAD)
         self.qd_radps[:] = 0.0
-        self._has_prev[0] = 0.0
+        self._has_prev[:] = 0.0
         self._step_prev[:] = 0.0
 
     def tcp_pose(self) -> np.ndarray:
@@ -501,8 +553,9 @@ class Vfdm:
         self.last_scale = vfdm_cycle(
             self.q_rad, self.qd_radps, self._e_prev, self._has_prev, last_e,
             np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), cfg.iterations,
-            *self.arm, self._kp, self._kd_over_h, self._use_kd, self._keep, self._h,
+            *self.arm, self._kp, self._kd_over_h, self._use_kd, self._ff, self._keep, self._h,
             POSITION_LIMIT_RAD, cfg.max_error_lin_m, cfg.max_error_rot_rad, self._max_dq,
-            self._step_prev, self._max_step, self._max_change)
+            self._step_prev, self._max_step, self._max_change,
+            self._ff_gain, self._R_prev, self._p_prev)
         self.last_error = last_e
         return self.q_rad.copy()
