@@ -44,9 +44,10 @@ USER emulator
 ENV ORBIT_EMULATOR_STATIC=/app/static
 # compile the numba kernels now, into the image, for a generic x86-64 CPU (numba's cache
 # is keyed to the CPU it compiled for): a first run on any host then loads them instead
-# of compiling for 20 s; the cache folder is open to any uid (--user)
+# of compiling for 20 s; the cache folder and the ones numba made in it are open to any
+# uid (--user: numba loads a cache only from a folder it could write to)
 RUN orbit-emulator run collision --duration 0.1 --out /tmp/warm-up --quiet > /dev/null \
-    && rm -rf /tmp/warm-up
+    && rm -rf /tmp/warm-up && chmod -R a+rwX /opt/numba-cache
 
 EXPOSE 8000
 

@@ -200,7 +200,8 @@ class VfdmConfig(_Model):
     velocity_feedforward: StrictBool = True
     """Add the target's velocity as a feedforward wrench (not in the paper): without it the
     virtual damping leaves the arm a steady lag behind a moving target (app/sim/vfdm.py
-    Vfdm._feedforward)."""
+    target_feedforward). It answers that damping, so it does nothing where there is none:
+    ``velocity_mode = "reset"`` or ``damping = 0``."""
     sync_to_measured: StrictBool = False
     """Each cycle, start the virtual arm from the measured joint positions (as FZI's
     cartesian_controllers can): the set-points then never drift from the real arm, at the
@@ -471,14 +472,36 @@ def parse_config(data: dict) -> EmulatorConfig:
 
     Strictly, as JSON: a number must be a number (``"5"`` is refused, an integer is taken
     where a float is expected), a flag ``true`` or ``false``; a list stands for a tuple."""
-    try:
-        text = json.dumps(data, allow_nan=True)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(f"invalid configuration: not plain data: {err}") from None
+    _check_plain(data)
+    text = json.dumps(data, allow_nan=True)
     try:
         return EmulatorConfig.model_validate_json(text, strict=True)
     except ValidationError as err:
         raise ConfigError(_format_error(err)) from None
+
+
+def _check_plain(value, path: str = "") -> None:
+    """Only what JSON holds (objects with text keys, lists, text, numbers, flags, null);
+    anything else (a TOML date, text that is not Unicode) is an error naming its key."""
+    where = path or "(top level)"
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise ConfigError(f"invalid configuration: {where}: a key must be text, "
+                                  f"got {key!r}")
+            _check_plain(item, f"{path}.{key}" if path else key)
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_plain(item, f"{path}.{i}" if path else str(i))
+    elif isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ConfigError(f"invalid configuration: {where}: text that is not valid "
+                              f"Unicode") from None
+    elif value is not None and not isinstance(value, (bool, int, float)):
+        raise ConfigError(f"invalid configuration: {where}: expected a number, flag, text "
+                          f"or list, got a {type(value).__name__}")
 
 
 def load_config(path: str | Path) -> EmulatorConfig:

@@ -22,7 +22,9 @@ The machine's own floor: after the soak, with the server gone, a null loop runs 
 ``--floor-s`` seconds with the loop process's pacing and scheduling (SCHED_FIFO 10, sleep,
 then spin to the cycle start) whose "step" only busy-waits the loop's median cycle time. The
 misses it counts are the machine's (the hypervisor stalling a running vCPU, interrupts),
-not the emulator's: no loop can do better on that machine.
+not the emulator's. It runs in another window than the soak and under less load (no web
+process, clients or Chromium), and a VM's steal changes by the minute: compare orders of
+magnitude, not digits.
 """
 
 from __future__ import annotations
@@ -115,12 +117,12 @@ def push(url: str, stop: threading.Event, errors: list) -> None:
                 errors.append(f"push: {r.status_code} {r.text[:200]}")
 
 
-def null_loop(seconds: float, work_us: float, rate_hz: float = 500.0) -> tuple[int, int]:
-    """(misses, cycles) of a loop paced like the loop process whose cycle only
+def null_loop(seconds: float, work_us: float, rate_hz: float = 500.0) -> tuple[int, int, str]:
+    """(misses, cycles, scheduling) of a loop paced like the loop process whose cycle only
     busy-waits ``work_us`` (runs in a process of its own; see the module docstring)."""
     from app.backend.loop_process import boost_priority
 
-    boost_priority(10, -10)
+    scheduling = boost_priority(10, -10)
     perf = time.perf_counter_ns
     dt_ns, work_ns, spin_ns = int(1e9 / rate_hz), int(work_us * 1e3), 300_000
     n = int(seconds * rate_hz)
@@ -138,23 +140,27 @@ def null_loop(seconds: float, work_us: float, rate_hz: float = 500.0) -> tuple[i
             pass
         if perf() > start_ns + dt_ns:
             misses += 1
-    return misses, n
+    return misses, n, scheduling
 
 
 def _null_loop_child(seconds: float, work_us: float, out) -> None:
     out.send(null_loop(seconds, work_us))
 
 
-def machine_floor(seconds: float, work_us: float) -> tuple[int, int]:
+def machine_floor(seconds: float, work_us: float) -> tuple[int, int, str, float]:
+    """(misses, cycles, scheduling, steal share over the window) of null_loop."""
     import multiprocessing
 
     ctx = multiprocessing.get_context("spawn")
     parent, child = ctx.Pipe()
     proc = ctx.Process(target=_null_loop_child, args=(seconds, work_us, child))
+    steal0 = steal_ticks()
     proc.start()
-    result = parent.recv()
+    misses, n, scheduling = parent.recv()
     proc.join()
-    return result
+    steal1 = steal_ticks()
+    steal = (steal1[0] - steal0[0]) / max(1, steal1[1] - steal0[1])
+    return misses, n, scheduling, steal
 
 
 def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = True,
@@ -233,7 +239,7 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
 
 
 def report(samples: list[tuple], counts: dict, errors: list,
-           floor: tuple[int, int] | None = None) -> int:
+           floor: tuple[int, int, str, float] | None = None) -> int:
     t, cycles, misses, resyncs = samples[-1][:4]
     after_1min = [s for s in samples if s[0] >= 60.0] or samples
     ratio = misses / cycles if cycles else 0.0
@@ -247,8 +253,10 @@ def report(samples: list[tuple], counts: dict, errors: list,
           + (f" (first: {errors[0]})" if errors else ""))
     print(f"host steal over the soak: {steal:.2%} of the CPU time")
     if floor:
-        print(f"the machine's floor (null loop after the soak): {floor[0]} misses of "
-              f"{floor[1]} cycles = {floor[0] / floor[1]:.3%}")
+        print(f"the machine's floor (null loop after the soak, {floor[2]}, steal "
+              f"{floor[3]:.2%}): {floor[0]} misses of {floor[1]} cycles = "
+              f"{floor[0] / floor[1]:.3%} (another window, another load: a figure of the "
+              f"same order says the misses are the machine's, not a bound)")
     verdicts = [
         (f"deadline misses {misses} of {cycles} cycles = {ratio:.3%}", ratio < 0.001,
          "< 0.1 %"),

@@ -177,6 +177,8 @@ def test_collision_stop_reset_and_bad_starts(live):
     assert csv.status_code == 200 and csv.headers["content-type"].startswith("text/csv")
     lines = csv.text.splitlines()
     assert lines[0].startswith("t_s,sat1_x_m") and len(lines) > 200
+    # it ends with the state the run stopped in, as a headless run's telemetry.csv does
+    assert float(lines[-1].split(",")[0]) == pytest.approx(t_stop, abs=1e-6)
     assert live.client.get("/api/telemetry", params={"format": "xml"}).status_code == 422
     metrics = live.client.get("/api/metrics")
     assert metrics.status_code == 200, metrics.text

@@ -1,5 +1,6 @@
 """Configuration models: paper defaults and bad input rejected with the field's name."""
 
+import datetime
 import math
 
 import numpy as np
@@ -142,6 +143,10 @@ def test_overrides_are_a_merge_patch_with_item_indices():
     ({"passivity": {"enabled": 1}}, "passivity.enabled: Input should be a valid boolean"),
     ({"loop": {"telemetry_capacity": 1000.0}},
      "loop.telemetry_capacity: Input should be a valid integer"),
+    # only what JSON holds, named where it is (a TOML date, a lone surrogate in a body)
+    ({"satellites": {"0": {"name": datetime.date(1979, 5, 27)}}},
+     "satellites.0.name: expected a number, flag, text or list, got a date"),
+    ({"satellites": {"0": {"name": "\ud800"}}}, "satellites.0.name: text that is not valid"),
 ])
 def test_bad_patches_name_what_is_wrong(patch, message):
     base = parse_config({"satellites": [{"name": "a"}, {"name": "b"}]})

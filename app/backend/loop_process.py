@@ -128,6 +128,7 @@ class LoopCore:
             if self.status in ("running", "starting"):
                 if self.em.status == "running":
                     self.em.status = "stopped"
+                    self.em.record_final()
                 self.status, self.reason = "stopped", "stopped by the operator"
                 self.publish()
         elif kind == "shutdown":
@@ -254,6 +255,7 @@ class LoopCore:
                 em.status = "finished"
                 self.reason = f"reached the scenario duration ({em.config.loop.duration_s:g} s)"
             if em.status != "running":
+                em.record_final()
                 self.status = em.status
                 if em.safety_stop:
                     self.reason = em.safety_stop.get("reason")

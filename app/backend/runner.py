@@ -234,10 +234,11 @@ class Runner:
         reason = self.fault()
         if reason is not None:
             raise LoopDown(reason)
-        if self._sender is None:
-            self._sender = threading.Thread(target=self._sender_main, name="loop-commands",
-                                            daemon=True)
-            self._sender.start()
+        with self._state_lock:  # one sender thread, whoever sends first
+            if self._sender is None:
+                self._sender = threading.Thread(target=self._sender_main,
+                                                name="loop-commands", daemon=True)
+                self._sender.start()
         done, failed = threading.Event(), []
         self._outbox.put((self._cmd, msg, done, failed))
         if not done.wait(SEND_TIMEOUT_S):

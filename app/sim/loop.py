@@ -362,6 +362,11 @@ class Emulator:
                 progress(k, n)
         if self.status == "running":
             self.status = "finished"
+        self.record_final()
+
+    def record_final(self) -> None:
+        """Record the final state once, whatever ended the run (a run's telemetry ends
+        with the state it stopped in; the paced loop of the web app calls this too)."""
         if self.cycles and self._final_recorded_at != self.cycles:
-            self._record()  # the final state, whatever ended the run (once)
+            self._record()
             self._final_recorded_at = self.cycles
