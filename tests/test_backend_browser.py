@@ -93,6 +93,9 @@ def _wait_rendered(page, live, timeout_s: float = 60.0) -> np.ndarray:
 
 
 def test_viewer_renders_both_arms(live, page):
+    # the page sets the frame's address from /api/health once that answers
+    page.wait_for_function("document.getElementById('viewer').getAttribute('src') !== null",
+                           timeout=30_000)
     assert page.locator("#viewer").get_attribute("src") == "/viewer/"  # through the app
     base = _wait_rendered(page, live)
     page.wait_for_timeout(1500)  # let the meshes settle
