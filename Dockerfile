@@ -47,7 +47,7 @@ ENV ORBIT_EMULATOR_STATIC=/app/static
 # of compiling for 20 s; the cache folder and the ones numba made in it are open to any
 # uid (--user: numba loads a cache only from a folder it could write to)
 RUN orbit-emulator run collision --duration 0.1 --out /tmp/warm-up --quiet > /dev/null \
-    && rm -rf /tmp/warm-up && chmod -R a+rwX /opt/numba-cache
+    && rm -rf /tmp/warm-up && find /opt/numba-cache -mindepth 1 -exec chmod a+rwX {} +
 
 EXPOSE 8000
 
