@@ -505,7 +505,20 @@ def _check_plain(value, path: str = "") -> None:
 
 
 def load_config(path: str | Path) -> EmulatorConfig:
-    """Read and validate a TOML scenario file."""
+    """Read and validate a TOML scenario file (see :func:`read_scenario_file`)."""
+    return parse_config(read_scenario_file(path))
+
+
+SCENARIO_DIR = Path(__file__).parent / "scenarios"
+
+
+def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
+    """A TOML scenario file as a plain dict, its ``extends`` resolved.
+
+    ``extends = "NAME"`` starts from another scenario: ``NAME.toml`` (or ``NAME`` if it
+    ends in .toml) beside this file, else the built-in scenario of that name; this file's
+    settings are then merged over it as overrides are (:func:`merge_overrides`: a list
+    given replaces the base's list)."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
@@ -518,7 +531,22 @@ def load_config(path: str | Path) -> EmulatorConfig:
         raise ConfigError(f"{path}: cannot be read: {reason}") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
-    return parse_config(data)
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(f"{path}: extends: must name a scenario, got {base!r}")
+    file_name = base if base.endswith(".toml") else f"{base}.toml"
+    base_path = path.parent / file_name
+    if not base_path.is_file():
+        base_path = SCENARIO_DIR / file_name
+    if not base_path.is_file():
+        raise ConfigError(f"{path}: extends: no scenario {base!r} beside it or built in")
+    chain = (*_chain, path.resolve())
+    if base_path.resolve() in chain:
+        cycle = " -> ".join(p.name for p in (*chain, base_path))
+        raise ConfigError(f"{path}: extends: {base!r} makes a cycle: {cycle}")
+    return _merge_patch(read_scenario_file(base_path, chain), data)
 
 
 def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:

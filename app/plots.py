@@ -25,17 +25,23 @@ def _three(ax, t, data, label, unit, style="-"):
 
 
 def plot_free_floating(rows, index, out_dir: Path, sat: int = 1) -> list[Path]:
-    """Fig. 6: force on the satellite (measured, in R), its velocity and position."""
+    """Fig. 6: force and torque the ODS received (measured: force in R, torque in body
+    axes), the satellite's velocity, angular velocity and position."""
     t = rows[:, 0]
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
-    force = _series(rows, index, f"sat{sat}", ("fx_N", "fy_N", "fz_N"))
-    _three(axes[0], t, force, "F", "force [N]")
-    _three(axes[1], t, _series(rows, index, f"sat{sat}", ("vx_mps", "vy_mps", "vz_mps")), "v",
+    fig, axes = plt.subplots(5, 1, figsize=(9, 12), sharex=True)
+    pre = f"sat{sat}"
+    _three(axes[0], t, _series(rows, index, pre, ("fx_N", "fy_N", "fz_N")), "F", "force [N]")
+    _three(axes[1], t, _series(rows, index, pre, ("tx_Nm", "ty_Nm", "tz_Nm")), "T",
+           "torque [N m]")
+    _three(axes[2], t, _series(rows, index, pre, ("vx_mps", "vy_mps", "vz_mps")), "v",
            "velocity [m/s]")
-    _three(axes[2], t, _series(rows, index, f"sat{sat}", ("x_m", "y_m", "z_m")), "p",
-           "position [m]")
-    axes[0].set_title(f"Satellite {sat}: force from the F/T sensor (in R) and ODS response")
-    axes[2].set_xlabel("time [s]")
+    _three(axes[3], t, np.degrees(_series(rows, index, pre,
+                                          ("wx_radps", "wy_radps", "wz_radps"))),
+           "ω", "angular velocity [deg/s]")
+    _three(axes[4], t, _series(rows, index, pre, ("x_m", "y_m", "z_m")), "p", "position [m]")
+    axes[0].set_title(f"Satellite {sat}: force (in R) and torque (body axes) from the F/T "
+                      "sensor, and the ODS response")
+    axes[-1].set_xlabel("time [s]")
     for ax in axes:
         ax.legend(loc="upper right", fontsize=7, ncol=3)
     fig.tight_layout()
@@ -43,6 +49,41 @@ def plot_free_floating(rows, index, out_dir: Path, sat: int = 1) -> list[Path]:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return [path]
+
+
+def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict) -> Path:
+    """The contact window ± 0.1 s: along the contact normal's main axis (x here), each
+    satellite's force (received by the ODS, and the true contact force) and velocity
+    (ODS, and the mockup where an arm carries it): how the impact went, cycle by cycle."""
+    t0, t1 = collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1
+    keep = (rows[:, 0] >= t0) & (rows[:, 0] <= t1)
+    w, t = rows[keep], rows[keep, 0]
+    fig, (ax_f, ax_v) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for s in range(1, n_sat + 1):
+        c = f"C{s - 1}"
+        ax_f.plot(t, w[:, index[f"sat{s}_fx_N"]], "-", color=c, lw=1.2,
+                  label=f"sat {s}: received by the ODS")
+        ax_f.plot(t, w[:, index[f"sat{s}_true_fx_N"]], ":", color=c, lw=1.2,
+                  label=f"sat {s}: true contact")
+        ax_v.plot(t, w[:, index[f"sat{s}_vx_mps"]], "-", color=c, lw=1.2,
+                  label=f"sat {s}: ODS")
+        if f"rob{s}_vx_mps" in index:
+            ax_v.plot(t, w[:, index[f"rob{s}_vx_mps"]], "--", color=c, lw=1.0,
+                      label=f"sat {s}: mockup (arm)")
+    for ax in (ax_f, ax_v):
+        ax.axvspan(collision["contact_start_s"], collision["contact_end_s"], color="0.9")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=7, ncol=2)
+    ax_f.set_ylabel("force x [N]")
+    ax_v.set_ylabel("velocity x [m/s]")
+    ax_v.set_xlabel("time [s]")
+    ax_f.set_title("The contact, close up (shaded: in contact)")
+    _collision_box(ax_f, collision)
+    fig.tight_layout()
+    path = out_dir / "fig8b_contact_closeup.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def _collision_box(ax, coll: dict) -> None:
@@ -91,6 +132,8 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
     paths.append(out_dir / "fig8_forces.png")
     fig.savefig(paths[-1], dpi=100)
     plt.close(fig)
+    if collision is not None:
+        paths.append(plot_contact_closeup(rows, index, out_dir, n_sat, collision))
 
     for name, fields, rfields, unit in (
         ("fig9_velocity.png", ("vx_mps", "vy_mps", "vz_mps"), ("vx_mps", "vy_mps", "vz_mps"),

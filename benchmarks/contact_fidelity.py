@@ -161,7 +161,7 @@ def calibration_table(pool, seeds: list[int]) -> None:
 
 def free_floating(assignments: list[str]) -> dict:
     """Tracking, Δv of each force push against impulse·scale/mass, spin after them."""
-    config = configure(load_scenario("free-floating"), assignments)
+    config = configure(load_scenario("free-floating-scripted"), assignments)
     em = run_scenario(config, with_ideal=False).emulator
     rows, ix = em.telemetry.rows(), em.telemetry.index
     t = rows[:, 0]

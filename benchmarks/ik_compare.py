@@ -100,7 +100,7 @@ def scenario_targets(scenario, duration_s: float | None) -> list[tuple[str, np.n
         T = np.array([T_B_W @ hil.T_W_R @ make_transform(quat_to_matrix(qi), pi)
                       for pi, qi in zip(p, q, strict=True)])
         out.append((f"{name}/{robot.name}", T, robot))
-        if name == "free-floating":
+        if name == "free-floating-scripted":
             break  # all its arms carry the same satellite: one is enough
     return out
 
@@ -292,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"Pink unavailable: {pink_note}")
 
     cases = []  # (label, targets, T_F_C, q0)
-    for name in ("collision", "free-floating"):
+    for name in ("collision", "free-floating-scripted"):
         for label, T, robot in scenario_targets(name, duration):
             T_F_C = T_F_C_from_config(robot)
             q0 = start_q(T[0], T_F_C, np.array(robot.q_home_rad))

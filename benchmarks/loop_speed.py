@@ -270,13 +270,13 @@ def main(argv: list[str] | None = None) -> int:
     repeats = 1 if args.quick else 3
     duration = 1.0 if args.quick else None
     total = print_breakdown("collision", cycles, repeats)
-    print_breakdown("free-floating", cycles, repeats)
+    print_breakdown("free-floating-scripted", cycles, repeats)
 
     print(f"\n## Real-time factor, headless hil (run_scenario's metric, best of {repeats})\n")
     print("| scenario | simulated s | realtime_factor | cycle p50 / p99 µs | status |")
     print("|---|---:|---:|---:|---|")
     rtf = {}
-    for scenario in ("collision", "free-floating"):
+    for scenario in ("collision", "free-floating-scripted"):
         runs = realtime_factors(scenario, duration, repeats)
         r = max(runs, key=lambda x: x["rtf"])
         rtf[scenario] = r["rtf"]

@@ -33,8 +33,8 @@ CASES = {
     "collision hil, VFDM reset + PD, 4 s": (
         "collision", "hil",
         {"vfdm": {"velocity_mode": "reset", "kd_lin": 0.5, "kd_rot": 0.1}}, 4.0),
-    "free-floating hil": ("free-floating", "hil", {}, None),
-    "free-floating ideal": ("free-floating", "ideal", {}, None),
+    "free-floating-scripted hil": ("free-floating-scripted", "hil", {}, None),
+    "free-floating-scripted ideal": ("free-floating-scripted", "ideal", {}, None),
 }
 
 

@@ -20,12 +20,12 @@ def _run(module: str, timeout_s: float = 120) -> str:
 
 def test_loop_speed_quick():
     out = _run("benchmarks.loop_speed")
-    for line in ("## Cycle breakdown: collision", "## Cycle breakdown: free-floating",
+    for line in ("## Cycle breakdown: collision", "## Cycle breakdown: free-floating-scripted",
                  "| VFDM arm 1 |", "| servo arm 2 |", "| ODS step |", "| contact (coal) |",
                  "| telemetry row |", "| F/T sensor + processing |",
                  "| actual mockups (arm FK + twist) |", "| ODS coupling (passivity) |",
                  "| rest (glue) |", "**total cycle**",
-                 "## Real-time factor", "| collision |", "| free-floating |",
+                 "## Real-time factor", "| collision |", "| free-floating-scripted |",
                  "## VFDM cost per arm per cycle", "| 10 |", "## Targets",
                  "VFDM <= 100", "collision hil realtime_factor >= 10"):
         assert line in out, line
@@ -37,8 +37,9 @@ def test_ik_compare_quick():
     assert "| trajectory | method |" in out
     for name in ("VFDM", "pseudo-inverse", "DLS", "J transpose"):
         assert f"| {name}" in out, name
-    for case in ("collision/ceiling 500 Hz", "held 10 Hz", "held 2 Hz", "free-floating/ceiling",
-                 "singular/wrist", "singular/elbow", "singular/shoulder"):
+    for case in ("collision/ceiling 500 Hz", "held 10 Hz", "held 2 Hz",
+                 "free-floating-scripted/ceiling", "singular/wrist", "singular/elbow",
+                 "singular/shoulder"):
         assert case in out, case
 
 

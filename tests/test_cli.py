@@ -49,7 +49,7 @@ def test_an_empty_list_override_clears_the_list():
     from app.config import assignment_override, merge_overrides
     from app.scenarios import load_scenario
 
-    cfg = load_scenario("free-floating")
+    cfg = load_scenario("free-floating-scripted")
     assert len(cfg.pulses) == 10
     assert merge_overrides(cfg, {"pulses": []}).pulses == []
     assert merge_overrides(cfg, assignment_override("pulses=[]")).pulses == []

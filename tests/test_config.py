@@ -2,6 +2,7 @@
 
 import datetime
 import math
+import re
 
 import numpy as np
 import pytest
@@ -215,3 +216,35 @@ def test_settings_that_cost_memory_or_time_are_bounded(override, field):
     with pytest.raises(ConfigError, match=field.replace(".", r"\.")) as err:
         parse_config(override)
     assert "index out of range" not in str(err.value)
+
+
+def test_a_scenario_extends_another_and_its_lists_replace_the_base_s(tmp_path):
+    """extends: the base's settings, this file's merged over them (a list replaces)."""
+    scripted, hand = load_scenario("free-floating-scripted"), load_scenario("free-floating")
+    assert hand.pulses == [] and len(scripted.pulses) == 10  # the web app's: yours to push
+    assert scripted.loop.duration_s == 24.0 and hand.loop.duration_s == 120.0
+    same = {"pulses", "name", "description", "loop"}
+    assert scripted.model_dump(exclude=same) == hand.model_dump(exclude=same)
+    (tmp_path / "mine.toml").write_text(
+        'extends = "collision"\n[loop]\nduration_s = 3.0\n'
+        '[[pulses]]\nsatellite = "cubesat"\nstart_s = 1.0\nend_s = 1.5\n'
+        'force_N = [1.0, 0.0, 0.0]\n')
+    mine, base = load_config(tmp_path / "mine.toml"), load_scenario("collision")
+    assert mine.loop.duration_s == 3.0 and len(mine.pulses) == 1
+    assert mine.satellites == base.satellites and mine.materials == base.materials
+
+
+@pytest.mark.parametrize(
+    ("files", "message"),
+    [
+        ({"a.toml": 'extends = "b"\n', "b.toml": 'extends = "a"\n'},
+         "b.toml: extends: 'a' makes a cycle: a.toml -> b.toml -> a.toml"),
+        ({"a.toml": 'extends = "nowhere"\n'}, "extends: no scenario 'nowhere' beside it"),
+        ({"a.toml": "extends = 3\n"}, "extends: must name a scenario, got 3"),
+    ],
+)
+def test_a_bad_extends_is_an_error_naming_it(tmp_path, files, message):
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_config(tmp_path / "a.toml")

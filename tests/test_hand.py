@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.config import EmulatorConfig, HandConfig, LabConfig, PulseConfig, SatelliteConfig
-from app.sim.hand import HandAnchor, OperatorHand, Push, pulse_wrenches
+from app.sim.hand import HandAnchor, OperatorHand, Push, pulse_wrenches, ray_box_hit
 from app.sim.rotations import quat_to_matrix, rotvec_to_matrix, rotvec_to_quat
 
 DT = 0.002
@@ -254,3 +254,78 @@ def test_posting_something_else_is_refused_and_changes_nothing():
         hand.post(("push", 0))
     hand.update(0.0)
     assert hand.idle(0.0)
+
+
+# --- where the hand acts: a point of the body --------------------------------------------
+
+
+def test_a_push_at_a_point_adds_the_moment_r_cross_f_about_the_com():
+    """A force F (in R) at point r_B of the body: force R_W_R F, moment (R_W_C r_B) × F_W,
+    and in body axes r_B × F_B, as a lever does."""
+    hand, R_W_R = _hand()
+    r_B = np.array([0.1, -0.05, 0.02])
+    f_R = np.array([0.0, 20.0, -5.0])
+    hand.post(Push(satellite=1, force_R_N=tuple(f_R), duration_s=0.3, point_B_m=tuple(r_B)))
+    hand.update(0.0)
+    w = hand.wrenches_W(0.0, P_W_C, R_W_C)
+    f_W = R_W_R @ f_R
+    np.testing.assert_allclose(w[1, :3], f_W, atol=1e-12)
+    np.testing.assert_allclose(w[1, 3:], np.cross(R_W_C[1] @ r_B, f_W), atol=1e-12)
+    f_B = R_W_C[1].T @ f_W
+    np.testing.assert_allclose(R_W_C[1].T @ w[1, 3:], np.cross(r_B, f_B), atol=1e-12)
+    assert abs(w[1, 3:] @ f_W) < 1e-12  # the moment is normal to the force
+    np.testing.assert_array_equal(w[0], np.zeros(6))
+
+
+def test_the_gizmo_spring_pulls_the_grab_point_and_turns_the_body():
+    """The hand holds the mockup at r_B: the spring runs from its anchor to that point
+    (not the COM), so a pull along the body's surface turns it."""
+    hand, _ = _hand()
+    r_B = np.array([0.1, 0.0, 0.0])
+    grab_W = P_W_C[0] + R_W_C[0] @ r_B
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(grab_W), point_B_m=tuple(r_B)))
+    hand.update(0.0)
+    np.testing.assert_allclose(hand.wrenches_W(0.0, P_W_C, R_W_C)[0], np.zeros(6),
+                               atol=1e-12)  # held where it was grabbed: no force
+    pull = np.array([0.0, 0.0, 0.05])  # 5 cm up
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(grab_W + pull), point_B_m=tuple(r_B)))
+    hand.update(0.01)
+    w = hand.wrenches_W(0.01, P_W_C, R_W_C)[0]
+    np.testing.assert_allclose(w[:3], HAND.stiffness_Npm * pull, atol=1e-12)
+    np.testing.assert_allclose(w[3:], np.cross(R_W_C[0] @ r_B, HAND.stiffness_Npm * pull),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("origin", "direction", "hit"),
+    [
+        ((1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.1, 0.0, 0.0)),  # straight at the +x face
+        ((1.0, 0.03, -0.02), (-2.0, 0.0, 0.0), (0.1, 0.03, -0.02)),  # any length of ray
+        ((0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (0.0, 0.0, 0.05)),  # the top (z half 0.05)
+        ((1.0, 1.0, 0.0), (-1.0, -1.0, 0.0), (0.1, 0.1, 0.0)),  # an edge, diagonally
+        ((1.0, 0.2, 0.0), (-1.0, 0.0, 0.0), None),  # passes beside it
+        ((1.0, 0.0, 0.0), (1.0, 0.0, 0.0), None),  # points away
+        ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, 0.0)),  # starts inside: there
+    ],
+)
+def test_a_click_ray_meets_the_box_where_geometry_says(origin, direction, hit):
+    """ray_box_hit in the box's own frame, then with the box moved and turned in W: the
+    same body point."""
+    size = (0.2, 0.2, 0.1)
+    got = ray_box_hit(np.array(origin), np.array(direction), np.eye(4), size)
+    if hit is None:
+        assert got is None
+        return
+    np.testing.assert_allclose(got, hit, atol=1e-12)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R_W_C[1], P_W_C[1]
+    moved = ray_box_hit(T[:3, :3] @ origin + T[:3, 3], T[:3, :3] @ direction, T, size)
+    np.testing.assert_allclose(moved, hit, atol=1e-12)
+
+
+@pytest.mark.parametrize("point", [(0.0, float("nan"), 0.0), (1.0, 2.0), "abc"])
+def test_a_bad_point_is_refused_where_it_is_made(point):
+    with pytest.raises(ValueError, match="point_B_m: must be 3"):
+        Push(satellite=0, force_R_N=(1.0, 0.0, 0.0), duration_s=0.1, point_B_m=point)
+    with pytest.raises(ValueError, match="point_B_m: must be 3"):
+        HandAnchor(satellite=0, anchor_W_m=(0.0, 0.0, 1.0), point_B_m=point)

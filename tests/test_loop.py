@@ -20,7 +20,7 @@ EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 
 @pytest.fixture(scope="module")
 def free_floating_hil():
-    return run_scenario(load_scenario("free-floating"), mode="hil")
+    return run_scenario(load_scenario("free-floating-scripted"), mode="hil")
 
 
 @pytest.fixture(scope="module")
@@ -128,7 +128,7 @@ def test_hil_loop_runs_at_least_real_time(collision_runs):
 
 
 def test_same_seed_gives_identical_telemetry(tmp_path):
-    cfg = load_scenario("free-floating")
+    cfg = load_scenario("free-floating-scripted")
     a = run_scenario(cfg, duration_s=1.5, out_dir=tmp_path / "a")
     b = run_scenario(cfg, duration_s=1.5, out_dir=tmp_path / "b")
     run_scenario(merge_overrides(cfg, {"loop": {"seed": 7}}), duration_s=1.5,
@@ -141,7 +141,7 @@ def test_same_seed_gives_identical_telemetry(tmp_path):
 
 def test_driven_out_of_the_safety_volume_stops_and_keeps_telemetry(tmp_path):
     cfg = merge_overrides(
-        load_scenario("free-floating"),
+        load_scenario("free-floating-scripted"),
         {"robots": {"0": {"safety_box_max_m": [1.5, 1.5, 1.5]}},  # TCP starts at z = 1.0 m
          "satellites": {"0": {"velocity_mps": [0.0, 0.0, 0.2]}},  # rises 0.2 m/s in R (z up)
          "pulses": []},
@@ -159,7 +159,7 @@ def test_driven_out_of_the_safety_volume_stops_and_keeps_telemetry(tmp_path):
 
 
 def test_rest_push_command_and_bad_satellite():
-    em = Emulator(load_scenario("free-floating"))
+    em = Emulator(load_scenario("free-floating-scripted"))
     em.prepare()
     with pytest.raises(ValueError, match="satellite must be between 1 and 1, got 2"):
         em.post(Push(satellite=1, force_R_N=(1.0, 0, 0), duration_s=0.1))
@@ -240,7 +240,7 @@ def test_ideal_step_hands_the_ods_the_external_wrench_exactly():
 
 
 def test_running_a_finished_run_again_adds_no_row():
-    em = Emulator(load_scenario("free-floating"), mode="ideal")
+    em = Emulator(load_scenario("free-floating-scripted"), mode="ideal")
     em.run(0.02)
     rows = em.telemetry.count
     em.run(0.02)
@@ -250,7 +250,7 @@ def test_running_a_finished_run_again_adds_no_row():
 
 def test_a_mockup_that_no_longer_shows_its_satellite_stops_the_run():
     """[loop] max_tracking_error_m: beyond it the arm cannot show the orbit: a stop, named."""
-    cfg = merge_overrides(load_scenario("free-floating"),
+    cfg = merge_overrides(load_scenario("free-floating-scripted"),
                           {"loop": {"max_tracking_error_m": 1e-4}})
     em = Emulator(cfg)
     em.run(3.0)  # the first push (1.0-1.3 s) makes the arm lag by more than 0.1 mm
@@ -278,14 +278,15 @@ def test_cli_run_writes_telemetry_metrics_and_plots(tmp_path):
     assert metrics["mode"] == "ideal" and metrics["cycles"] == 2500
     header = (out / "telemetry.csv").read_text().splitlines()[0].split(",")
     assert header[0] == "t_s" and "sat2_fx_N" in header
-    for fig in ("fig8_forces", "fig9_velocity", "fig10_position"):
+    for fig in ("fig8_forces", "fig8b_contact_closeup", "fig9_velocity", "fig10_position"):
         png = (out / f"{fig}.png").read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
 
 
 def test_cli_hil_telemetry_has_robot_columns(tmp_path):
     result = subprocess.run(
-        [EXE, "run", "free-floating", "--duration", "0.5", "--out", str(tmp_path), "--quiet"],
+        [EXE, "run", "free-floating-scripted", "--duration", "0.5", "--out", str(tmp_path),
+         "--quiet"],
         capture_output=True, text=True, timeout=300,
     )
     assert result.returncode == 0, result.stderr
@@ -321,7 +322,7 @@ def test_cli_scenarios_and_bad_input(tmp_path):
 def test_cycle_times_kept_for_the_telemetry_capacity_only():
     """A web run is long: the Emulator keeps the compute times of its last
     telemetry_capacity cycles, not one more per cycle for ever."""
-    config = load_scenario("free-floating")
+    config = load_scenario("free-floating-scripted")
     config = config.model_copy(update={"loop": config.loop.model_copy(
         update={"telemetry_capacity": 200, "duration_s": 60.0})})
     em = Emulator(config)

@@ -24,7 +24,7 @@ R_ATTITUDE = rotvec_to_quat(np.array([0.1, -0.15, 0.5]))  # R turned in the lab
 
 @pytest.fixture(scope="module")
 def free_floating():
-    return merge_overrides(load_scenario("free-floating"),
+    return merge_overrides(load_scenario("free-floating-scripted"),
                            {"lab": {"r_attitude_wxyz": list(R_ATTITUDE)}})
 
 

@@ -286,3 +286,20 @@ def test_step_hands_out_new_state_arrays_and_leaves_the_old_ones_alone():
     for old, copy in zip((q, qd, qdd), kept, strict=True):
         np.testing.assert_array_equal(old, copy)
     assert not np.array_equal(after.q_rad, q)
+
+
+@pytest.mark.parametrize(
+    ("p", "v", "expected"),
+    [
+        ((0.0, 0.0, 1.0), (0.1, 0.0, 0.0), 15.0),  # 1.5 m to the +x wall at 0.1 m/s
+        ((0.0, 0.0, 1.0), (0.0, 0.0, -0.5), 1.9),  # 0.95 m down to the floor at 0.5 m/s
+        ((1.0, -1.0, 1.0), (0.25, -0.1, 0.0), 2.0),  # the first wall it meets: +x in 2 s
+        ((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), math.inf),  # at rest: never
+        ((2.0, 0.0, 1.0), (-1.0, 0.0, 0.0), 0.0),  # outside already
+    ],
+)
+def test_a_straight_course_leaves_the_box_when_it_meets_the_first_wall(p, v, expected):
+    from app.sim.servo import seconds_until_outside
+
+    t = seconds_until_outside(p, v, (-1.5, -1.5, 0.05), (1.5, 1.5, 2.4))
+    assert t == pytest.approx(expected, abs=1e-12)

@@ -297,6 +297,7 @@ class LoopCore:
                 "attitude_wxyz": ods.attitude_wxyz[i].tolist(),
                 "omega_radps": ods.omega_rel_radps[i].tolist(),
                 "applied_force_N": em.applied_force_R[i].tolist(),
+                "applied_torque_Nm": em.applied_torque_B[i].tolist(),
                 "position_W_m": T_W_S[:3, 3].tolist(),
                 "attitude_W_wxyz": matrix_to_quat(T_W_S[:3, :3]).tolist(),
             })
@@ -311,7 +312,9 @@ class LoopCore:
                 "mockup_attitude_wxyz": q_R.tolist(),
                 "mockup_position_W_m": (R_W_R @ p_R + T_W_R[:3, 3]).tolist(),
                 "mockup_attitude_W_wxyz": matrix_to_quat(R_W_R @ quat_to_matrix(q_R)).tolist(),
-                "tracking_error_m": float(np.linalg.norm(p_R - ods.position_m[arm.satellite])),
+                # none before the first cycle: the arm has not moved its mockup there yet
+                "tracking_error_m": float(np.linalg.norm(p_R - ods.position_m[arm.satellite]))
+                if self.cycle_count else None,
                 "ft_raw": arm.last_raw_S.tolist(),
                 "ft_processed": arm.last_processed.tolist(),
             })
@@ -326,6 +329,15 @@ class LoopCore:
             "safety_stop": em.safety_stop,
             "t_s": float(ods.t_s),
             "duration_s": cfg.loop.duration_s,
+            "settings": {  # what the panels show (the run's, whoever started it)
+                "altitude_m": cfg.orbit.altitude_m,
+                "velocity_mps": list(cfg.satellites[0].velocity_mps),
+                "kp_lin": cfg.vfdm.kp_lin, "kp_rot": cfg.vfdm.kp_rot,
+                "duration_s": cfg.loop.duration_s,
+                "hand_stiffness_Npm": cfg.hand.stiffness_Npm,
+                "hand_max_force_N": cfg.hand.max_force_N,
+                "force_scale": cfg.orbit.force_scale, "torque_scale": cfg.orbit.torque_scale,
+            },
             "n_satellites": em.n_sat,
             "satellites": sats,
             "robots": robots,
@@ -334,6 +346,9 @@ class LoopCore:
             "layout": {
                 "T_W_R": T_W_R.tolist(),
                 "arms": [[cfg.robots[a.index].name, a.T_W_B.tolist()] for a in em.arms],
+                "safety_boxes_W_m": [[list(cfg.robots[a.index].safety_box_min_m),
+                                      list(cfg.robots[a.index].safety_box_max_m)]
+                                     for a in em.arms],
                 "satellites": [[s.name, list(s.size_m), s.material] for s in cfg.satellites],
             },
             "loop": {

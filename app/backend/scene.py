@@ -24,7 +24,9 @@ import viser
 
 from app.backend.service import EmulatorService, InvalidRequest, RunnerBusy, UnknownScenario
 from app.scenarios import load_scenario, scenario_names
-from app.sim.rotations import matrix_to_quat
+from app.sim.hand import ray_box_hit
+from app.sim.rotations import matrix_to_quat, quat_to_matrix
+from app.sim.servo import seconds_until_outside
 
 log = logging.getLogger("orbit_emulator.scene")
 
@@ -33,7 +35,30 @@ SPONGE_COLOR = (245, 205, 50)
 GHOST_COLOR = (90, 220, 255)
 TRACE_COLORS = ((255, 120, 40), (60, 200, 120), (200, 90, 220), (90, 160, 255))
 AXIS_COLORS = ("#e03131", "#2f9e44", "#1971c2")
-PLOT_WINDOW_S = 10.0
+GRAB_COLOR = (230, 40, 40)
+BOX_COLOR = (255, 140, 0)
+PLOT_WINDOW_S = 60.0
+WARN_HORIZON_S = 5.0
+"""The panel warns when a satellite's course leaves its arm's safety volume this soon."""
+
+HELP = """\
+**What you see.** Solid boxes: the mockups the arms carry (grey rigid, yellow sponge).
+Cyan wireframes: where the orbit simulator (ODS) has each satellite; the arm keeps its
+mockup on it. Coloured lines: each satellite's course. Orange box: an arm's safety volume
+(its mockup's centre must stay inside; leaving it stops the run). Axes **R**: the orbit
+frame's origin (x radial out, y along the track, z orbit normal).
+
+**Your hand.** Click a mockup to grab it there (a red dot; "Grab at the centre" below
+undoes it), then drag the gizmo's arrows: the hand is a spring from the gizmo to the grab
+point, **{k_N_per_cm:g} N per cm** of stretch, at most **{max_N:g} N**. The arm's F/T
+sensor measures that push; the ODS applies it scaled ({force_scale:g} × force,
+{torque_scale:g} × torque), so off the centre a push also spins the satellite. Let go to
+stop pushing.
+
+**Plots.** The ODS's input (force in R, torque in body axes, as measured), the
+satellite's velocity, angular velocity and position, and how far each mockup is from its
+satellite (tracking error).
+"""
 
 
 def _load_urdf():
@@ -81,6 +106,15 @@ class _ArmView:
             frame.wxyz = matrix_to_quat(R0 @ _axis_angle(axis, float(q[i])))
 
 
+def _box_edges(p_min, p_max) -> np.ndarray:
+    """The 12 edges of an axis-aligned box, (12, 2, 3) float32, for add_line_segments."""
+    lo, hi = np.asarray(p_min, float), np.asarray(p_max, float)
+    corners = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)]
+                        for k in range(8)])
+    edges = [(k, k | (1 << a)) for k in range(8) for a in range(3) if not (k >> a) & 1]
+    return np.array([[corners[i], corners[j]] for i, j in edges], dtype=np.float32)
+
+
 def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rotation matrix of `angle` about the unit vector `axis` (Rodrigues)."""
     x, y, z = axis
@@ -99,6 +133,12 @@ class _SatView:
     mockup: Any
     ghost: Any
     gizmo: Any
+    size_m: tuple = (0.1, 0.1, 0.1)
+    grab_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """Where the hand holds the mockup (body axes, from the COM): a click picks it."""
+    grab_marker: Any = None
+    T_W_C: np.ndarray = field(default_factory=lambda: np.eye(4))
+    """The mockup's pose as last drawn."""
     trace_points: deque = field(default_factory=lambda: deque(maxlen=600))
     trace: Any = None
     trace_version: int = 0
@@ -128,6 +168,8 @@ class EmulatorScene:
         self._built_generation: int | None = None
         self._history: deque = deque(maxlen=int(PLOT_WINDOW_S * rate_hz) + 1)
         self._frame_R = None
+        self._boxes: list = []
+        self._syncing = False  # the panel is being set to the run's values, not by a user
         self.update_cost_s: deque = deque(maxlen=300)  # wall time of each scene update
         self._last_slow = 0.0
         self._build_static()
@@ -152,6 +194,12 @@ class EmulatorScene:
         gui = self.server.gui
         svc = self.service
         self.gui_status = gui.add_markdown("**status** idle")
+        self.gui_warning = gui.add_markdown("")
+        with gui.add_folder("Help", expand_by_default=False):
+            self.gui_help = gui.add_markdown("")
+        with gui.add_folder("Hand"):
+            self.gui_grab = gui.add_markdown("grabbing: the centre of mass")
+            self.gui_grab_centre = gui.add_button("Grab at the centre")
         with gui.add_folder("Scenario"):
             names = scenario_names()
             self.gui_scenario = gui.add_dropdown(
@@ -171,10 +219,17 @@ class EmulatorScene:
         self._fill_gui_from(svc.default_scenario)
 
         @self.gui_scenario.on_update
-        def _(_event) -> None:
+        def _(event) -> None:
+            if event.client is None or self._syncing:  # set by the code, not a user
+                return
             self._fill_gui_from(self.gui_scenario.value)
             if svc.runner.status not in ("running", "starting"):
                 self._guarded(lambda: svc.reset(self.gui_scenario.value))
+
+        @self.gui_grab_centre.on_click
+        def _(_event) -> None:
+            for sv in self._sats:
+                self._set_grab(sv, np.zeros(3))
 
         @self.gui_start.on_click
         def _(_event) -> None:
@@ -188,14 +243,16 @@ class EmulatorScene:
 
         @self.gui_reset.on_click
         def _(_event) -> None:
-            self._guarded(lambda: svc.reset(self.gui_scenario.value))
+            self._guarded(svc.reset)  # what runs (or ran), back to its start
 
         with gui.add_folder("Plots"):
             self.plots = {
                 key: self._add_plot(title)
                 for key, title in (
                     ("force", "Force on the ODS (N, R)"),
+                    ("torque", "Torque on the ODS (N m, body)"),
                     ("velocity", "Velocity (m/s, R)"),
+                    ("omega", "Angular velocity (deg/s, body)"),
                     ("position", "Position (m, R)"),
                     ("tracking", "Tracking error |actual - ODS| (mm)"),
                 )
@@ -216,11 +273,37 @@ class EmulatorScene:
             cfg = load_scenario(name)
         except Exception:  # pragma: no cover - names come from scenario_names()
             return
-        self.gui_altitude.value = cfg.orbit.altitude_m / 1e3
-        self.gui_velocity.value = tuple(cfg.satellites[0].velocity_mps)
-        self.gui_kp_lin.value = cfg.vfdm.kp_lin
-        self.gui_kp_rot.value = cfg.vfdm.kp_rot
-        self.gui_duration.value = cfg.loop.duration_s
+        self._show_settings({
+            "altitude_m": cfg.orbit.altitude_m,
+            "velocity_mps": cfg.satellites[0].velocity_mps,
+            "kp_lin": cfg.vfdm.kp_lin, "kp_rot": cfg.vfdm.kp_rot,
+            "duration_s": cfg.loop.duration_s,
+        })
+
+    def _show_settings(self, settings: dict) -> None:
+        self.gui_altitude.value = settings["altitude_m"] / 1e3
+        self.gui_velocity.value = tuple(float(v) for v in settings["velocity_mps"])
+        self.gui_kp_lin.value = settings["kp_lin"]
+        self.gui_kp_rot.value = settings["kp_rot"]
+        self.gui_duration.value = settings["duration_s"]
+
+    def _sync_gui(self, snap: dict) -> None:
+        """The panel shows the run that is there, whoever started it (page, REST, panel)."""
+        self._syncing = True
+        try:
+            if snap["scenario"] in self.gui_scenario.options:
+                self.gui_scenario.value = snap["scenario"]
+            self.gui_mode.value = snap["mode"]
+            settings = snap.get("settings")
+            if settings:
+                self._show_settings(settings)
+                self.gui_help.content = HELP.format(
+                    k_N_per_cm=settings["hand_stiffness_Npm"] / 100.0,
+                    max_N=settings["hand_max_force_N"],
+                    force_scale=settings["force_scale"],
+                    torque_scale=settings["torque_scale"])
+        finally:
+            self._syncing = False
 
     def _gui_overrides(self) -> dict:
         return {
@@ -311,9 +394,20 @@ class EmulatorScene:
                 f"/gizmo/sat{i + 1}", scale=0.35, disable_rotations=True, depth_test=False,
                 line_width=3.0,
             )
-            sv = _SatView(index=i, mockup=mockup, ghost=ghost, gizmo=gizmo)
+            sv = _SatView(index=i, mockup=mockup, ghost=ghost, gizmo=gizmo, size_m=size)
+            sv.grab_marker = scene.add_icosphere(
+                f"/mockups/{i}_{name}/grab", radius=0.012, color=GRAB_COLOR)
             self._attach_gizmo(sv)
+            self._attach_grab(sv)
             self._sats.append(sv)
+        for h in self._boxes:
+            h.remove()
+        self._boxes = [
+            scene.add_line_segments(f"/safety/{k}", points=_box_edges(lo, hi),
+                                    colors=BOX_COLOR, thickness=1.5,
+                                    thickness_units="screen")
+            for k, (lo, hi) in enumerate(layout.get("safety_boxes_W_m", []))
+        ]
 
     def _attach_gizmo(self, sv: _SatView) -> None:
         svc = self.service
@@ -322,13 +416,39 @@ class EmulatorScene:
         async def _(event) -> None:  # async: runs on viser's loop, keeps phase order
             if event.phase == "start":
                 sv.dragging = True
-                svc.hand(sv.index, tuple(event.target.position))
+                svc.hand(sv.index, tuple(event.target.position), tuple(sv.grab_B))
             elif event.phase == "update":
                 sv.dragging = True
-                svc.hand(sv.index, tuple(event.target.position))
+                svc.hand(sv.index, tuple(event.target.position), tuple(sv.grab_B))
             else:
                 svc.hand(sv.index, None)
                 sv.dragging = False
+
+    def _attach_grab(self, sv: _SatView) -> None:
+        @sv.mockup.on_click
+        def _(event) -> None:
+            if sv.dragging:
+                return
+            hit = ray_box_hit(event.ray_origin, event.ray_direction, sv.T_W_C, sv.size_m)
+            if hit is not None:
+                self._set_grab(sv, hit)
+
+    def _set_grab(self, sv: _SatView, point_B: np.ndarray) -> None:
+        """The hand holds mockup `sv` at point_B (body axes): the marker and the gizmo go
+        there."""
+        sv.grab_B = np.asarray(point_B, float)
+        sv.grab_marker.position = tuple(sv.grab_B)
+        if not sv.dragging:
+            p = sv.T_W_C[:3, :3] @ sv.grab_B + sv.T_W_C[:3, 3]
+            sv.gizmo.position = tuple(p)
+            sv.last_gizmo = tuple(np.round(p, 4))
+        text = "; ".join(
+            f"satellite {v.index + 1}: " + (
+                "the centre of mass" if not v.grab_B.any() else
+                f"({', '.join(f'{1e3 * c:+.0f}' for c in v.grab_B)}) mm from the centre "
+                f"(body axes)")
+            for v in self._sats if v is sv or v.grab_B.any()) or "the centre of mass"
+        self.gui_grab.content = f"grabbing: {text}"
 
     @property
     def generation(self) -> int | None:
@@ -370,6 +490,7 @@ class EmulatorScene:
         if snap["generation"] != self._generation:
             self._generation = snap["generation"]
             self._rebuild(snap)
+            self._sync_gui(snap)
             self._built_generation = snap["generation"]
         if not self._history or self._history[-1]["t_s"] != snap["t_s"]:
             self._history.append(snap)
@@ -395,9 +516,13 @@ class EmulatorScene:
                 if mock != sv.last_mockup:
                     sv.mockup.position, sv.mockup.wxyz = mock[0], mock[1]
                     sv.last_mockup = mock
-                if not sv.dragging and mock[0] != sv.last_gizmo:
-                    sv.gizmo.position = mock[0]
-                    sv.last_gizmo = mock[0]
+                    sv.T_W_C = np.eye(4)
+                    sv.T_W_C[:3, :3] = quat_to_matrix(np.array(mock[1]))
+                    sv.T_W_C[:3, 3] = mock[0]
+                grab = tuple(np.round(sv.T_W_C[:3, :3] @ sv.grab_B + sv.T_W_C[:3, 3], 4))
+                if not sv.dragging and grab != sv.last_gizmo:
+                    sv.gizmo.position = grab
+                    sv.last_gizmo = grab
                 p = np.asarray(sat["position_W_m"])
                 if not sv.trace_points or np.linalg.norm(p - sv.trace_points[-1]) > 0.002:
                     sv.trace_points.append(p)
@@ -438,7 +563,7 @@ class EmulatorScene:
         if new_series:
             self._plot_series = shape
             self._series = {}
-            for key in ("force", "velocity", "position"):
+            for key in ("force", "torque", "velocity", "omega", "position"):
                 ser = [{"label": "t (s)"}]
                 for i in range(n_sat):
                     for a, axis in enumerate("xyz"):
@@ -453,34 +578,70 @@ class EmulatorScene:
                     for r in range(max(n_rob, 1))
                 ]
             )
-        data_key = {"force": "applied_force_N", "velocity": "velocity_mps",
-                    "position": "position_m"}
-        for key, field_name in data_key.items():
-            arr = np.array([[s[field_name] for s in h["satellites"]] for h in hist])  # T,N,3
+        data_key = {"force": ("applied_force_N", 1.0),
+                    "torque": ("applied_torque_Nm", 1.0),
+                    "velocity": ("velocity_mps", 1.0),
+                    "omega": ("omega_radps", 180.0 / np.pi),
+                    "position": ("position_m", 1.0)}
+        x_range = {"x": {"time": False, "auto": False, "range": [float(t[0]), float(t[-1])]}}
+        for key, (field_name, unit) in data_key.items():
+            arr = unit * np.array([[s.get(field_name, (0.0, 0.0, 0.0)) for s in h["satellites"]]
+                                   for h in hist])  # T,N,3
             cols = [t] + [arr[:, i, a] for i in range(n_sat) for a in range(3)]
             plot = self.plots[key]
             if new_series:
                 plot.series = self._series[key]
+            plot.scales = x_range  # the time axis spans the data, no more
             plot.data = tuple(np.ascontiguousarray(c, dtype=np.float64) for c in cols)
         if n_rob:
-            err = np.array([[r["tracking_error_m"] * 1e3 for r in h["robots"]] for h in hist])
+            err = np.array([[np.nan if r["tracking_error_m"] is None
+                             else r["tracking_error_m"] * 1e3 for r in h["robots"]]
+                            for h in hist])
             cols = [t] + [err[:, r] for r in range(n_rob)]
         else:
             cols = [t, np.zeros_like(t)]
         if new_series:
             self.plots["tracking"].series = self._series["tracking"]
+        self.plots["tracking"].scales = x_range
         self.plots["tracking"].data = tuple(np.ascontiguousarray(c) for c in cols)
 
     def _update_status(self, snap: dict) -> None:
         loop = snap["loop"]
-        text = (
-            f"**{snap['scenario']}** ({snap['mode']}) — **{snap['status']}**  \n"
-            f"t = {snap['t_s']:.2f} s · cycles {loop['cycles']} · "
-            f"p50 {loop['cycle_time_us']['p50']:.0f} µs · p99 "
-            f"{loop['cycle_time_us']['p99']:.0f} µs · misses {loop['deadline_misses']}"
-        )
+        if loop["cycles"] == 0 and snap["status"] in ("idle", "starting"):
+            text = (f"**{snap['scenario']}** ({snap['mode']}) — **not started**  \n"
+                    "On Start each arm first carries its mockup onto its cyan wireframe "
+                    "(the satellite's start pose); then the orbit runs.")
+        else:
+            text = (
+                f"**{snap['scenario']}** ({snap['mode']}) — **{snap['status']}**  \n"
+                f"t = {snap['t_s']:.2f} s · cycles {loop['cycles']} · "
+                f"p50 {loop['cycle_time_us']['p50']:.0f} µs · p99 "
+                f"{loop['cycle_time_us']['p99']:.0f} µs · misses {loop['deadline_misses']}"
+            )
         if snap.get("reason"):
             text += f"  \n{snap['reason']}"
         if text != getattr(self, "_last_status", None):
             self.gui_status.content = text
             self._last_status = text
+        warning = course_warning(snap)
+        if warning != self.gui_warning.content:
+            self.gui_warning.content = warning
+
+
+def course_warning(snap: dict, horizon_s: float = WARN_HORIZON_S) -> str:
+    """A warning for each carried satellite whose course (straight on at its ODS velocity)
+    leaves its arm's safety volume within horizon_s while the run goes on; "" if none."""
+    if snap["status"] != "running":
+        return ""
+    layout = snap["layout"]
+    R_W_R = np.asarray(layout["T_W_R"])[:3, :3]
+    lines = []
+    for rob, (lo, hi) in zip(snap["robots"], layout.get("safety_boxes_W_m", []),
+                             strict=False):
+        sat = snap["satellites"][rob["satellite"] - 1]
+        v_W = R_W_R @ np.asarray(sat["velocity_mps"])
+        t = seconds_until_outside(sat["position_W_m"], v_W, lo, hi)
+        if t <= horizon_s:
+            lines.append(f"⚠ satellite {rob['satellite']} leaves the safety volume of "
+                         f"{rob['name']} in {t:.1f} s on its course: the run will stop")
+    return "  \n".join(lines)

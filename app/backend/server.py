@@ -23,6 +23,7 @@ from fastapi.responses import (
     HTMLResponse,
     JSONResponse,
     PlainTextResponse,
+    Response,
     StreamingResponse,
 )
 from fastapi.staticfiles import StaticFiles
@@ -74,7 +75,8 @@ def static_dir() -> Path | None:
 
 
 class PushRequest(BaseModel):
-    """A hand push on one satellite: force in frame R through its COM, for duration_s."""
+    """A hand push on one satellite: force in frame R for duration_s, at point_m of the
+    satellite (body axes, from its COM; the COM if left out)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -87,6 +89,13 @@ class PushRequest(BaseModel):
     )
     duration_s: FiniteFloat = Field(
         gt=0.0, le=MAX_PUSH_DURATION_S, description="seconds", examples=[0.3]
+    )
+    point_m: list[FiniteFloat] | None = Field(
+        default=None, min_length=3, max_length=3,
+        description="where the hand pushes: a point of the satellite's box in its body axes "
+                    "(m, from the COM); off the COM the push also turns it (r x F, scaled "
+                    "by [orbit] torque_scale)",
+        examples=[[0.1, 0.0, 0.0]],
     )
 
 
@@ -254,6 +263,13 @@ def create_app(
                                 "see <a href='/docs'>/docs</a>.</p>")
         return FileResponse(root / "index.html")
 
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon():
+        root = static_dir()
+        if root is None or not (root / "favicon.svg").is_file():
+            return Response(status_code=404)
+        return FileResponse(root / "favicon.svg", media_type="image/svg+xml")
+
     root = static_dir()
     if root is not None:
         app.mount("/static", StaticFiles(directory=root), name="static")
@@ -345,9 +361,11 @@ def create_app(
 
     @app.post("/api/push", tags=["control"], responses=errors_409)
     async def push(req: PushRequest, request: Request) -> dict[str, Any]:
-        """A push through the COM of satellite `satellite` (1-based), force in R."""
+        """A push on satellite `satellite` (1-based), force in R, through its COM or at
+        point_m (body axes)."""
         try:
-            return service(request).push(req.satellite, req.force_N, req.duration_s)
+            return service(request).push(req.satellite, req.force_N, req.duration_s,
+                                         req.point_m)
         except InvalidRequest as err:
             raise _http(422, err) from None
         except RunnerBusy as err:

@@ -45,6 +45,9 @@ class EmulatorService:
         self._build_lock = threading.Lock()
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
+        self._last_run: tuple[str, EmulatorConfig, str | None] = (
+            self.default_scenario, config, None)
+        """(scenario, config, mode) of the last start or reset: what a reset restarts."""
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
         self._reads = SharedReads(self.runner.snapshot)
         self._csv: tuple[Any, CsvLines] | None = None  # (the run's ring, its CSV lines)
@@ -116,7 +119,7 @@ class EmulatorService:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
-            self.last_config = config
+            self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
         # error / safety_stop
         self.runner.wait_until(
@@ -130,30 +133,41 @@ class EmulatorService:
         return self.state()
 
     def reset(self, name: str | None = None) -> dict[str, Any]:
-        name = name or self.state()["scenario"]
-        if name not in scenario_names():
-            name = self.default_scenario
+        """Back to t = 0, idle: the scenario, settings and mode of the last start or reset
+        (a name given: that scenario as its file has it)."""
         with self._build_lock:
-            config, mode = self.build(name)
+            if name is None:
+                name, config, mode = self._last_run
+            else:
+                config, mode = self.build(name)
             self._revive(config, name, mode)
             gen = self.runner.request_reset(name, config, mode)
-            self.last_config = config
+            self.last_config, self._last_run = config, (name, config, mode)
         self.runner.wait_until(lambda s: s["generation"] >= gen, 10.0)
         return self.state()
 
-    def push(self, satellite: int, force_N, duration_s: float) -> dict[str, Any]:
-        """A push on satellite `satellite` (1-based), force in R; validated here."""
-        force = validate_push(satellite, force_N, duration_s, self.state()["n_satellites"])
-        self.runner.post(Push(satellite=satellite - 1, force_R_N=force, duration_s=duration_s))
+    def push(self, satellite: int, force_N, duration_s: float,
+             point_m=None) -> dict[str, Any]:
+        """A push on satellite `satellite` (1-based), force in R, at point_m (body axes,
+        from the COM; the COM if None); validated here."""
+        state = self.state()
+        force = validate_push(satellite, force_N, duration_s, state["n_satellites"])
+        point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
+            point_m, state["layout"]["satellites"][satellite - 1][1])
+        self.runner.post(Push(satellite=satellite - 1, force_R_N=force, duration_s=duration_s,
+                              point_B_m=point))
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
-                "t_s": self.state()["t_s"]}
+                "point_m": list(point), "t_s": self.state()["t_s"]}
 
-    def hand(self, satellite0: int, anchor_W_m) -> bool:
-        """Gizmo: move the virtual hand of satellite `satellite0` (0-based); None lets go."""
+    def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
+        """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
+        point_B_m (body axes, from the COM); None lets go."""
         anchor = None if anchor_W_m is None else tuple(float(v) for v in anchor_W_m)
-        if anchor is not None and not all(math.isfinite(v) for v in anchor):
+        point = tuple(float(v) for v in point_B_m)
+        if anchor is not None and not all(math.isfinite(v) for v in anchor + point):
             return False
-        return self.runner.post_nowait(HandAnchor(satellite=satellite0, anchor_W_m=anchor))
+        return self.runner.post_nowait(HandAnchor(satellite=satellite0, anchor_W_m=anchor,
+                                                  point_B_m=point))
 
     # --- heavier reads --------------------------------------------------------------------
 
@@ -264,6 +278,21 @@ class SharedReads:
             value = compute()
             self._last[name] = (state, cycles, now, value)
             return value
+
+
+def validate_point(point_m, size_m) -> tuple[float, float, float]:
+    """A point of a satellite's box (body axes, from its COM), or InvalidRequest."""
+    if len(point_m) != 3:
+        raise InvalidRequest("point_m: must have 3 components")
+    point = tuple(float(v) for v in point_m)
+    if not all(math.isfinite(v) for v in point):
+        raise InvalidRequest("point_m: must be finite numbers")
+    half = [0.5 * float(s) for s in size_m]
+    if any(abs(p) > h + 1e-9 for p, h in zip(point, half, strict=True)):
+        raise InvalidRequest(
+            f"point_m: {list(point)} is outside the satellite's box: each coordinate within "
+            f"+-{[round(h, 6) for h in half]} m of its COM")
+    return point
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import tomllib
-
-from app.config import ConfigError, EmulatorConfig, load_config
+from app.config import ConfigError, EmulatorConfig, load_config, read_scenario_file
 
 _DIR = Path(__file__).parent
 
@@ -31,6 +29,6 @@ def scenario_descriptions() -> dict[str, str]:
     """Name -> one-line description of every built-in scenario."""
     out = {}
     for name in scenario_names():
-        data = tomllib.loads(scenario_path(name).read_text())
+        data = read_scenario_file(scenario_path(name))
         out[name] = data.get("description", "")
     return out

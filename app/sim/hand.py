@@ -5,9 +5,14 @@ Three ways a hand acts on a mockup:
 * **scripted pulses** (``[[pulses]]`` of a scenario): a force in R and a torque in body
   axes, held constant over ``[start_s, end_s)``; the headless free-floating scenario;
 * **pushes** (:class:`Push`, e.g. ``POST /api/push``): a force in R for a duration, from the
-  cycle after it was posted;
+  cycle after it was posted, at a point of the body (its COM unless given);
 * **the gizmo** (:class:`HandAnchor`): the hand is a spring from an anchor in the lab to the
-  mockup's COM, saturated at the hand's maximum force.
+  point where it grabbed the mockup (:func:`ray_box_hit`: where a click meets its box),
+  saturated at the hand's maximum force.
+
+A force at a point r of the body (from its COM) also turns it: the moment about the COM is
+r × F. That is the wrench the mockup feels; the F/T sensor measures it, and the ODS applies
+its force and moment scaled (``[orbit] force_scale``, ``torque_scale``).
 
 Everything outside the loop posts commands; the hand consumes them at the start of the next
 cycle, so the loop stays the only owner of its state.
@@ -22,7 +27,7 @@ import numpy as np
 
 from app.config import EmulatorConfig
 
-__all__ = ["Command", "HandAnchor", "OperatorHand", "Push", "pulse_wrenches"]
+__all__ = ["Command", "HandAnchor", "OperatorHand", "Push", "pulse_wrenches", "ray_box_hit"]
 
 
 def _satellite_index(value) -> int:
@@ -43,18 +48,22 @@ def _finite_vector3(name: str, value) -> tuple[float, float, float]:
 
 @dataclass(frozen=True)
 class Push:
-    """A hand pushing satellite `satellite` (0-based) with force_R_N (in R) for duration_s.
+    """A hand pushing satellite `satellite` (0-based) with force_R_N (in R) for duration_s,
+    at point_B_m (body axes, from the COM; the COM itself by default).
 
-    Checked on creation: an index, three finite force components, a finite duration > 0.
+    Checked on creation: an index, three finite force components and coordinates, a finite
+    duration > 0.
     """
 
     satellite: int
     force_R_N: tuple[float, float, float]
     duration_s: float
+    point_B_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "satellite", _satellite_index(self.satellite))
         object.__setattr__(self, "force_R_N", _finite_vector3("force_R_N", self.force_R_N))
+        object.__setattr__(self, "point_B_m", _finite_vector3("point_B_m", self.point_B_m))
         d = self.duration_s
         if isinstance(d, bool) or not isinstance(d, int | float) or not (
                 math.isfinite(d) and d > 0.0):
@@ -63,22 +72,46 @@ class Push:
 
 @dataclass(frozen=True)
 class HandAnchor:
-    """The operator's hand (gizmo) at anchor_W_m, spring-coupled to the mockup; None lets go.
+    """The operator's hand (gizmo) at anchor_W_m, spring-coupled to the mockup at point_B_m
+    (body axes, from the COM: where the hand grabbed it); None lets go.
 
     Checked on creation: an index, and None or three finite coordinates.
     """
 
     satellite: int
     anchor_W_m: tuple[float, float, float] | None
+    point_B_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "satellite", _satellite_index(self.satellite))
         if self.anchor_W_m is not None:
             object.__setattr__(self, "anchor_W_m", _finite_vector3("anchor_W_m",
                                                                    self.anchor_W_m))
+        object.__setattr__(self, "point_B_m", _finite_vector3("point_B_m", self.point_B_m))
 
 
 Command = Push | HandAnchor
+
+
+def ray_box_hit(origin_W: np.ndarray, direction_W: np.ndarray, T_W_C: np.ndarray,
+                size_m) -> np.ndarray | None:
+    """Where a ray (a click in the 3D view) first meets a box centred on its COM, in body
+    axes from the COM; None if it misses (the slab method, in the box's frame)."""
+    R, p = T_W_C[:3, :3], T_W_C[:3, 3]
+    o = R.T @ (np.asarray(origin_W, float) - p)
+    d = R.T @ np.asarray(direction_W, float)
+    half = 0.5 * np.asarray(size_m, float)
+    t_near, t_far = -np.inf, np.inf
+    for k in range(3):
+        if abs(d[k]) < 1e-12:
+            if abs(o[k]) > half[k]:
+                return None
+            continue
+        t0, t1 = sorted(((-half[k] - o[k]) / d[k], (half[k] - o[k]) / d[k]))
+        t_near, t_far = max(t_near, t0), min(t_far, t1)
+    if t_near > t_far or t_far < 0.0:
+        return None
+    return o + max(t_near, 0.0) * d
 
 
 def pulse_wrenches(config: EmulatorConfig, t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -101,8 +134,9 @@ class OperatorHand:
         self.R_W_R = R_W_R
         self.n_sat = len(config.satellites)
         self._queue: list[Command] = []
-        self._pushes: list[tuple[int, np.ndarray, float]] = []  # (sat, force_R, until_s)
-        self._anchors: dict[int, np.ndarray] = {}
+        # (sat, force_R, until_s, point_B)
+        self._pushes: list[tuple[int, np.ndarray, float, np.ndarray]] = []
+        self._anchors: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # sat -> anchor, point_B
         self._pulse_windows = [(p.start_s, p.end_s) for p in config.pulses]
 
     def post(self, command: Command) -> None:
@@ -119,11 +153,13 @@ class OperatorHand:
         """Apply the queued commands at t_s and let go of the pushes that have ended."""
         for cmd in self._queue:
             if isinstance(cmd, Push):
-                self._pushes.append((cmd.satellite, np.array(cmd.force_R_N), t_s + cmd.duration_s))
+                self._pushes.append((cmd.satellite, np.array(cmd.force_R_N),
+                                     t_s + cmd.duration_s, np.array(cmd.point_B_m)))
             elif cmd.anchor_W_m is None:
                 self._anchors.pop(cmd.satellite, None)
             else:
-                self._anchors[cmd.satellite] = np.array(cmd.anchor_W_m)
+                self._anchors[cmd.satellite] = (np.array(cmd.anchor_W_m),
+                                                np.array(cmd.point_B_m))
         self._queue.clear()
         self._pushes = [p for p in self._pushes if t_s < p[2] - 1e-12]
 
@@ -135,23 +171,31 @@ class OperatorHand:
     def wrenches_W(self, t_s: float, p_W_C: np.ndarray, R_W_C: np.ndarray) -> np.ndarray:
         """(N, 6) wrenches in W about each COM (p_W_C (N, 3), R_W_C (N, 3, 3) of the mockups).
 
-        Pulses and pushes act through the COM with the force they specify (a hand that keeps
-        its push steady); the gizmo's hand is a spring from its anchor to the COM.
+        Pulses act through the COM; pushes at their point, with the force they specify (a
+        hand that keeps its push steady); the gizmo's hand is a spring from its anchor to
+        the point it grabbed. A force F at r (from the COM, in W) adds the moment r × F.
         """
         wrench = np.zeros((self.n_sat, 6))
         if self.idle(t_s):
             return wrench
         force_R, torque_B = pulse_wrenches(self.config, t_s)
-        for sat, f_R, _ in self._pushes:
-            force_R[sat] += f_R
         wrench[:, :3] = force_R @ self.R_W_R.T
         for i in range(self.n_sat):
             wrench[i, 3:] = R_W_C[i] @ torque_B[i]
+        for sat, f_R, _, point_B in self._pushes:
+            _add_force_at(wrench[sat], self.R_W_R @ f_R, R_W_C[sat] @ point_B)
         hand = self.config.hand
-        for sat, anchor in self._anchors.items():
-            f = hand.stiffness_Npm * (anchor - p_W_C[sat])
+        for sat, (anchor, point_B) in self._anchors.items():
+            r_W = R_W_C[sat] @ point_B
+            f = hand.stiffness_Npm * (anchor - (p_W_C[sat] + r_W))
             norm = float(np.linalg.norm(f))
             if norm > hand.max_force_N:
                 f *= hand.max_force_N / norm
-            wrench[sat, :3] += f
+            _add_force_at(wrench[sat], f, r_W)
         return wrench
+
+
+def _add_force_at(wrench_W: np.ndarray, force_W: np.ndarray, r_W: np.ndarray) -> None:
+    """Add a force applied at r_W (from the COM) to a wrench about the COM."""
+    wrench_W[:3] += force_W
+    wrench_W[3:] += np.cross(r_W, force_W)

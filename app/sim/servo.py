@@ -37,7 +37,8 @@ from app.sim.ur10e import (
     tcp_position_W,
 )
 
-__all__ = ["SafetyBox", "ServoState", "UR10eServo", "reason_of", "safety_box_for_robot"]
+__all__ = ["SafetyBox", "ServoState", "UR10eServo", "reason_of", "safety_box_for_robot",
+           "seconds_until_outside"]
 
 BOX_CODE = 2 * N_JOINTS + 1
 """Stop code of "TCP left safety volume"; 1..6: joint position limit, 7..12: speed limit."""
@@ -71,6 +72,23 @@ class SafetyBox:
     def contains(self, q_rad: np.ndarray) -> bool:
         p_W = self.tcp_position_W(q_rad)
         return bool(np.all(p_W >= self.p_min_W_m) and np.all(p_W <= self.p_max_W_m))
+
+
+def seconds_until_outside(p_W_m, v_W_mps, p_min_W_m, p_max_W_m) -> float:
+    """When a point at p_W_m moving straight at v_W_mps leaves the box [p_min, p_max]:
+    0 if it is outside already, inf if it never does (a satellite's course over a few
+    seconds: the orbit bends it by ~Ω t, 1e-3 rad/s, so the straight line is its course)."""
+    p, v = np.asarray(p_W_m, float), np.asarray(v_W_mps, float)
+    lo, hi = np.asarray(p_min_W_m, float), np.asarray(p_max_W_m, float)
+    if np.any(p < lo) or np.any(p > hi):
+        return 0.0
+    t = np.inf
+    for a in range(3):
+        if v[a] > 0.0:
+            t = min(t, (hi[a] - p[a]) / v[a])
+        elif v[a] < 0.0:
+            t = min(t, (lo[a] - p[a]) / v[a])
+    return float(t)
 
 
 def safety_box_for_robot(robot: RobotConfig) -> SafetyBox:
