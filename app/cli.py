@@ -57,6 +57,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from app.headless import run_scenario
     from app.report import run_summary
 
+    if args.bag_rate is not None and not args.bag:
+        raise ValueError("--bag-rate: only with --bag")
     config = load_config(args.config) if args.config else load_scenario(args.scenario)
     overrides: dict = {"loop": {}}
     if args.seed is not None:
@@ -80,7 +82,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         bar.update(k - bar.n)
 
     result = run_scenario(config, mode=args.mode, duration_s=duration, out_dir=out_dir,
-                          progress=progress)
+                          progress=progress, bag=args.bag, bag_rate_hz=args.bag_rate)
     bar.update(bar.total - bar.n)
     bar.close()
     print(run_summary(result.metrics))
@@ -147,6 +149,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override one setting, e.g. --set passivity.enabled=false "
                         "or --set robots.1.q_home_rad=[0,-2,1.6,0.4,-1.57,0] (repeatable)")
     p.add_argument("--out", default=None, help="output directory (default: runs/SCENARIO)")
+    p.add_argument("--bag", action="store_true",
+                   help="also write the run as a ROS 2 bag (MCAP) in OUT/bag: joint states, "
+                        "tf, F/T and ODS wrenches, satellite twists (Foxglove, PlotJuggler, "
+                        "ros2 bag play)")
+    p.add_argument("--bag-rate", type=_positive_float, default=None, metavar="HZ",
+                   help="with --bag: at most HZ messages per topic and second of scenario "
+                        "time (default: every cycle)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
 

@@ -341,10 +341,14 @@ DEFAULT_MATERIALS = {
 
 
 class HandConfig(_Model):
-    """The operator's virtual hand: spring-coupled to the mockup while it pushes."""
+    """The operator's virtual hand: spring-coupled to the mockup while it pushes.
 
-    stiffness_Npm: Positive = 200.0
-    max_force_N: Positive = 60.0
+    1 N per cm of drag, at most the scripted push's 20 N: with free-floating's force scale
+    a gentle 5-10 cm drag gives the satellite a few cm/s, as the scripted pushes do (the
+    F/T deadband, 4 N, swallows the first 4 cm)."""
+
+    stiffness_Npm: Positive = 100.0
+    max_force_N: Positive = 20.0
 
 
 class LoopConfig(_Model):

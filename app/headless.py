@@ -6,6 +6,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from app.bag import replace_bag_dir, write_bag
 from app.config import EmulatorConfig, merge_overrides
 from app.metrics import collision_metrics, compute_metrics, contact_pair
 from app.plots import plot_run
@@ -37,8 +38,11 @@ def run_scenario(
     out_dir: str | Path | None = None,
     progress=None,
     with_ideal: bool = True,
+    bag: bool = False,
+    bag_rate_hz: float | None = None,
 ) -> RunResult:
-    """Run a scenario headless; with out_dir, write its telemetry, metrics and plots.
+    """Run a scenario headless; with out_dir, write its telemetry, metrics and plots (and
+    with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.bag.write_bag`).
 
     The telemetry buffer is sized to hold the whole run, so nothing recorded is dropped;
     on a safety stop the run ends there and everything up to it is written. A hil run
@@ -69,4 +73,7 @@ def run_scenario(
                 em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms),
                 metrics.get("collision"),
             )
+            if bag:
+                files.append(write_bag(replace_bag_dir(out / "bag"), em.config,
+                                       em.telemetry.rows(), em.telemetry.index, bag_rate_hz))
     return RunResult(em, metrics, files)

@@ -26,7 +26,6 @@ CHROMIUM_ARGS = [
     "--disable-component-update", "--disable-sync", "--no-first-run",
 ]
 VIEWPORT = {"width": 1000, "height": 700}
-QUIET = {"pulses": []}  # no scripted pushes
 
 pytestmark = pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
 
@@ -134,7 +133,7 @@ def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     live.client.post("/api/stop")
     # (120 s: the scenario's 24 s could run out before a second drag on a loaded machine)
     s = live.client.post("/api/scenarios/free-floating/start",
-                         json={**QUIET, "loop": {"duration_s": 120.0}}).json()
+                         json={"loop": {"duration_s": 120.0}}).json()
     assert s["status"] == "running"
     live.wait_for_scene()
     _wait_rendered(page, live)
@@ -168,6 +167,110 @@ def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     v = s1["satellites"][0]["velocity_mps"]
     assert abs(v[0]) < abs(v[1]) and abs(v[2]) < abs(v[1])
     live.client.post("/api/stop")
+
+
+def _drag_arrow(live, page, origin_W, axis_W, check, attempts: int = 2) -> dict:
+    """Drag the gizmo arrow that starts at origin_W along axis_W by ~20 px; the state
+    once check(state) holds (a second drag where the first press missed the arrow)."""
+    scale = 0.35  # the gizmo's scale (scene.py): its arrows are that long in metres
+    center, tip = _project(live, page, [origin_W, origin_W + 0.7 * scale * np.asarray(axis_W)])
+    direction = (tip - center) / np.linalg.norm(tip - center)
+    for attempt in range(attempts):
+        page.mouse.move(*tip)
+        page.mouse.down()
+        for k in range(1, 4):
+            page.mouse.move(*(tip + direction * 7 * k))
+        try:
+            state = live.wait_for(check, timeout_s=8)
+            break
+        except TimeoutError:
+            page.mouse.up()
+            if attempt == attempts - 1:
+                raise
+    page.mouse.up()
+    return state
+
+
+def test_hand_driven_free_floating_from_the_page_stays_at_rest(live, page):
+    """The web app's free-floating has nothing scripted: started from the page (its
+    scenario and mode selectors), the satellite stays where it is until someone pushes."""
+    live.client.post("/api/stop")
+    page.select_option("#scenario", "free-floating")
+    page.select_option("#mode", "hil")
+    page.click("#start-button")
+    s = live.wait_for(lambda s: s["status"] == "running" and s["scenario"] == "free-floating",
+                      timeout_s=30)
+    s = live.wait_for(lambda s: s["t_s"] > 4.0, timeout_s=30)
+    assert np.linalg.norm(s["satellites"][0]["velocity_mps"]) < 1e-6
+    assert np.linalg.norm(s["satellites"][0]["omega_radps"]) < 1e-6
+    assert np.linalg.norm(s["satellites"][0]["position_m"]) < 1e-6
+    page.wait_for_function("document.getElementById('settings').textContent"
+                           ".includes('duration 120 s')", timeout=10_000)
+
+
+def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
+    """Click the mockup's front face left of and below its centre: the hand holds it
+    there (the gizmo moves to that point). Dragging the gizmo's +x arrow pulls that point
+    along +x: the satellite moves along +x and, through the sensed torque r × F with
+    r = (-0.06, -0.1, -0.02) m, turns mostly about +z (r_y F_x < 0: τ_z = 0.1 F)."""
+    s = live.state()
+    if s["status"] != "running" or s["scenario"] != "free-floating":
+        s = live.client.post("/api/scenarios/free-floating/start", json={}).json()
+    _wait_rendered(page, live)
+    s0 = live.wait_for(lambda s: s["t_s"] > 2.0)
+    m = np.array(s0["robots"][0]["mockup_position_W_m"])
+    r_B = np.array([-0.06, -0.1, -0.02])  # on the -y face (body = lab axes at rest)
+    (click,) = _project(live, page, [m + r_B])
+    sat_view = live.app.state.scene._sats[0]
+    for _ in range(3):
+        page.mouse.click(*click)
+        for _ in range(20):
+            if sat_view.grab_B.any():
+                break
+            page.wait_for_timeout(100)
+        if sat_view.grab_B.any():
+            break
+    grab = sat_view.grab_B.copy()
+    assert grab[1] == pytest.approx(-0.1, abs=1e-3), grab  # on the face that was clicked
+    np.testing.assert_allclose(grab[[0, 2]], r_B[[0, 2]], atol=0.02)
+    page.wait_for_timeout(500)  # the gizmo has moved to the grab point
+    s1 = _drag_arrow(live, page, m + grab, [1.0, 0.0, 0.0],
+                     lambda s: s["satellites"][0]["omega_radps"][2] > 0.005)
+    v, w = s1["satellites"][0]["velocity_mps"], s1["satellites"][0]["omega_radps"]
+    assert v[0] > 0.0 and w[2] > abs(w[0]) and w[2] > abs(w[1]), (v, w)
+    live.client.post("/api/stop")
+
+
+def test_the_panel_follows_a_rest_start(live, page):
+    """A run started over REST shows in the 3D view's panel (scenario, settings) and on
+    the page (scenario and mode selectors, settings line)."""
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 9.0},
+                               "satellites": {"0": {"velocity_mps": [0.05, 0.0, 0.0]}}}).json()
+    assert s["status"] == "running"
+    page.wait_for_function("document.getElementById('mode').value === 'ideal'",
+                           timeout=10_000)
+    assert page.locator("#scenario").input_value() == "collision"
+    panel = page.frames[1]  # the viewer's panel: its inputs' values
+    assert "/viewer/" in panel.url
+    deadline = time.monotonic() + 15
+    while True:
+        values = panel.eval_on_selector_all("input", "els => els.map(e => e.value)")
+        if {"collision", "ideal", "0.05", "9"} <= set(values) or time.monotonic() > deadline:
+            break
+        page.wait_for_timeout(200)
+    assert {"collision", "ideal", "0.05", "9"} <= set(values), values
+    live.client.post("/api/stop")
+
+
+def test_the_page_s_download_links_return_the_run_s_files(live, page):
+    for link, kind in (("#download-csv", "text/csv"), ("#download-metrics", "application/json"),
+                       ("#download-run", "application/zip")):
+        href = page.locator(link).get_attribute("href")
+        r = page.request.get(live.url + href)
+        assert r.status == 200 and r.headers["content-type"].startswith(kind), (link, r.status)
+        assert len(r.body()) > 100
 
 
 def _cpu_times() -> tuple[int, int]:

@@ -85,16 +85,19 @@ def test_gizmo_drag_over_websocket_moves_the_satellite(live):
     s0 = live.wait_for(lambda s: s["t_s"] > 0.2)
     p0_R = np.array(s0["satellites"][0]["position_m"])
     mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"])
-    # drag 10 cm along +y of the lab (= +y of R here: R is not rotated) in 5 steps
-    path = [tuple(float(v) for v in mockup_W + [0.0, 0.02 * k, 0.0]) for k in range(1, 6)]
+    # drag 15 cm along +y of the lab (= +y of R here: R is not rotated) in 5 steps
+    path = [tuple(float(v) for v in mockup_W + [0.0, 0.03 * k, 0.0]) for k in range(1, 6)]
     received = asyncio.run(_drag(live.port, path, hold_s=1.0))
     assert received > 0
     s1 = live.state()
     p1_R = np.array(s1["satellites"][0]["position_m"])
     v1_R = np.array(s1["satellites"][0]["velocity_mps"])
     dp = p1_R - p0_R
-    # hand spring 200 N/m x 0.1 m = 20 N, x force_scale 0.005 on 1 kg: 0.1 m/s^2 for ~1 s
-    assert v1_R[1] > 0.03, v1_R
+    # the hand's spring (k x 0.15 m, capped), x force_scale on the mass, held ~1 s; less the
+    # F/T deadband and the way the mockup closes on the hand: at least 40 % of that
+    cfg = live.app.state.service.config_for("free-floating")
+    force_N = min(cfg.hand.stiffness_Npm * 0.15, cfg.hand.max_force_N)
+    assert v1_R[1] > 0.4 * cfg.orbit.force_scale * force_N / cfg.satellites[0].mass_kg, v1_R
     assert dp[1] > 0.01, dp
     assert abs(v1_R[0]) < 0.3 * v1_R[1] and abs(v1_R[2]) < 0.3 * v1_R[1], v1_R
     # letting go stops the push: the velocity stays (free floating), no more pull

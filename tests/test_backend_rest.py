@@ -335,3 +335,46 @@ def test_a_body_that_is_not_json_is_refused_before_anything_reads_it(live):
         assert r.json()["detail"] == "a request body must be application/json"
     assert live.state()["generation"] == gen
     assert live.client.post("/api/stop").status_code == 200  # no body: no type needed
+
+
+def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path):
+    """The page's download links: the CSV and metrics of the run, a zip with everything
+    (plots, config, summary) and the ROS 2 bag, all of the same (finished) run."""
+    import io
+    import json
+    import zipfile
+
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 4.0}}).json()
+    assert s["status"] == "running"
+    live.wait_for(lambda s: s["status"] == "finished", timeout_s=60)
+    csv = live.client.get("/api/telemetry").text
+    metrics = live.client.get("/api/metrics").json()
+    r = live.client.get("/api/run.zip")
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+    zf = zipfile.ZipFile(io.BytesIO(r.content))
+    names = set(zf.namelist())
+    assert {"telemetry.csv", "metrics.json", "summary.txt", "config.json",
+            "plots/fig8_forces.png", "plots/fig8b_contact_closeup.png"} <= names
+    assert zf.read("telemetry.csv").decode() == csv
+    in_zip = json.loads(zf.read("metrics.json"))
+    assert in_zip["collision"]["restitution"] == metrics["collision"]["restitution"]
+    assert in_zip["cycles"] == metrics["cycles"] == 2000
+    config = json.loads(zf.read("config.json"))
+    assert (config["scenario"], config["mode"]) == ("collision", "ideal")
+    assert config["config"]["loop"]["duration_s"] == 4.0
+    assert "restitution" in zf.read("summary.txt").decode()
+    assert zf.read("plots/fig8_forces.png")[:4] == b"\x89PNG"
+
+    r = live.client.get("/api/bag", params={"rate_hz": 50})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
+    zipfile.ZipFile(io.BytesIO(r.content)).extractall(tmp_path)
+    from rosbags.rosbag2 import Reader
+
+    with Reader(tmp_path / "bag") as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts["/sat1/twist"] == counts["/sat2/ods_input"] == 201  # 4 s at 50 Hz
+    for bad in ("0", "-1", "2000", "abc"):
+        r = live.client.get("/api/bag", params={"rate_hz": bad})
+        assert r.status_code == 422 and "rate_hz" in r.text, (bad, r.text)

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import os
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from fastapi import Body, FastAPI, HTTPException, Request
+from fastapi import Body, FastAPI, HTTPException, Query, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import (
@@ -47,6 +46,7 @@ from app.backend.service import (
     InvalidRequest,
     RunnerBusy,
     UnknownScenario,
+    json_safe,
 )
 from app.backend.viewer import PATH as VIEWER_PATH
 from app.backend.viewer import add_viewer_routes, start_viser
@@ -139,17 +139,6 @@ START_BODY_EXAMPLE = {
 }
 
 
-def json_safe(value):
-    """Replace non-finite floats with None (JSON has no NaN / Infinity)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
-
-
 def _field_errors(errors) -> str:
     parts = []
     for e in errors:
@@ -165,6 +154,10 @@ def _field_errors(errors) -> str:
 
 class CsvResponse(PlainTextResponse):
     media_type = "text/csv"
+
+
+class ZipResponse(Response):
+    media_type = "application/zip"
 
 
 def _csv_chunks(lines: list[str], lines_per_chunk: int = 2000):
@@ -386,5 +379,23 @@ def create_app(
         return StreamingResponse(
             _csv_chunks(lines), media_type=CsvResponse.media_type,
             headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
+
+    @app.get("/api/run.zip", tags=["status"], response_class=ZipResponse)
+    def run_zip(request: Request):
+        """The current (or last) run to take home: telemetry.csv, metrics.json,
+        summary.txt, config.json and plots/*.png (the headless run's figures), zipped."""
+        return ZipResponse(service(request).run_archive(),
+                           headers={"Content-Disposition": "attachment; filename=run.zip"})
+
+    @app.get("/api/bag", tags=["status"], response_class=ZipResponse)
+    def bag(request: Request,
+            rate_hz: Annotated[float, Query(gt=0.0, le=1000.0, description=(
+                "at most this many messages per topic and second of scenario time"))] = 100.0):
+        """The current (or last) run as a ROS 2 bag in MCAP storage (bag/metadata.yaml,
+        bag/bag.mcap), zipped: joint states, tf, raw F/T, the ODS's input wrench, the
+        true contact force and the satellites' twists, in standard messages (Foxglove,
+        PlotJuggler, ros2 bag play)."""
+        return ZipResponse(service(request).run_bag(rate_hz),
+                           headers={"Content-Disposition": "attachment; filename=bag.zip"})
 
     return app

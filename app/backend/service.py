@@ -7,6 +7,7 @@ request changes nothing.
 from __future__ import annotations
 
 import collections
+import io
 import math
 import threading
 import time
@@ -176,8 +177,8 @@ class EmulatorService:
         shared ring; see CsvLines.document)."""
         return self._reads.get("telemetry", self._telemetry_csv)
 
-    def _telemetry_csv(self) -> list[str]:
-        snap, ring, first, rows = self.runner.run_telemetry()
+    def _telemetry_csv(self, read=None) -> list[str]:
+        snap, ring, first, rows = read or self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
         if self._csv is None or self._csv[0] is not ring:
             self._csv = (ring, CsvLines(columns))
@@ -195,10 +196,10 @@ class EmulatorService:
         loop published; the cycle times are those of its last 10 s)."""
         return self._reads.get("metrics", self._metrics)
 
-    def _metrics(self) -> dict[str, Any]:
+    def _metrics(self, read=None) -> dict[str, Any]:
         from app.metrics import RunFacts, metrics_of
 
-        snap, ring, _, rows = self.runner.run_telemetry()
+        snap, ring, _, rows = read or self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
         config = ring.config if ring is not None else self.last_config
         loop = snap["loop"]
@@ -211,6 +212,85 @@ class EmulatorService:
             arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])})
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
+
+    def run_archive(self) -> bytes:
+        """The current (or last) run to take home, as a zip: telemetry.csv, metrics.json,
+        summary.txt, config.json (the run's whole configuration, with its mode) and the
+        plots of a headless run (computed here, from one read of the shared ring)."""
+        return self._reads.get("archive", self._run_archive)
+
+    def _run_archive(self) -> bytes:
+        import json
+        import tempfile
+        import zipfile
+        from pathlib import Path
+
+        from app.plots import plot_run
+        from app.report import run_summary
+
+        read = self.runner.run_telemetry()
+        snap, ring, _, rows = read
+        columns, rows = self._rows_of(snap, ring, rows)
+        config = ring.config if ring is not None else self.last_config
+        metrics = self._metrics(read)
+        buffer = io.BytesIO()
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf, \
+                tempfile.TemporaryDirectory() as tmp:
+            zf.writestr("telemetry.csv", "".join(self._telemetry_csv(read)))
+            zf.writestr("metrics.json", json.dumps(json_safe(_plain(metrics)), indent=2))
+            zf.writestr("summary.txt", run_summary(metrics) + "\n")
+            zf.writestr("config.json", json.dumps(
+                {"scenario": snap["scenario"], "mode": snap["mode"],
+                 "config": config.model_dump(mode="json")}, indent=2))
+            index = {name: k for k, name in enumerate(columns)}
+            for path in plot_run(rows, index, Path(tmp), len(snap["satellites"]),
+                                 len(snap["robots"]), metrics.get("collision")):
+                zf.write(path, f"plots/{path.name}")
+        return buffer.getvalue()
+
+    def run_bag(self, rate_hz: float) -> bytes:
+        """The current (or last) run as a ROS 2 bag (MCAP; app/bag.py), zipped: at most
+        rate_hz messages per topic and second of scenario time."""
+        return self._reads.get(f"bag {rate_hz!r}", lambda: self._run_bag(rate_hz))
+
+    def _run_bag(self, rate_hz: float) -> bytes:
+        import tempfile
+        import zipfile
+        from pathlib import Path
+
+        from app.bag import write_bag
+
+        snap, ring, _, rows = self.runner.run_telemetry()
+        columns, rows = self._rows_of(snap, ring, rows)
+        config = ring.config if ring is not None else self.last_config
+        buffer = io.BytesIO()
+        with tempfile.TemporaryDirectory() as tmp, \
+                zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
+            bag = write_bag(Path(tmp) / "bag", config, rows,
+                            {name: k for k, name in enumerate(columns)}, rate_hz)
+            for path in sorted(bag.iterdir()):
+                zf.write(path, f"bag/{path.name}")
+        return buffer.getvalue()
+
+
+def _plain(value):
+    """NumPy scalars and arrays in a nested value as Python numbers and lists."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value.tolist() if isinstance(value, (np.ndarray, np.generic)) else value
+
+
+def json_safe(value):
+    """Replace non-finite floats with None (JSON has no NaN / Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
 
 
 class CsvLines:
