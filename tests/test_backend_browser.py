@@ -266,7 +266,8 @@ def test_the_panel_follows_a_rest_start(live, page):
 
 def test_the_page_s_download_links_return_the_run_s_files(live, page):
     for link, kind in (("#download-csv", "text/csv"), ("#download-metrics", "application/json"),
-                       ("#download-run", "application/zip")):
+                       ("#download-run", "application/zip"), ("#download-replay", "text/html"),
+                       ("#download-bag", "application/zip")):
         href = page.locator(link).get_attribute("href")
         r = page.request.get(live.url + href)
         assert r.status == 200 and r.headers["content-type"].startswith(kind), (link, r.status)
@@ -311,3 +312,48 @@ def test_loop_keeps_500_hz_with_the_browser_connected(live, page):
         + f"; cycle p50 {states[-1]['loop']['cycle_time_us']['p50']:.0f} us, "
         f"p99 {states[-1]['loop']['cycle_time_us']['p99']:.0f} us, "
         f"scene update p50 {np.median(live.app.state.scene.update_cost_s) * 1e3:.2f} ms")
+
+
+def test_the_replay_file_plays_offline_with_the_server_stopped(page, tmp_path):
+    """A run's replay.html, saved and opened from disk after its server has stopped: the
+    viewer loads the embedded recording and plays it (its frames change over time)."""
+    with LiveServer(default_scenario="collision") as other:
+        assert other.client.get("/api/replay.html").status_code == 404  # nothing recorded
+        other.wait_for_scene()
+        s = other.client.post("/api/scenarios/collision/start",
+                              json={"mode": "ideal", "loop": {"duration_s": 3.0}}).json()
+        assert s["status"] == "running"
+        other.wait_for(lambda s: s["status"] == "finished", timeout_s=60)
+        recorder = other.app.state.scene.replay
+        for _ in range(100):  # the scene thread ends the recording with the run's last frame
+            if not recorder.recording:
+                break
+            time.sleep(0.1)
+        assert recorder.last is not None and recorder.last[0] == s["generation"]
+        r = other.client.get("/api/replay.html")
+        assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+        assert "<title>orbit-emulator replay: collision (ideal)</title>" in r.text
+    path = tmp_path / "replay.html"
+    path.write_bytes(r.content)
+    context = page.context.browser.new_context(viewport=VIEWPORT)
+    viewer = context.new_page()
+    logs: list[str] = []
+    viewer.on("console", lambda m: logs.append(m.text))
+    try:
+        viewer.goto(path.as_uri())
+        deadline = time.monotonic() + 60
+        while not any("File loaded" in t for t in logs) and time.monotonic() < deadline:
+            viewer.wait_for_timeout(250)
+        assert any("File loaded" in t for t in logs), logs[-10:]
+        viewer.wait_for_timeout(1500)
+        frames = []
+        for _ in range(4):
+            frames.append(np.asarray(PIL.open(io.BytesIO(viewer.screenshot())).convert("L"),
+                                     dtype=int))
+            viewer.wait_for_timeout(700)
+        assert frames[0].std() > 8  # a scene, not a blank page
+        changes = [int((np.abs(a - b) > 30).sum()) for a, b in zip(frames[:-1], frames[1:],
+                                                                  strict=True)]
+        assert max(changes) > 200, changes  # it plays: the satellites move, the bar runs
+    finally:
+        context.close()

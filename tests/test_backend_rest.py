@@ -375,6 +375,29 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path):
     with Reader(tmp_path / "bag") as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts["/sat1/twist"] == counts["/sat2/ods_input"] == 201  # 4 s at 50 Hz
+    replay = live.client.get("/api/replay.html")
+    assert replay.status_code == 200 and "playbackPath" in replay.text
     for bad in ("0", "-1", "2000", "abc"):
         r = live.client.get("/api/bag", params={"rate_hz": bad})
         assert r.status_code == 422 and "rate_hz" in r.text, (bad, r.text)
+
+
+def test_a_replay_taken_during_a_run_leaves_the_recording_going(live):
+    """GET /api/replay.html mid-run gives the run so far and the scene keeps recording:
+    a second download, later, is longer."""
+    live.client.post("/api/stop")
+    live.wait_for_scene()
+    s = live.client.post("/api/scenarios/free-floating/start",  # drifting: frames differ
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0},
+                               "satellites": {"0": {"velocity_mps": [0.02, 0.0, 0.0]}}}).json()
+    assert s["status"] == "running"
+    recorder = live.app.state.scene.replay
+    live.wait_for(lambda s: s["t_s"] >= 1.0)
+    first = live.client.get("/api/replay.html")
+    assert first.status_code == 200 and recorder.recording
+    assert recorder.current()[0] == s["generation"]
+    live.wait_for(lambda s: s["t_s"] >= 3.0)
+    second = live.client.get("/api/replay.html")
+    assert second.status_code == 200 and recorder.recording
+    assert len(second.content) > len(first.content)
+    live.client.post("/api/stop")

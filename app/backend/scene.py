@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from app.backend.replay import ReplayRecorder
 from app.backend.service import EmulatorService, InvalidRequest, RunnerBusy, UnknownScenario
 from app.scenarios import load_scenario, scenario_names
 from app.sim.hand import ray_box_hit
@@ -170,6 +171,9 @@ class EmulatorScene:
         self._frame_R = None
         self._boxes: list = []
         self._syncing = False  # the panel is being set to the run's values, not by a user
+        self.replay = ReplayRecorder(server)
+        """The 3D replay of the run going on, or of the last one (app/backend/replay.py)."""
+        self._recorded_generation: int | None = None
         self.update_cost_s: deque = deque(maxlen=300)  # wall time of each scene update
         self._last_slow = 0.0
         self._build_static()
@@ -488,12 +492,18 @@ class EmulatorScene:
         if not snap:
             return
         if snap["generation"] != self._generation:
+            self.replay.finish()  # the run before ended or was replaced
             self._generation = snap["generation"]
             self._rebuild(snap)
             self._sync_gui(snap)
             self._built_generation = snap["generation"]
         if not self._history or self._history[-1]["t_s"] != snap["t_s"]:
             self._history.append(snap)
+        running = snap["status"] == "running"
+        if running and self._recorded_generation != snap["generation"]:
+            self.replay.start(snap["generation"])
+            self._recorded_generation = snap["generation"]
+        self.replay.tick()
         now = time.monotonic()
         with self.server.atomic():
             for view, rob in zip(self._active_arms, snap["robots"], strict=False):
@@ -527,6 +537,8 @@ class EmulatorScene:
                 if not sv.trace_points or np.linalg.norm(p - sv.trace_points[-1]) > 0.002:
                     sv.trace_points.append(p)
                     sv.trace_version += 1
+        if not running and self.replay.recording:
+            self.replay.finish()  # the run's last frame is in
         if now - self._last_slow > 0.25:  # traces, plots, status: 4 Hz
             self._last_slow = now
             self._update_traces()

@@ -38,6 +38,7 @@ from app.backend.access import (
     check_token,
     is_loopback,
 )
+from app.backend.replay import replay_html
 from app.backend.runner import RunnerError
 from app.backend.service import (
     MAX_PUSH_DURATION_S,
@@ -386,6 +387,22 @@ def create_app(
         summary.txt, config.json and plots/*.png (the headless run's figures), zipped."""
         return ZipResponse(service(request).run_archive(),
                            headers={"Content-Disposition": "attachment; filename=run.zip"})
+
+    @app.get("/api/replay.html", tags=["status"], response_class=HTMLResponse,
+             responses={404: {"model": Message}})
+    def replay(request: Request):
+        """The 3D replay of the current (or last) run: one HTML file (viser's viewer with
+        the recording inside) that plays in a browser from disk, without this server.
+        404 before any run. At most the first 10 minutes of a run are kept."""
+        recording = request.app.state.scene.replay.current()
+        if recording is None:
+            raise HTTPException(status_code=404, detail="no run recorded yet: start one")
+        generation, data, truncated = recording
+        snap = service(request).state()
+        title = f"orbit-emulator replay: {snap['scenario']} ({snap['mode']})" + (
+            ", first 10 min" if truncated else "")
+        return HTMLResponse(replay_html(data, title), headers={
+            "Content-Disposition": "attachment; filename=replay.html"})
 
     @app.get("/api/bag", tags=["status"], response_class=ZipResponse)
     def bag(request: Request,

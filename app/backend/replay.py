@@ -1,0 +1,138 @@
+"""A run's 3D replay: viser's scene recording, in one HTML file that plays without a server.
+
+While a run goes on, :class:`ReplayRecorder` records what the scene sends (viser's scene
+serializer, with the time between updates); when it ends, the recording is kept. The
+standalone file (:func:`replay_html`) is viser's own client page (one self-contained
+HTML file in the viser package) with the recording embedded: a small script in front of
+the client hands the recording to the client's playback (``?playbackPath=``) when it
+asks for it, so the file plays from disk, offline, in any browser.
+"""
+
+from __future__ import annotations
+
+import base64
+import copy
+import threading
+import time
+from pathlib import Path
+
+__all__ = ["MAX_REPLAY_S", "ReplayRecorder", "replay_html"]
+
+MAX_REPLAY_S = 600.0
+"""A replay keeps at most this much of a run (its first 10 minutes), to bound memory."""
+
+_NAME = "orbit-emulator-replay.viser"
+
+
+class ReplayRecorder:
+    """Records the scene during one run at a time; keeps the last finished recording."""
+
+    def __init__(self, server) -> None:
+        self.server = server
+        self._lock = threading.Lock()
+        self._serializer = None
+        self._generation: int | None = None
+        self._last_time = 0.0
+        self._recorded_s = 0.0
+        self.last: tuple[int, bytes, bool] | None = None
+        """(generation, recording, truncated) of the last finished recording."""
+
+    @property
+    def recording(self) -> bool:
+        with self._lock:
+            return self._serializer is not None
+
+    def start(self, generation: int) -> None:
+        """Begin recording run `generation` (the scene as it is now, then every change)."""
+        with self._lock:
+            self._finish_locked(truncated=False)
+            self._serializer = self.server.get_scene_serializer()
+            self._generation, self._last_time, self._recorded_s = (
+                generation, time.monotonic(), 0.0)
+
+    def tick(self) -> None:
+        """Time passes in the recording: call before sending a frame's updates."""
+        with self._lock:
+            if self._serializer is None:
+                return
+            now = time.monotonic()
+            dt = max(0.0, now - self._last_time)
+            self._last_time = now
+            self._recorded_s += dt
+            if self._recorded_s > MAX_REPLAY_S:
+                self._finish_locked(truncated=True)
+                return
+            self._serializer.insert_sleep(dt)
+
+    def finish(self) -> None:
+        """End the recording (the run ended or was replaced); keep it as the last one."""
+        with self._lock:
+            self._finish_locked(truncated=False)
+
+    def _finish_locked(self, truncated: bool) -> None:
+        if self._serializer is None:
+            return
+        self.last = (self._generation, self._serializer.serialize(), truncated)
+        self._serializer = None
+
+    def current(self) -> tuple[int, bytes, bool] | None:
+        """The recording of the run going on, so far (it goes on recording), else the last
+        finished one; None before any run."""
+        with self._lock:
+            if self._serializer is None:
+                return self.last
+            return self._generation, _serialize_copy(self._serializer), False
+
+
+def _serialize_copy(serializer) -> bytes:
+    """What ``serializer`` recorded so far, leaving it recording. viser's serialize() ends
+    a recording, so a copy of it (its message and buffer lists) is serialized instead; the
+    copy is registered with the websocket handler for the moment, as serialize() expects
+    (a private part of viser 1.x: tests/test_backend_replay.py checks it)."""
+    clone = copy.copy(serializer)
+    clone._messages = list(serializer._messages)
+    clone._binary_buffers = list(serializer._binary_buffers)
+    handler = serializer._handler
+    with handler._record_lock:
+        handler._record_handles.append(clone)
+    return clone.serialize()
+
+
+def _client_page() -> str:
+    import viser
+
+    return (Path(viser.__file__).parent / "client" / "build" / "index.html").read_text()
+
+
+def replay_html(recording: bytes, title: str) -> str:
+    """One HTML file that replays `recording` (a .viser scene recording) offline."""
+    page = _client_page()
+    shim = f"""<script>
+(function () {{
+  // the recording, embedded: handed to the viewer's playback when it asks for it
+  var b64 = "{base64.b64encode(recording).decode()}";
+  var name = "{_NAME}";
+  var bin = atob(b64), bytes = new Uint8Array(bin.length);
+  for (var i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
+  if (new URLSearchParams(location.search).get("playbackPath") !== name) {{
+    history.replaceState(null, "", location.pathname + "?playbackPath=" + name);
+  }}
+  var realFetch = window.fetch.bind(window);
+  window.fetch = function (input, init) {{
+    var url = typeof input === "string" ? input : (input && input.url) || String(input);
+    if (url.indexOf(name) !== -1) {{
+      return Promise.resolve(new Response(bytes, {{status: 200, headers: {{
+        "Content-Type": "application/octet-stream",
+        "Content-Length": String(bytes.length)}}}}));
+    }}
+    return realFetch(input, init);
+  }};
+}})();
+</script>"""
+    page = page.replace("<title>Viser</title>", f"<title>{_escape(title)}</title>", 1)
+    head = page.index("<head>") + len("<head>")
+    return page[:head] + "\n" + shim + page[head:]
+
+
+def _escape(text: str) -> str:
+    return (text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;"))
