@@ -344,8 +344,9 @@ class HandConfig(_Model):
     """The operator's virtual hand: spring-coupled to the mockup while it pushes.
 
     1 N per cm of drag, at most the scripted push's 20 N: with free-floating's force scale
-    a gentle 5-10 cm drag gives the satellite a few cm/s, as the scripted pushes do (the
-    F/T deadband, 4 N, swallows the first 4 cm)."""
+    a gentle 5-10 cm drag held a second gives the satellite 2-5 cm/s, as a scripted push
+    gives 3 cm/s (benchmarks/hand_drag.py); under 4 cm the F/T deadband (4 N) keeps most
+    of it out."""
 
     stiffness_Npm: Positive = 100.0
     max_force_N: Positive = 20.0

@@ -58,3 +58,29 @@ def test_reads_are_shared_while_fresh_and_recomputed_when_the_run_changes():
     reads.max_age_s = 0.0
     loop.snap["loop"]["cycles"] = 501
     assert reads.get("m", compute) == 4  # stale and rows came: computed anew
+
+
+def test_the_panel_warns_when_a_satellite_s_course_leaves_its_arm_s_safety_volume():
+    """course_warning: a carried satellite whose straight course leaves its arm's safety
+    volume within the horizon is named with the time; at rest, or not running, no
+    warning."""
+    from app.backend.scene import course_warning
+
+    R_turned = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # R in W
+    T_W_R = np.eye(4)
+    T_W_R[:3, :3] = R_turned
+
+    def snap(velocity_R, status="running"):
+        return {"status": status,
+                "layout": {"T_W_R": T_W_R.tolist(),
+                           "safety_boxes_W_m": [[[-1.5, -1.5, 0.05], [1.5, 1.5, 2.4]]]},
+                "robots": [{"name": "ceiling", "satellite": 1}],
+                "satellites": [{"position_W_m": [0.0, 1.0, 1.0], "velocity_mps": velocity_R}]}
+
+    # 0.2 m/s along R's x is W's +y: the wall at y = 1.5 is 0.5 m away, 2.5 s
+    assert course_warning(snap([0.2, 0.0, 0.0])) == (
+        "⚠ satellite 1 leaves the safety volume of ceiling in 2.5 s on its course: the run "
+        "will stop")
+    assert course_warning(snap([0.05, 0.0, 0.0])) == ""  # 10 s: beyond the 5 s horizon
+    assert course_warning(snap([0.0, 0.0, 0.0])) == ""
+    assert course_warning(snap([0.2, 0.0, 0.0], status="finished")) == ""

@@ -51,7 +51,8 @@ frame's origin (x radial out, y along the track, z orbit normal).
 
 **Your hand.** Click a mockup to grab it there (a red dot; "Grab at the centre" below
 undoes it), then drag the gizmo's arrows: the hand is a spring from the gizmo to the grab
-point, **{k_N_per_cm:g} N per cm** of stretch, at most **{max_N:g} N**. The arm's F/T
+point, **{k_N_per_cm:g} N per cm** of stretch, at most **{max_N:g} N** (the sensor
+ignores under 4 N). The arm's F/T
 sensor measures that push; the ODS applies it scaled ({force_scale:g} × force,
 {torque_scale:g} × torque), so off the centre a push also spins the satellite. Let go to
 stop pushing.
@@ -497,8 +498,9 @@ class EmulatorScene:
             self._rebuild(snap)
             self._sync_gui(snap)
             self._built_generation = snap["generation"]
-        if not self._history or self._history[-1]["t_s"] != snap["t_s"]:
-            self._history.append(snap)
+        if snap["loop"]["cycles"] and (not self._history
+                                       or self._history[-1]["t_s"] != snap["t_s"]):
+            self._history.append(snap)  # (nothing to plot before the first cycle)
         running = snap["status"] == "running"
         if running and self._recorded_generation != snap["generation"]:
             self.replay.start(snap["generation"])
