@@ -11,13 +11,14 @@ Topics (frames: ``world`` = the lab W, ``R`` = the orbit frame, ``robot<k>_base`
 * ``/robot<k>/joint_states`` (sensor_msgs/JointState): the six joint positions;
 * ``/robot<k>/ft_raw`` (geometry_msgs/WrenchStamped): the F/T sensor's raw reading, in its
   flange frame;
+* ``/robot<k>/ft_processed`` (WrenchStamped): the processed reading (bias, payload and
+  inertia compensated, filtered, deadband), the wrench on the mockup's COM, in the
+  mockup's frame;
 * ``/sat<i>/ods_input`` (WrenchStamped): the wrench the ODS received (the processed F/T
   after the coupling), in the satellite's body frame;
 * ``/sat<i>/true_wrench`` (WrenchStamped): the true external force on the mockup, in R;
 * ``/sat<i>/twist`` (geometry_msgs/TwistStamped): the satellite's velocity and angular
   velocity relative to R, in its body frame.
-
-The processed F/T before the coupling is not in the telemetry, so not in the bag.
 """
 
 from __future__ import annotations
@@ -162,8 +163,11 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                 _cols(rows, index, p, tuple(f"q{j}_rad" for j in range(1, 7))),
                 _cols(rows, index, p, ("ft_fx_N", "ft_fy_N", "ft_fz_N", "ft_tx_Nm", "ft_ty_Nm",
                                        "ft_tz_Nm")),
+                _cols(rows, index, p, ("pft_fx_N", "pft_fy_N", "pft_fz_N", "pft_tx_Nm",
+                                       "pft_ty_Nm", "pft_tz_Nm")),
                 topic(f"/robot{k}/joint_states", "sensor_msgs/msg/JointState"),
                 topic(f"/robot{k}/ft_raw", "geometry_msgs/msg/WrenchStamped"),
+                topic(f"/robot{k}/ft_processed", "geometry_msgs/msg/WrenchStamped"),
             ))
 
         for r, stamp in enumerate(t_ns):
@@ -176,7 +180,7 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                 write(c_in, stamp, msgs.wrench(stamp, frame, R_R_B.T @ force[r], torque[r]))
                 write(c_true, stamp, msgs.wrench(stamp, "R", true_f[r], (0.0, 0.0, 0.0)))
                 write(c_tw, stamp, msgs.twist(stamp, frame, R_R_B.T @ vel[r], omega[r]))
-            for k, sat, pos, quat, q, ft, c_js, c_ft in robots:
+            for k, sat, pos, quat, q, ft, pft, c_js, c_ft, c_pft in robots:
                 transforms.append(msgs.transform(stamp, "R", f"sat{sat}_mockup", pos[r],
                                                  quat[r]))
                 T_B_F = flange_pose_B(q[r])
@@ -187,5 +191,8 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                     position=np.array(q[r], dtype=np.float64),
                     velocity=np.zeros(0), effort=np.zeros(0)))
                 write(c_ft, stamp, msgs.wrench(stamp, f"robot{k}_flange", ft[r, :3], ft[r, 3:]))
+                R_R_M = quat_to_matrix(quat[r])  # the processed force is in R: mockup axes
+                write(c_pft, stamp, msgs.wrench(stamp, f"sat{sat}_mockup",
+                                                R_R_M.T @ pft[r, :3], pft[r, 3:]))
             write(tf, stamp, msgs.TFMessage(transforms=transforms))
     return path

@@ -391,8 +391,8 @@ MAX_VFDM_ITERATIONS_PER_S = 100_000
 
 def telemetry_row_floats(n_satellites: int, n_robots: int) -> int:
     """Values in one telemetry row (app/sim/telemetry.py loop_columns): the time, 19 ODS
-    values and 3 true-force values per satellite, 22 values per arm."""
-    return 1 + 22 * (n_satellites + n_robots)
+    values and 3 true-force values per satellite, 28 values per arm."""
+    return 1 + 22 * n_satellites + 28 * n_robots
 
 
 def max_telemetry_rows(n_satellites: int, n_robots: int) -> int:

@@ -61,6 +61,7 @@ def test_the_bag_has_every_topic_with_its_standard_type_and_a_message_per_row(ru
         expected[f"/sat{i}/twist"] = "geometry_msgs/msg/TwistStamped"
         expected[f"/robot{i}/joint_states"] = "sensor_msgs/msg/JointState"
         expected[f"/robot{i}/ft_raw"] = "geometry_msgs/msg/WrenchStamped"
+        expected[f"/robot{i}/ft_processed"] = "geometry_msgs/msg/WrenchStamped"
     assert types == expected
     assert len(messages["/tf_static"]) == 1
     for topic in expected:
@@ -83,6 +84,12 @@ def test_the_bag_s_values_are_the_telemetry_s(run_dir):
         np.testing.assert_allclose([ft.force.x, ft.force.y, ft.force.z, ft.torque.z],
                                    [row[ix[f"rob1_ft_{c}"]] for c in ("fx_N", "fy_N", "fz_N",
                                                                       "tz_Nm")], atol=1e-5)
+        pft = messages["/robot2/ft_processed"][k][1]
+        assert pft.header.frame_id == "sat2_mockup"
+        R_R_M = quat_to_matrix(np.array([row[ix[f"rob2_{c}"]] for c in ("qw", "qx", "qy", "qz")]))
+        np.testing.assert_allclose(
+            R_R_M @ [pft.wrench.force.x, pft.wrench.force.y, pft.wrench.force.z],
+            [row[ix[f"rob2_pft_f{a}_N"]] for a in "xyz"], atol=1e-5)
         # the ODS input: force given in R in the telemetry, in body axes in the bag
         R_R_B = quat_to_matrix(np.array([row[ix[f"sat1_{c}"]] for c in ("qw", "qx", "qy", "qz")]))
         w = messages["/sat1/ods_input"][k][1]

@@ -30,11 +30,11 @@ OMEGA = orbit_rate(800e3)
 
 def test_loop_columns_are_time_satellites_arms_true_forces():
     cols = loop_columns(2, 3)
-    assert len(cols) == len(set(cols)) == 1 + 2 * 19 + 3 * 22 + 2 * 3
+    assert len(cols) == len(set(cols)) == 1 + 2 * 19 + 3 * 28 + 2 * 3
     assert cols[0] == "t_s"
     assert cols[1:39] == satellite_columns(2)
-    assert cols[39:105] == robot_columns(3)
-    assert cols[105:] == true_force_columns(2)
+    assert cols[39:123] == robot_columns(3)
+    assert cols[123:] == true_force_columns(2)
     assert cols[1:20] == [f"sat1_{f}" for f in SAT_FIELDS]
     assert cols[20] == "sat2_x_m" and cols[39] == "rob1_x_m" and cols[-1] == "sat2_true_fz_N"
     assert ROBOT_FIELDS[10:16] == tuple(f"q{j}_rad" for j in range(1, 7))
@@ -54,7 +54,8 @@ def recorded():
     y[:, 10:] = rng.normal(size=(n_sat, 3))
     force_R, torque_B, true_R = (rng.normal(size=(n_sat, 3)) for _ in range(3))
     arms = [(make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3)),
-             rng.normal(size=3), rng.normal(size=6), rng.normal(size=6)) for _ in range(n_arms)]
+             rng.normal(size=3), rng.normal(size=6), rng.normal(size=6), rng.normal(size=6))
+            for _ in range(n_arms)]
     rec = Recorder(n_sat, n_arms, 10, T_R_W, OMEGA)
     rec.record(12.5, y, force_R, torque_B, arms, true_R)
     row = dict(zip(rec.buffer.columns, rec.buffer.rows()[-1], strict=True))
@@ -90,7 +91,7 @@ def test_recorder_row_satellite_columns(recorded):
 def test_recorder_row_arm_columns(recorded):
     row, inp = recorded
     T_R_W = inp["T_R_W"]
-    for j, (T_W_C, v_W, q, raw_S) in enumerate(inp["arms"]):
+    for j, (T_W_C, v_W, q, raw_S, processed) in enumerate(inp["arms"]):
         r = f"rob{j + 1}"
         T_R_C = T_R_W @ T_W_C
         np.testing.assert_allclose(_vals(row, r, ("x_m", "y_m", "z_m")), T_R_C[:3, 3],
@@ -104,6 +105,9 @@ def test_recorder_row_arm_columns(recorded):
         np.testing.assert_array_equal(
             _vals(row, r, ("ft_fx_N", "ft_fy_N", "ft_fz_N", "ft_tx_Nm", "ft_ty_Nm", "ft_tz_Nm")),
             raw_S)
+        np.testing.assert_array_equal(
+            _vals(row, r, ("pft_fx_N", "pft_fy_N", "pft_fz_N", "pft_tx_Nm", "pft_ty_Nm",
+                           "pft_tz_Nm")), processed)
 
 
 def test_recorder_without_arms_and_each_record_is_a_new_row():

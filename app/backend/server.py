@@ -389,7 +389,7 @@ def create_app(
                            headers={"Content-Disposition": "attachment; filename=run.zip"})
 
     @app.get("/api/replay.html", tags=["status"], response_class=HTMLResponse,
-             responses={404: {"model": Message}})
+             responses={404: {"model": Message, "content": {"application/json": {}}}})
     def replay(request: Request):
         """The 3D replay of the current (or last) run: one HTML file (viser's viewer with
         the recording inside) that plays in a browser from disk, without this server.

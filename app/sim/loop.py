@@ -243,7 +243,8 @@ class Emulator:
         arms = []
         for arm in self.arms:
             _, T_W_C, v_W, _ = arm.mockup_state_W()
-            arms.append((T_W_C, v_W, arm.servo.state.q_rad, arm.last_raw_S))
+            arms.append((T_W_C, v_W, arm.servo.state.q_rad, arm.last_raw_S,
+                         arm.last_processed))
         self.recorder.record(self.ods.t_s, self.ods.y, self.applied_force_R,
                              self.applied_torque_B, arms, self.true_force_R)
 
@@ -323,7 +324,8 @@ class Emulator:
         rig.sense(np.zeros(6), T_W_C, v_W, self.R_W_R, self.dt_s, first_cycle=True)
         rig.command(rig.tcp_target_B(ods.y))
         scratch.record(0.0, ods.y, zeros, zeros,
-                       [(T_W_C, v_W, rig.servo.state.q_rad, rig.last_raw_S)] * len(self.arms),
+                       [(T_W_C, v_W, rig.servo.state.q_rad, rig.last_raw_S,
+                         rig.last_processed)] * len(self.arms),
                        zeros)
 
     # --- views for the web app and the metrics ------------------------------------------------

@@ -27,6 +27,7 @@ ROBOT_FIELDS = (
     "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz", "vx_mps", "vy_mps", "vz_mps",
     *(f"q{j}_rad" for j in range(1, 7)),
     "ft_fx_N", "ft_fy_N", "ft_fz_N", "ft_tx_Nm", "ft_ty_Nm", "ft_tz_Nm",
+    "pft_fx_N", "pft_fy_N", "pft_fz_N", "pft_tx_Nm", "pft_ty_Nm", "pft_tz_Nm",
 )
 
 
@@ -36,7 +37,9 @@ def satellite_columns(count: int) -> list[str]:
 
 
 def robot_columns(count: int) -> list[str]:
-    """Columns of `count` arms: actual mockup pose and velocity in R, joints, raw F/T."""
+    """Columns of `count` arms: actual mockup pose and velocity in R, joints, raw F/T (in
+    the sensor frame) and processed F/T (the wrench on the COM the chain hands the
+    coupling: force in R, torque in body axes)."""
     return [f"rob{i}_{f}" for i in range(1, count + 1) for f in ROBOT_FIELDS]
 
 
@@ -179,11 +182,11 @@ def record_satellites(t_s, y, orbit_rate, force_R, torque_B, row):
 
 
 @njit(cache=True, fastmath=False)
-def record_arm(T_R_W, T_W_C, v_W, q, raw_S, row, k):
+def record_arm(T_R_W, T_W_C, v_W, q, raw_S, processed, row, k):
     """An arm's columns from row[k] (:data:`ROBOT_FIELDS`); returns the next free index.
 
     Mockup COM position and attitude (wxyz) in R, from ``T_R_W · T_W_C``; its velocity
-    in R; the joint positions; the raw F/T reading.
+    in R; the joint positions; the raw F/T reading; the processed wrench.
     """
     R = np.empty((3, 3))
     for a in range(3):
@@ -198,7 +201,8 @@ def record_arm(T_R_W, T_W_C, v_W, q, raw_S, row, k):
     for j in range(6):
         row[k + 10 + j] = q[j]
         row[k + 16 + j] = raw_S[j]
-    return k + 22
+        row[k + 22 + j] = processed[j]
+    return k + 28
 
 
 class Recorder:
@@ -214,7 +218,8 @@ class Recorder:
     def record(self, t_s: float, y: np.ndarray, force_R: np.ndarray, torque_B: np.ndarray,
                arms, true_force_R: np.ndarray) -> None:
         """One row: time, ODS state y (N, 13) with the wrench (N, 3) + (N, 3) it receives,
-        each arm's ``(T_W_C, v_W, q_rad, raw_S)`` and the true force on each mockup (N, 3).
+        each arm's ``(T_W_C, v_W, q_rad, raw_S, processed)`` and the true force on each
+        mockup (N, 3).
 
         The kernels write without bounds checks: the shapes are checked here first, so that
         a wrong call raises and records nothing."""
@@ -228,7 +233,7 @@ class Recorder:
             )
         row = self.buffer.next_row()
         k = record_satellites(t_s, y, self.orbit_rate_radps, force_R, torque_B, row)
-        for T_W_C, v_W, q_rad, raw_S in arms:
-            k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, row, k)
+        for T_W_C, v_W, q_rad, raw_S, processed in arms:
+            k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
         row[k:] = true_force_R.ravel()
         self.buffer.commit()
