@@ -261,9 +261,15 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(res))
         return 0
     if args.against is not None:
-        compare_steps(args.against.resolve(), ["collision", "free-floating"], 200)
-        compare_trees(args.against.resolve(), ["collision", "free-floating"], args.rounds,
-                      args.duration)
+        other = args.against.resolve()
+        scenarios = ["collision"]  # the scripted free-floating run, where both trees have it
+        if (other / "app" / "scenarios" / "free-floating-scripted.toml").is_file():
+            scenarios.append("free-floating-scripted")
+        else:
+            print("(the other tree has no free-floating-scripted; its free-floating is the "
+                  "scripted one, this tree's is hand-driven: compared on collision only)")
+        compare_steps(other, scenarios, 200)
+        compare_trees(other, scenarios, args.rounds, args.duration)
         return 0
 
     cycles = args.cycles or (300 if args.quick else 3000)
