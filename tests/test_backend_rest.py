@@ -337,7 +337,7 @@ def test_a_body_that_is_not_json_is_refused_before_anything_reads_it(live):
     assert live.client.post("/api/stop").status_code == 200  # no body: no type needed
 
 
-def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path):
+def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, monkeypatch):
     """The page's download links: the CSV and metrics of the run, a zip with everything
     (plots, config, summary) and the ROS 2 bag, all of the same (finished) run."""
     import io
@@ -375,6 +375,14 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path):
     with Reader(tmp_path / "bag") as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts["/sat1/twist"] == counts["/sat2/ods_input"] == 201  # 4 s at 50 Hz
+    assert r.headers["x-bag-rate-hz"] == "50"
+    # a long run's bag is thinned to the message budget: 7 messages a row (ideal: no arms)
+    import app.backend.service as service_module
+
+    monkeypatch.setattr(service_module, "MAX_BAG_MESSAGES", 7 * 4 * 25)
+    r = live.client.get("/api/bag", params={"rate_hz": 1000})
+    assert r.headers["x-bag-rate-hz"] == "25"
+    monkeypatch.undo()
     replay = live.client.get("/api/replay.html")
     assert replay.status_code == 200 and "playbackPath" in replay.text
     for bad in ("0", "-1", "2000", "abc"):

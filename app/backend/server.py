@@ -394,14 +394,15 @@ def create_app(
         """The 3D replay of the current (or last) run: one HTML file (viser's viewer with
         the recording inside) that plays in a browser from disk, without this server.
         404 before any run. At most the first 10 minutes of a run are kept."""
-        recording = request.app.state.scene.replay.current()
+        recording = service(request).exclusive(request.app.state.scene.replay.current)
         if recording is None:
             raise HTTPException(status_code=404, detail="no run recorded yet: start one")
         generation, data, truncated = recording
         snap = service(request).state()
         title = f"orbit-emulator replay: {snap['scenario']} ({snap['mode']})" + (
             ", first 10 min" if truncated else "")
-        return HTMLResponse(replay_html(data, title), headers={
+        page = service(request).exclusive(lambda: replay_html(data, title))
+        return HTMLResponse(page, headers={
             "Content-Disposition": "attachment; filename=replay.html"})
 
     @app.get("/api/bag", tags=["status"], response_class=ZipResponse)
@@ -411,8 +412,10 @@ def create_app(
         """The current (or last) run as a ROS 2 bag in MCAP storage (bag/metadata.yaml,
         bag/bag.mcap), zipped: joint states, tf, raw F/T, the ODS's input wrench, the
         true contact force and the satellites' twists, in standard messages (Foxglove,
-        PlotJuggler, ros2 bag play)."""
-        return ZipResponse(service(request).run_bag(rate_hz),
-                           headers={"Content-Disposition": "attachment; filename=bag.zip"})
+        PlotJuggler, ros2 bag play). A long run's bag is thinned to about 60,000 messages;
+        the X-Bag-Rate-Hz header says the rate it was written at."""
+        data, written_hz = service(request).run_bag(rate_hz)
+        return ZipResponse(data, headers={"Content-Disposition": "attachment; filename=bag.zip",
+                                          "X-Bag-Rate-Hz": f"{written_hz:.6g}"})
 
     return app

@@ -25,6 +25,9 @@ __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
 
 MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's range
 MAX_PUSH_DURATION_S = 5.0
+MAX_BAG_MESSAGES = 60_000
+"""A bag from the web app holds at most about this many messages (~10 s to write here):
+a long run's bag is thinned below the rate asked for. `run --bag` has no such bound."""
 
 
 class UnknownScenario(LookupError):
@@ -172,6 +175,11 @@ class EmulatorService:
 
     # --- heavier reads --------------------------------------------------------------------
 
+    def exclusive(self, compute):
+        """compute() in the heavy reads' turn: one at a time, so that many clients asking
+        for big files cost one core at most (the other stays the loop's)."""
+        return self._reads.exclusive(compute)
+
     def telemetry_csv(self) -> list[str]:
         """The current run's telemetry as CSV lines, header first (computed here, from the
         shared ring; see CsvLines.document)."""
@@ -248,12 +256,14 @@ class EmulatorService:
                 zf.write(path, f"plots/{path.name}")
         return buffer.getvalue()
 
-    def run_bag(self, rate_hz: float) -> bytes:
-        """The current (or last) run as a ROS 2 bag (MCAP; app/bag.py), zipped: at most
-        rate_hz messages per topic and second of scenario time."""
-        return self._reads.get(f"bag {rate_hz!r}", lambda: self._run_bag(rate_hz))
+    def run_bag(self, rate_hz: float) -> tuple[bytes, float]:
+        """The current (or last) run as a ROS 2 bag (MCAP; app/bag.py), zipped, and the
+        rate it was written at: at most rate_hz messages per topic and second of scenario
+        time, and fewer where the run is long (:data:`MAX_BAG_MESSAGES`). Written one at a
+        time (the heavy reads' turn) and not kept: a bag costs ~0.15 ms a message."""
+        return self._reads.exclusive(lambda: self._run_bag(rate_hz))
 
-    def _run_bag(self, rate_hz: float) -> bytes:
+    def _run_bag(self, rate_hz: float) -> tuple[bytes, float]:
         import tempfile
         import zipfile
         from pathlib import Path
@@ -263,6 +273,10 @@ class EmulatorService:
         snap, ring, _, rows = self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
         config = ring.config if ring is not None else self.last_config
+        if len(rows) > 1:  # a long run: fewer messages per second, the whole run
+            per_row = 1 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])
+            span_s = max(float(rows[-1, 0] - rows[0, 0]), 1e-9)
+            rate_hz = min(rate_hz, MAX_BAG_MESSAGES / (per_row * span_s))
         buffer = io.BytesIO()
         with tempfile.TemporaryDirectory() as tmp, \
                 zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
@@ -270,7 +284,7 @@ class EmulatorService:
                             {name: k for k, name in enumerate(columns)}, rate_hz)
             for path in sorted(bag.iterdir()):
                 zf.write(path, f"bag/{path.name}")
-        return buffer.getvalue()
+        return buffer.getvalue(), rate_hz
 
 
 def _plain(value):
@@ -345,6 +359,11 @@ class SharedReads:
         self.max_age_s = max_age_s
         self._lock = threading.Lock()
         self._last: dict[str, tuple] = {}
+
+    def exclusive(self, compute):
+        """compute() in the heavy reads' turn (one at a time), not kept."""
+        with self._lock:
+            return compute()
 
     def get(self, name: str, compute):
         with self._lock:
