@@ -23,6 +23,7 @@ Topics (frames: ``world`` = the lab W, ``R`` = the orbit frame, ``robot<k>_base`
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -82,9 +83,10 @@ class _Messages:
                                                   angular=self.vec(angular)))
 
 
-def replace_bag_dir(path: Path) -> Path:
-    """``path``, made free for a new bag: an earlier bag there (a folder of metadata.yaml
-    and .mcap files, as written here) goes; anything else there is an error."""
+def check_bag_dir(path: Path) -> Path:
+    """``path`` can take a new bag: nothing is there, or an earlier bag (a folder of
+    metadata.yaml and .mcap files, as written here); anything else is an error, raised
+    before a run so that no run is wasted on it."""
     if path.is_symlink() or path.is_file():
         raise ValueError(f"{path}: exists and is not a bag folder; move it away first")
     if path.is_dir():
@@ -92,6 +94,12 @@ def replace_bag_dir(path: Path) -> Path:
         if not all(n == "metadata.yaml" or n.endswith(".mcap") for n in names):
             raise ValueError(f"{path}: holds files that are not a bag's ({names}); move it "
                              f"away first")
+    return path
+
+
+def replace_bag_dir(path: Path) -> Path:
+    """``path``, made free for a new bag: an earlier bag there goes (see check_bag_dir)."""
+    if check_bag_dir(path).is_dir():
         for p in path.iterdir():
             p.unlink()
         path.rmdir()
@@ -100,6 +108,12 @@ def replace_bag_dir(path: Path) -> Path:
 
 def _cols(rows: np.ndarray, index: dict, prefix: str, fields) -> np.ndarray:
     return rows[:, [index[f"{prefix}_{f}"] for f in fields]]
+
+
+def thinning_step(rate_hz: float, dt_s: float) -> int:
+    """Keep every step-th row: the smallest step whose rate, 1 / (step · dt_s), is at most
+    rate_hz (the rate a bag is then written at)."""
+    return max(1, math.ceil(1.0 / (rate_hz * dt_s) - 1e-9))
 
 
 def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index: dict,
@@ -112,8 +126,7 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
     path = Path(path)
     msgs = _Messages()
     if rate_hz is not None and len(rows) > 1:
-        step = max(1, int(round(1.0 / (rate_hz * float(rows[1, 0] - rows[0, 0])))))
-        rows = rows[::step]
+        rows = rows[::thinning_step(rate_hz, float(rows[1, 0] - rows[0, 0]))]
     n_sat = len(config.satellites)
     n_rob = sum(1 for k in range(len(config.robots)) if f"rob{k + 1}_x_m" in index)
     t_ns = np.round(rows[:, 0] * 1e9).astype(np.int64)

@@ -46,8 +46,10 @@ def _cmd_propagate(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
-    for name, desc in scenario_descriptions().items():
-        print(f"{name:15s} {desc}")
+    scenarios = scenario_descriptions()
+    width = max(map(len, scenarios), default=0)
+    for name, desc in scenarios.items():
+        print(f"{name:{width}s}  {desc}")
     return 0
 
 
@@ -75,6 +77,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
             f"a headless run keeps every cycle in memory, at most {max_cycles:,} "
             f"({max_cycles / config.loop.rate_hz:g} s at this rate)")
     out_dir = _output_dir(default_out(args))
+    if args.bag:
+        from app.bag import check_bag_dir
+
+        check_bag_dir(out_dir / "bag")  # before the run, not after it
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
                disable=args.quiet, file=sys.stderr)
 

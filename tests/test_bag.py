@@ -144,3 +144,21 @@ def test_bag_rate_thins_the_messages_and_needs_bag(tmp_path):
                           str(tmp_path / "x")], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--bag-rate: only with --bag" in bad.stderr
     assert not (tmp_path / "x").exists()
+    # a bag folder that is not free is refused before anything runs
+    taken = tmp_path / "taken"
+    (taken / "bag").mkdir(parents=True)
+    (taken / "bag" / "notes.txt").write_text("mine")
+    bad = subprocess.run([EXE, "run", "collision", "--out", str(taken), "--bag", "--quiet"],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "holds files that are not a bag's" in bad.stderr
+    assert not (taken / "telemetry.csv").exists()
+    assert (taken / "bag" / "notes.txt").read_text() == "mine"
+
+
+def test_the_thinning_step_never_writes_faster_than_asked():
+    from app.bag import thinning_step
+
+    for rate_hz, dt_s, step in ((50, 1e-3, 20), (300, 1e-3, 4), (1000, 1e-3, 1),
+                                (2000, 1e-3, 1), (0.5, 0.002, 1000), (333.4, 1e-3, 3)):
+        assert thinning_step(rate_hz, dt_s) == step, (rate_hz, dt_s)
+        assert 1.0 / (step * dt_s) <= max(rate_hz, 1.0 / dt_s) + 1e-9
