@@ -249,3 +249,16 @@ def test_resets_at_once_each_get_their_own_telemetry_ring(live):
     live.wait_for(lambda s: s["t_s"] > 0.2)
     assert len(live.client.get("/api/telemetry").text.splitlines()) > 50
     live.client.post("/api/stop")
+
+
+def test_the_miss_ratio_counts_only_the_latest_run_in_its_window():
+    from app.backend.runner import miss_ratio_of
+
+    # (time_s, generation, cycles, misses): run 1 missed most deadlines, run 2 none
+    samples = [(0.0, 1, 0, 0), (1.0, 1, 5000, 4500), (2.0, 2, 100, 0), (9.0, 2, 7100, 0)]
+    assert miss_ratio_of(samples, 10.0) == 0.0  # not (0 - 4500) / (7100 - 0)
+    samples.append((10.0, 2, 8100, 81))
+    assert miss_ratio_of(samples, 10.0) == 81 / 8000
+    assert miss_ratio_of(samples, 0.5) is None  # one sample in the window: no cycles seen
+    assert miss_ratio_of([(0.0, 1, 10, 5), (0.1, 1, 20, 10)], 10.0) == 0.5
+    assert miss_ratio_of([], 10.0) is None

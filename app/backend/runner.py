@@ -65,6 +65,17 @@ SEND_TIMEOUT_S = 1.0
 """A loop process whose heartbeat has not moved for this long is stalled."""
 
 
+def miss_ratio_of(samples: list[tuple[float, int, int, int]], window_s: float) -> float | None:
+    """Share of missed deadlines over the last ``window_s`` of samples (time_s,
+    generation, cycles, deadline misses), counting only the latest run (generation): a
+    new run starts its counters from zero. None when no cycle of it ran in the window."""
+    if not samples:
+        return None
+    now, gen, c1, m1 = samples[-1]
+    _, _, c0, m0 = next(x for x in samples if now - x[0] <= window_s and x[1] == gen)
+    return min(1.0, max(0.0, (m1 - m0) / (c1 - c0))) if c1 > c0 else None
+
+
 class Runner:
     """Proxy of the loop process; thread-safe."""
 
@@ -141,27 +152,20 @@ class Runner:
             time.sleep(0.1)
             if self.fault() is None:
                 try:
-                    loop = self.snapshot()["loop"]
+                    snap = self.snapshot()
+                    sample = (time.monotonic(), snap["generation"], snap["loop"]["cycles"],
+                              snap["loop"]["deadline_misses"])
                 except (RunnerError, KeyError):
                     continue
                 with self._state_lock:
-                    self._timing.append((time.monotonic(), loop["cycles"],
-                                         loop["deadline_misses"]))
+                    self._timing.append(sample)
 
     def miss_ratio(self, window_s: float = MISS_WINDOW_S) -> float | None:
         """Share of the cycles in the last ``window_s`` that missed their deadline (None
         when no cycle ran in that window)."""
         with self._state_lock:
             samples = list(self._timing)
-        if not samples:
-            return None
-        now = samples[-1][0]
-        first = next((x for x in samples if now - x[0] <= window_s), samples[-1])
-        _, c1, m1 = samples[-1]
-        _, c0, m0 = first
-        if c1 < c0:  # a new run restarted the counters within the window
-            c0 = m0 = 0
-        return (m1 - m0) / (c1 - c0) if c1 > c0 else None
+        return miss_ratio_of(samples, window_s)
 
     def fault(self) -> str | None:
         """Why the loop process cannot serve (dead, or no heartbeat for STALL_S); None when
