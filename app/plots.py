@@ -58,7 +58,8 @@ def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict
     t0, t1 = collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1
     keep = (rows[:, 0] >= t0) & (rows[:, 0] <= t1)
     w, t = rows[keep], rows[keep, 0]
-    fig, (ax_f, ax_v) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    text = _collision_text(collision)
+    fig, (ax_f, ax_v) = _axes_over_text(2, text, panel_height_in=3.0)
     for s in range(1, n_sat + 1):
         c = f"C{s - 1}"
         ax_f.plot(t, w[:, index[f"sat{s}_fx_N"]], "-", color=c, lw=1.2,
@@ -73,21 +74,46 @@ def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict
     for ax in (ax_f, ax_v):
         ax.axvspan(collision["contact_start_s"], collision["contact_end_s"], color="0.9")
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=7, ncol=2)
+        ax.legend(loc="best", fontsize=7, ncol=2)
     ax_f.set_ylabel("force x [N]")
     ax_v.set_ylabel("velocity x [m/s]")
     ax_v.set_xlabel("time [s]")
     ax_f.set_title("The contact, close up (shaded: in contact)")
-    _collision_box(ax_f, collision)
-    fig.tight_layout()
     path = out_dir / "fig8b_contact_closeup.png"
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
 
 
-def _collision_box(ax, coll: dict) -> None:
-    """The collision metrics as a text box: what the mockups went through, and vs ideal."""
+TEXT_COLUMNS = 120
+"""Characters per line of a figure's text panel (9 in wide at 7.5 pt)."""
+
+
+def _axes_over_text(n_panels: int, text: str, panel_height_in: float):
+    """A figure of ``n_panels`` stacked axes (shared time axis) with ``text`` in a panel of
+    its own below them, sized to the text: nothing overlaps the curves or leaves the page."""
+    n_lines = text.count("\n") + 1
+    text_in = 0.16 * n_lines + 0.3
+    fig = plt.figure(figsize=(9, panel_height_in * n_panels + text_in),
+                     layout="constrained")
+    grid = fig.add_gridspec(n_panels + 1, 1,
+                            height_ratios=[panel_height_in] * n_panels + [text_in])
+    axes = [fig.add_subplot(grid[0])]
+    axes += [fig.add_subplot(grid[k], sharex=axes[0]) for k in range(1, n_panels)]
+    for ax in axes[:-1]:
+        ax.tick_params(labelbottom=False)
+    box = fig.add_subplot(grid[n_panels])
+    box.axis("off")
+    box.text(0.0, 1.0, text, transform=box.transAxes, va="top", ha="left", fontsize=7.5,
+             family="monospace")
+    return fig, axes
+
+
+def _collision_text(coll: dict) -> str:
+    """The collision metrics as lines of text: what the mockups went through, and vs the
+    ideal run; the warnings wrapped to the figure's width."""
+    import textwrap
+
     e, ei, err = coll["restitution"], coll.get("restitution_ideal"), coll.get("restitution_error")
     ratio = coll.get("true_impulse_ratio") or {}
     lines = [
@@ -100,10 +126,10 @@ def _collision_box(ax, coll: dict) -> None:
             for n, j in coll["true_impulse_Ns"].items()),
         f"peak force {coll['peak_force_N']:.1f} N, contact {1e3 * coll['contact_duration_s']:.0f}"
         f" ms, energy absorbed {1e3 * coll['contact_energy_J']:.2f} mJ",
-        *(f"! {w}" for w in coll.get("warnings", [])),
     ]
-    ax.text(0.01, 0.97, "\n".join(lines), transform=ax.transAxes, va="top", fontsize=7,
-            bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "0.7"})
+    for warning in coll.get("warnings", []):
+        lines += textwrap.wrap(f"! {warning}", TEXT_COLUMNS, subsequent_indent="  ")
+    return "\n".join(lines)
 
 
 def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
@@ -116,7 +142,12 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
     sats = list(range(1, n_sat + 1))
     paths = []
 
-    fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True, squeeze=False)
+    if collision is not None:  # the metrics in a text panel below the forces
+        fig, panels = _axes_over_text(n_sat, _collision_text(collision), panel_height_in=3.0)
+        axes = np.array(panels)[:, None]
+    else:
+        fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True,
+                                 squeeze=False, layout="constrained")
     for ax, s in zip(axes[:, 0], sats, strict=True):
         _three(ax, t, _series(rows, index, f"sat{s}", ("fx_N", "fy_N", "fz_N")), "F", "force [N]")
         _three(ax, t, _series(rows, index, f"sat{s}", ("true_fx_N", "true_fy_N", "true_fz_N")),
@@ -125,10 +156,7 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
         ax.legend(loc="upper right", fontsize=7, ncol=2)
         if collision is not None:
             ax.set_xlim(collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1)
-    if collision is not None:
-        _collision_box(axes[0, 0], collision)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.tight_layout()
     paths.append(out_dir / "fig8_forces.png")
     fig.savefig(paths[-1], dpi=100)
     plt.close(fig)
