@@ -4,6 +4,7 @@ and the shared, one-at-a-time computation of metrics and telemetry."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from app.backend.service import CsvLines, SharedReads
 from app.report import telemetry_csv_text
@@ -79,8 +80,32 @@ def test_the_panel_warns_when_a_satellite_s_course_leaves_its_arm_s_safety_volum
 
     # 0.2 m/s along R's x is W's +y: the wall at y = 1.5 is 0.5 m away, 2.5 s
     assert course_warning(snap([0.2, 0.0, 0.0])) == (
-        "⚠ satellite 1 leaves the safety volume of ceiling in 2.5 s on its course: the run "
+        "⚠ satellite 1 goes out of ceiling's safety volume in 2.5 s on its course: the run "
         "will stop")
     assert course_warning(snap([0.05, 0.0, 0.0])) == ""  # 10 s: beyond the 5 s horizon
     assert course_warning(snap([0.0, 0.0, 0.0])) == ""
     assert course_warning(snap([0.2, 0.0, 0.0], status="finished")) == ""
+
+
+def test_the_panel_warns_before_a_satellite_s_course_leaves_its_arm_s_reach():
+    """The reach (HOLD_RADIUS_M from the shoulder) is usually nearer than the box: the
+    warning names it, with the time from |p + v t - shoulder| = r."""
+    from app.backend.scene import course_warning
+    from app.sim.servo import seconds_until_beyond
+    from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M
+
+    snap = {"status": "running",
+            "layout": {"T_W_R": np.eye(4).tolist(), "arms": [["floor", np.eye(4).tolist()]],
+                       "safety_boxes_W_m": [[[-1.5, -1.5, 0.05], [1.5, 1.5, 2.4]]]},
+            "robots": [{"name": "floor", "satellite": 1}],
+            "satellites": [{"position_W_m": [0.0, 0.5, 1.0], "velocity_mps": [0.0, 0.2, 0.0]}]}
+    height = 1.0 - SHOULDER_B_M[2]
+    t = (np.sqrt(HOLD_RADIUS_M**2 - height**2) - 0.5) / 0.2  # 1.88 s; the box: 5 s
+    assert course_warning(snap) == (
+        f"⚠ satellite 1 goes out of floor's reach ({HOLD_RADIUS_M:g} m from its shoulder) "
+        f"in {t:.1f} s on its course: the run will stop")
+    assert seconds_until_beyond([0, 0.5, 1.0], [0, 0.2, 0], SHOULDER_B_M,
+                                HOLD_RADIUS_M) == pytest.approx(t, rel=1e-12)
+    assert seconds_until_beyond([0, 0, 2.0], [0, 0, 0], [0, 0, 0], 1.0) == 0.0  # beyond
+    assert seconds_until_beyond([0, 0, 0.5], [0, 0, 0], [0, 0, 0], 1.0) == np.inf
+    assert seconds_until_beyond([0, 0, 0.5], [0, 0, -1.0], [0, 0, 0], 1.0) == 1.5  # through

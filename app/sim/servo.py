@@ -38,7 +38,7 @@ from app.sim.ur10e import (
 )
 
 __all__ = ["SafetyBox", "ServoState", "UR10eServo", "reason_of", "safety_box_for_robot",
-           "seconds_until_outside"]
+           "seconds_until_beyond", "seconds_until_outside"]
 
 BOX_CODE = 2 * N_JOINTS + 1
 """Stop code of "TCP left safety volume"; 1..6: joint position limit, 7..12: speed limit."""
@@ -89,6 +89,21 @@ def seconds_until_outside(p_W_m, v_W_mps, p_min_W_m, p_max_W_m) -> float:
         elif v[a] < 0.0:
             t = min(t, (lo[a] - p[a]) / v[a])
     return float(t)
+
+
+def seconds_until_beyond(p_W_m, v_W_mps, centre_W_m, radius_m: float) -> float:
+    """When a point at p_W_m moving straight at v_W_mps gets farther than radius_m from
+    centre_W_m (solves |p + v t - c| = r for its later root): 0 if it is already, inf if
+    it never does."""
+    d = np.asarray(p_W_m, float) - np.asarray(centre_W_m, float)
+    v = np.asarray(v_W_mps, float)
+    c = float(d @ d) - radius_m**2
+    if c > 0.0:
+        return 0.0
+    a, b = float(v @ v), 2.0 * float(d @ v)
+    if a == 0.0:
+        return float("inf")
+    return float((-b + np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a))
 
 
 def safety_box_for_robot(robot: RobotConfig) -> SafetyBox:

@@ -55,6 +55,12 @@ N_JOINTS = 6
 DH_D_M = (0.1807, 0.0, 0.0, 0.17415, 0.11985, 0.11655)
 DH_A_M = (0.0, -0.6127, -0.57155, 0.0, 0.0, 0.0)
 DH_ALPHA_RAD = (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0)
+SHOULDER_B_M = (0.0, 0.0, DH_D_M[0])
+"""Where joints 1 and 2's axes meet, in the base frame: the centre of the arm's reach."""
+HOLD_RADIUS_M = 1.2
+"""How far from the shoulder the arm can hold a mockup's centre (the datasheet's 1.3 m
+reach to the flange, less the mockup's offset and a margin for its attitude): beyond it
+the arm falls behind its satellite and stops on its tracking error."""
 POSITION_LIMIT_RAD = 2.0 * math.pi
 SPEED_LIMITS_RADPS = np.array(UR10E_SPEED_LIMITS_RADPS)
 MAX_EFFORT_NM = (330.0, 330.0, 150.0, 56.0, 56.0, 56.0)
