@@ -566,6 +566,10 @@ def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:
     """
     if not isinstance(overrides, dict):
         raise ConfigError("overrides: expected an object of settings")
+    for key in ("name", "description"):
+        if key in overrides:
+            raise ConfigError(f"{key}: the scenario's {key} is not a setting to override "
+                              f"(a run is reported under its scenario's name)")
     return parse_config(_merge_patch(base.model_dump(), overrides))
 
 

@@ -148,6 +148,9 @@ def test_overrides_are_a_merge_patch_with_item_indices():
     ({"satellites": {"0": {"name": datetime.date(1979, 5, 27)}}},
      "satellites.0.name: expected a number, flag, text or list, got a date"),
     ({"satellites": {"0": {"name": "\ud800"}}}, "satellites.0.name: text that is not valid"),
+    # a run keeps its scenario's name (the metrics and the state say the same)
+    ({"name": "mine"}, "name: the scenario's name is not a setting to override"),
+    ({"description": "x"}, "description: the scenario's description is not a setting"),
 ])
 def test_bad_patches_name_what_is_wrong(patch, message):
     base = parse_config({"satellites": [{"name": "a"}, {"name": "b"}]})
