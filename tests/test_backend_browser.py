@@ -121,10 +121,18 @@ def test_viewer_renders_both_arms(live, page):
 
 
 def test_start_button_starts_the_scenario(live, page):
-    assert live.state()["status"] == "idle"
+    assert live.state()["status"] == "idle" and live.state()["loop"]["cycles"] == 0
+    page.wait_for_function("document.querySelector('#status').textContent"
+                           ".includes('not started')", timeout=10_000)
+    # a choice made on the page survives the page's polling until it is started
+    page.select_option("#scenario", "free-floating")
+    page.select_option("#mode", "ideal")
+    page.wait_for_timeout(1500)  # three polls
+    assert page.input_value("#scenario") == "free-floating"
+    assert page.input_value("#mode") == "ideal"
     page.click("#start-button")
     s = live.wait_for(lambda s: s["status"] == "running", timeout_s=30)
-    assert s["scenario"] == "collision"
+    assert (s["scenario"], s["mode"]) == ("free-floating", "ideal")
     page.wait_for_function("document.body.dataset.status === 'running'", timeout=10_000)
     live.client.post("/api/stop")
 

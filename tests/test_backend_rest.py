@@ -42,6 +42,11 @@ def test_health_scenarios_and_page(live):
     for key in ("t_s", "status", "reason", "satellites", "robots", "loop"):
         assert key in state
     assert set(state["loop"]) >= {"cycles", "cycle_time_us", "deadline_misses"}
+    for path in ("/api/telemetry", "/api/metrics", "/api/run.zip", "/api/replay.html",
+                 "/api/bag"):  # no run to take home yet
+        r = live.client.get(path)
+        assert r.status_code == 404 and r.json()["detail"].startswith("no run to download"), (
+            path, r.status_code)
 
 
 def test_push_changes_velocity_by_impulse(live):
@@ -75,7 +80,12 @@ BAD_PUSHES = [
     ('{"satellite": 1, "force_N": [0, 1e999, 0], "duration_s": 0.3}', "force_N"),
     ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": NaN}', "duration_s"),
     ('{"satellite": 1, "force_N": [0, 120, 0], "duration_s": 0.3}', "force_N"),
-    ('{"satellite": 1, "force_N": [80, 80, 0], "duration_s": 0.3}', "force_N"),
+    ('{"satellite": 1, "force_N": [80, 80, 0], "duration_s": 0.3}',
+     "force_N: magnitude 113.1 N exceeds the sensor range 100 N"),
+    ('{"satellite": 1, "force_N": [1e308, 0, 0], "duration_s": 0.3}',
+     "force_N: magnitude 1e+308 N exceeds"),
+    ('{"satellite": 1, "force_N": [1.7e308, 1.7e308, 1.7e308], "duration_s": 0.3}',
+     "force_N: magnitude over 1e308 N exceeds"),
     ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": 0}', "duration_s"),
     ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": -1}', "duration_s"),
     ('{"satellite": 1, "force_N": [0, 20, 0], "duration_s": 5.5}', "duration_s"),
@@ -171,14 +181,24 @@ def test_reset_takes_the_run_back_to_its_start_with_its_settings(live):
     r = live.client.post("/api/reset").json()
     assert r["status"] == "idle" and r["t_s"] == 0.0
     assert (r["scenario"], r["mode"]) == ("free-floating", "ideal")
+    for path in ("/api/telemetry", "/api/replay.html"):  # a reset begins a new run
+        assert live.client.get(path).status_code == 404, path
     assert r["settings"]["duration_s"] == 50.0 and r["settings"]["altitude_m"] == 500e3
     s = live.client.post("/api/scenarios/free-floating/start", json={}).json()
     assert s["status"] == "running"
     assert live.wait_for(lambda s: s["t_s"] >= 0.1)["robots"][0]["tracking_error_m"] < 0.01
+    plots = live.app.state.scene.plots
+    live.wait_for(lambda s: len(plots["force"].data[0]) > 1)  # the panel plots the run
     live.client.post("/api/stop")
     r = live.client.post("/api/reset").json()
+    live.wait_for(lambda s: not any(len(p.data[0]) for p in plots.values()), timeout_s=5)
     assert r["mode"] == "hil" and r["robots"]
     assert all(rob["tracking_error_m"] is None for rob in r["robots"])  # not started
+    # the panel's scenario selector resets to the chosen scenario in the panel's mode
+    r = live.app.state.service.reset("collision", mode="ideal")
+    assert (r["scenario"], r["mode"], r["status"]) == ("collision", "ideal", "idle")
+    r = live.client.post("/api/reset").json()  # and a reset keeps that choice
+    assert (r["scenario"], r["mode"]) == ("collision", "ideal")
 
 
 def test_the_favicon_is_served(live):
@@ -376,6 +396,9 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, mo
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts["/sat1/twist"] == counts["/sat2/ods_input"] == 201  # 4 s at 50 Hz
     assert r.headers["x-bag-rate-hz"] == "50"
+    # a rate the 1 kHz loop cannot give exactly: the next lower one, never above the asked
+    r = live.client.get("/api/bag", params={"rate_hz": 300})
+    assert r.headers["x-bag-rate-hz"] == "250"
     # a long run's bag is thinned to the message budget: 7 messages a row (ideal: no arms)
     import app.backend.service as service_module
 
@@ -408,4 +431,17 @@ def test_a_replay_taken_during_a_run_leaves_the_recording_going(live):
     second = live.client.get("/api/replay.html")
     assert second.status_code == 200 and recorder.recording
     assert len(second.content) > len(first.content)
-    live.client.post("/api/stop")
+    s = live.client.post("/api/stop").json()
+    live.wait_for(lambda s: not recorder.recording, timeout_s=10)
+    # the recording's clock is the scenario's: it lasts as long as the run did
+    assert _recording_duration_s(recorder.current()[1]) == pytest.approx(s["t_s"], abs=0.1)
+
+
+def _recording_duration_s(recording: bytes) -> float:
+    """durationSeconds of a viser scene recording (zstd; 8-byte length, msgpack)."""
+    import msgspec
+    import zstandard
+
+    inner = zstandard.ZstdDecompressor().decompress(recording[8:], max_output_size=1 << 30)
+    n = int.from_bytes(inner[:8], "little")
+    return msgspec.msgpack.decode(inner[8:8 + n])["durationSeconds"]

@@ -45,6 +45,18 @@ def test_a_mistake_is_named_with_exit_2_and_no_traceback(case, tmp_path):
     assert not (tmp_path / "runs").exists()  # nothing ran to completion, nothing written
 
 
+def test_scenarios_lists_every_scenario_with_its_description_in_one_column():
+    from app.scenarios import scenario_descriptions
+
+    proc = subprocess.run([EXE, "scenarios"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    described = scenario_descriptions()
+    assert [line.split()[0] for line in lines] == list(described)
+    columns = {line.index(desc) for line, desc in zip(lines, described.values(), strict=True)}
+    assert len(columns) == 1 and min(columns) > max(map(len, described))
+
+
 def test_an_empty_list_override_clears_the_list():
     from app.config import assignment_override, merge_overrides
     from app.scenarios import load_scenario

@@ -13,7 +13,6 @@ from __future__ import annotations
 import base64
 import copy
 import threading
-import time
 from pathlib import Path
 
 __all__ = ["MAX_REPLAY_S", "ReplayRecorder", "replay_html"]
@@ -47,17 +46,17 @@ class ReplayRecorder:
         with self._lock:
             self._finish_locked(truncated=False)
             self._serializer = self.server.get_scene_serializer()
-            self._generation, self._last_time, self._recorded_s = (
-                generation, time.monotonic(), 0.0)
+            self._generation, self._last_time, self._recorded_s = generation, 0.0, 0.0
 
-    def tick(self) -> None:
-        """Time passes in the recording: call before sending a frame's updates."""
+    def tick(self, t_s: float) -> None:
+        """Scenario time ``t_s`` has come: call before sending a frame's updates. The
+        recording's clock is the scenario's, so a replay plays at scenario time whatever
+        the loop's real-time factor was while it ran."""
         with self._lock:
             if self._serializer is None:
                 return
-            now = time.monotonic()
-            dt = max(0.0, now - self._last_time)
-            self._last_time = now
+            dt = max(0.0, t_s - self._last_time)
+            self._last_time = max(self._last_time, t_s)
             self._recorded_s += dt
             if self._recorded_s > MAX_REPLAY_S:
                 self._finish_locked(truncated=True)
@@ -88,7 +87,7 @@ def _serialize_copy(serializer) -> bytes:
     """What ``serializer`` recorded so far, leaving it recording. viser's serialize() ends
     a recording, so a copy of it (its message and buffer lists) is serialized instead; the
     copy is registered with the websocket handler for the moment, as serialize() expects
-    (a private part of viser 1.x: tests/test_backend_replay.py checks it)."""
+    (a private part of viser 1.x: tests/test_backend_rest.py checks it)."""
     clone = copy.copy(serializer)
     clone._messages = list(serializer._messages)
     clone._binary_buffers = list(serializer._binary_buffers)

@@ -27,7 +27,8 @@ from app.backend.service import EmulatorService, InvalidRequest, RunnerBusy, Unk
 from app.scenarios import load_scenario, scenario_names
 from app.sim.hand import ray_box_hit
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
-from app.sim.servo import seconds_until_outside
+from app.sim.servo import seconds_until_beyond, seconds_until_outside
+from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M
 
 log = logging.getLogger("orbit_emulator.scene")
 
@@ -60,6 +61,12 @@ stop pushing.
 **Plots.** The ODS's input (force in R, torque in body axes, as measured), the
 satellite's velocity, angular velocity and position, and how far each mockup is from its
 satellite (tracking error).
+"""
+
+IDEAL_NOTE = """
+**Ideal mode** (this run): no arms, no sensor. The boxes are drawn where the ODS has the
+satellites, contact is computed between them exactly, and your push goes to the ODS as
+it is (then scaled as above); there is no tracking error to plot.
 """
 
 
@@ -169,6 +176,7 @@ class EmulatorScene:
         self._generation: int | None = None
         self._built_generation: int | None = None
         self._history: deque = deque(maxlen=int(PLOT_WINDOW_S * rate_hz) + 1)
+        self._plots_have_data = False
         self._frame_R = None
         self._boxes: list = []
         self._syncing = False  # the panel is being set to the run's values, not by a user
@@ -229,7 +237,8 @@ class EmulatorScene:
                 return
             self._fill_gui_from(self.gui_scenario.value)
             if svc.runner.status not in ("running", "starting"):
-                self._guarded(lambda: svc.reset(self.gui_scenario.value))
+                self._guarded(lambda: svc.reset(self.gui_scenario.value,
+                                                mode=self.gui_mode.value))
 
         @self.gui_grab_centre.on_click
         def _(_event) -> None:
@@ -266,7 +275,7 @@ class EmulatorScene:
 
     def _add_plot(self, title: str):
         return self.server.gui.add_uplot(
-            data=(np.zeros(2), np.zeros(2)),
+            data=(np.zeros(0), np.zeros(0)),  # nothing before the first cycle
             series=({"label": "t (s)"}, {"label": "-", "stroke": "#888"}),
             title=title,
             scales={"x": {"time": False}},
@@ -306,7 +315,8 @@ class EmulatorScene:
                     k_N_per_cm=settings["hand_stiffness_Npm"] / 100.0,
                     max_N=settings["hand_max_force_N"],
                     force_scale=settings["force_scale"],
-                    torque_scale=settings["torque_scale"])
+                    torque_scale=settings["torque_scale"]) + (
+                        IDEAL_NOTE if snap["mode"] == "ideal" else "")
         finally:
             self._syncing = False
 
@@ -505,7 +515,7 @@ class EmulatorScene:
         if running and self._recorded_generation != snap["generation"]:
             self.replay.start(snap["generation"])
             self._recorded_generation = snap["generation"]
-        self.replay.tick()
+        self.replay.tick(snap["t_s"])
         now = time.monotonic()
         with self.server.atomic():
             for view, rob in zip(self._active_arms, snap["robots"], strict=False):
@@ -568,7 +578,12 @@ class EmulatorScene:
     def _update_plots(self) -> None:
         hist = list(self._history)
         if len(hist) < 2:
+            if self._plots_have_data:  # a new run (a reset): the last one's curves go
+                for plot in self.plots.values():
+                    plot.data = tuple(np.zeros(0) for _ in plot.data)
+                self._plots_have_data = False
             return
+        self._plots_have_data = True
         t = np.array([h["t_s"] for h in hist])
         n_sat = len(hist[-1]["satellites"])
         n_rob = len(hist[-1]["robots"])
@@ -589,8 +604,8 @@ class EmulatorScene:
             self._series["tracking"] = tuple(
                 [{"label": "t (s)"}] + [
                     {"label": f"robot {r + 1}", "stroke": AXIS_COLORS[r % 3], "width": 1.5}
-                    for r in range(max(n_rob, 1))
-                ]
+                    for r in range(n_rob)
+                ] + ([] if n_rob else [{"label": "no arms (ideal)", "stroke": "#999999"}])
             )
         data_key = {"force": ("applied_force_N", 1.0),
                     "torque": ("applied_torque_Nm", 1.0),
@@ -650,12 +665,21 @@ def course_warning(snap: dict, horizon_s: float = WARN_HORIZON_S) -> str:
     layout = snap["layout"]
     R_W_R = np.asarray(layout["T_W_R"])[:3, :3]
     lines = []
-    for rob, (lo, hi) in zip(snap["robots"], layout.get("safety_boxes_W_m", []),
-                             strict=False):
+    arms = layout.get("arms", [])
+    for k, (rob, (lo, hi)) in enumerate(zip(snap["robots"], layout.get("safety_boxes_W_m", []),
+                                            strict=False)):
         sat = snap["satellites"][rob["satellite"] - 1]
         v_W = R_W_R @ np.asarray(sat["velocity_mps"])
-        t = seconds_until_outside(sat["position_W_m"], v_W, lo, hi)
-        if t <= horizon_s:
-            lines.append(f"⚠ satellite {rob['satellite']} leaves the safety volume of "
-                         f"{rob['name']} in {t:.1f} s on its course: the run will stop")
+        t_box = seconds_until_outside(sat["position_W_m"], v_W, lo, hi)
+        t_reach = np.inf
+        if k < len(arms):  # the reach: usually the nearer limit (the box is the last net)
+            T_W_B = np.asarray(arms[k][1])
+            shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+            t_reach = seconds_until_beyond(sat["position_W_m"], v_W, shoulder_W,
+                                           HOLD_RADIUS_M)
+        if min(t_box, t_reach) <= horizon_s:
+            where = (f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from its shoulder)"
+                     if t_reach < t_box else f"out of {rob['name']}'s safety volume")
+            lines.append(f"⚠ satellite {rob['satellite']} goes {where} in "
+                         f"{min(t_box, t_reach):.1f} s on its course: the run will stop")
     return "  \n".join(lines)

@@ -105,6 +105,9 @@ class ScenarioInfo(BaseModel):
     description: str
 
 
+NO_RUN = "no run to download yet: start one (a reset begins a new run)"
+"""The downloads' 404: before the first cycle of the run that is there."""
+
 MAX_MISS_RATIO = 0.01
 """Health turns "degraded" when more of the last 10 s of cycles missed their deadline."""
 
@@ -246,6 +249,15 @@ def create_app(
         return HTTPException(status_code=status, detail=str(err))
 
     errors_409 = {409: {"model": Message}, 422: {"model": Message}}
+    no_run_404 = {404: {"model": Message, "content": {"application/json": {}}}}
+
+    def the_run(request: Request):
+        """The service, when a run is there to download (a cycle of the current run has
+        gone: not before the first start, nor right after a reset); else 404."""
+        svc = service(request)
+        if svc.state()["loop"]["cycles"] == 0:
+            raise HTTPException(status_code=404, detail=NO_RUN)
+        return svc
 
     # --- pages --------------------------------------------------------------------
 
@@ -365,38 +377,43 @@ def create_app(
         except RunnerBusy as err:
             raise _http(409, err) from None
 
-    @app.get("/api/metrics", tags=["status"])
+    @app.get("/api/metrics", tags=["status"], responses=no_run_404)
     def metrics(request: Request) -> dict[str, Any]:
-        """The metrics.json of the current (or last) run."""
+        """The metrics.json of the current (or last) run; 404 before its first cycle."""
         try:
-            return json_safe(jsonable_encoder(service(request).metrics()))
+            return json_safe(jsonable_encoder(the_run(request).metrics()))
         except ImportError as err:  # pragma: no cover
             raise _http(503, err) from None
 
-    @app.get("/api/telemetry", tags=["status"], response_class=CsvResponse)
+    @app.get("/api/telemetry", tags=["status"], response_class=CsvResponse,
+             responses=no_run_404)
     def telemetry(request: Request, format: Literal["csv"] = "csv"):
-        """Telemetry of the current (or last) run as CSV (one row per cycle)."""
-        lines = service(request).telemetry_csv()
+        """Telemetry of the current (or last) run as CSV (one row per cycle); 404 before
+        its first cycle."""
+        lines = the_run(request).telemetry_csv()
         return StreamingResponse(
             _csv_chunks(lines), media_type=CsvResponse.media_type,
             headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
 
-    @app.get("/api/run.zip", tags=["status"], response_class=ZipResponse)
+    @app.get("/api/run.zip", tags=["status"], response_class=ZipResponse,
+             responses=no_run_404)
     def run_zip(request: Request):
         """The current (or last) run to take home: telemetry.csv, metrics.json,
-        summary.txt, config.json and plots/*.png (the headless run's figures), zipped."""
-        return ZipResponse(service(request).run_archive(),
+        summary.txt, config.json and plots/*.png (the headless run's figures), zipped;
+        404 before its first cycle."""
+        return ZipResponse(the_run(request).run_archive(),
                            headers={"Content-Disposition": "attachment; filename=run.zip"})
 
     @app.get("/api/replay.html", tags=["status"], response_class=HTMLResponse,
-             responses={404: {"model": Message, "content": {"application/json": {}}}})
+             responses=no_run_404)
     def replay(request: Request):
         """The 3D replay of the current (or last) run: one HTML file (viser's viewer with
         the recording inside) that plays in a browser from disk, without this server.
-        404 before any run. At most the first 10 minutes of a run are kept."""
-        recording = service(request).exclusive(request.app.state.scene.replay.current)
-        if recording is None:
-            raise HTTPException(status_code=404, detail="no run recorded yet: start one")
+        404 before its first cycle. At most the first 10 minutes of a run are kept."""
+        svc = the_run(request)
+        recording = svc.exclusive(request.app.state.scene.replay.current)
+        if recording is None or recording[0] != svc.state()["generation"]:
+            raise HTTPException(status_code=404, detail=NO_RUN)
         generation, data, truncated = recording
         snap = service(request).state()
         title = f"orbit-emulator replay: {snap['scenario']} ({snap['mode']})" + (
@@ -405,7 +422,7 @@ def create_app(
         return HTMLResponse(page, headers={
             "Content-Disposition": "attachment; filename=replay.html"})
 
-    @app.get("/api/bag", tags=["status"], response_class=ZipResponse)
+    @app.get("/api/bag", tags=["status"], response_class=ZipResponse, responses=no_run_404)
     def bag(request: Request,
             rate_hz: Annotated[float, Query(gt=0.0, le=1000.0, description=(
                 "at most this many messages per topic and second of scenario time"))] = 100.0):
@@ -414,7 +431,7 @@ def create_app(
         true contact force and the satellites' twists, in standard messages (Foxglove,
         PlotJuggler, ros2 bag play). A long run's bag is thinned to about 60,000 messages;
         the X-Bag-Rate-Hz header says the rate it was written at."""
-        data, written_hz = service(request).run_bag(rate_hz)
+        data, written_hz = the_run(request).run_bag(rate_hz)
         return ZipResponse(data, headers={"Content-Disposition": "attachment; filename=bag.zip",
                                           "X-Bag-Rate-Hz": f"{written_hz:.6g}"})
 

@@ -136,14 +136,14 @@ class EmulatorService:
         self.runner.wait_until(lambda s: s["status"] not in ("running", "starting"), 10.0)
         return self.state()
 
-    def reset(self, name: str | None = None) -> dict[str, Any]:
+    def reset(self, name: str | None = None, mode: str | None = None) -> dict[str, Any]:
         """Back to t = 0, idle: the scenario, settings and mode of the last start or reset
-        (a name given: that scenario as its file has it)."""
+        (a name given: that scenario as its file has it, in ``mode``)."""
         with self._build_lock:
             if name is None:
                 name, config, mode = self._last_run
             else:
-                config, mode = self.build(name)
+                config, mode = self.build(name, mode=mode)
             self._revive(config, name, mode)
             gen = self.runner.request_reset(name, config, mode)
             self.last_config, self._last_run = config, (name, config, mode)
@@ -268,7 +268,7 @@ class EmulatorService:
         import zipfile
         from pathlib import Path
 
-        from app.bag import write_bag
+        from app.bag import thinning_step, write_bag
 
         snap, ring, _, rows = self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
@@ -277,6 +277,8 @@ class EmulatorService:
             per_row = 1 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])
             span_s = max(float(rows[-1, 0] - rows[0, 0]), 1e-9)
             rate_hz = min(rate_hz, MAX_BAG_MESSAGES / (per_row * span_s))
+            dt_s = float(rows[1, 0] - rows[0, 0])
+            rate_hz = 1.0 / (thinning_step(rate_hz, dt_s) * dt_s)  # the rate written
         buffer = io.BytesIO()
         with tempfile.TemporaryDirectory() as tmp, \
                 zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
@@ -406,10 +408,12 @@ def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[fl
     force = tuple(float(v) for v in force_N)
     if not all(math.isfinite(v) for v in force):
         raise InvalidRequest("force_N: must be finite numbers")
-    norm = math.sqrt(sum(v * v for v in force))
+    norm = math.hypot(*force)  # (no overflow where the plain sum of squares would)
     if norm > MAX_PUSH_FORCE_N:
+        size = f"{norm:.1f} N" if norm < 1e6 else (
+            f"{norm:.3g} N" if math.isfinite(norm) else "over 1e308 N")
         raise InvalidRequest(
-            f"force_N: magnitude {norm:.1f} N exceeds the sensor range {MAX_PUSH_FORCE_N:g} N"
+            f"force_N: magnitude {size} exceeds the sensor range {MAX_PUSH_FORCE_N:g} N"
         )
     if not (math.isfinite(duration_s) and 0.0 < duration_s <= MAX_PUSH_DURATION_S):
         raise InvalidRequest(
