@@ -35,6 +35,7 @@ __all__ = [
     "PulseConfig",
     "RobotConfig",
     "SatelliteConfig",
+    "ScalingConfig",
     "SensorConfig",
     "ServoConfig",
     "VfdmConfig",
@@ -81,10 +82,31 @@ class OrbitConfig(_Model):
 
     altitude_m: Positive = 800e3
     gravity_gradient: StrictBool = True
-    force_scale: NonNegative = 1.0
-    """Multiplies every external force before it enters the ODS (scales lab pushes)."""
-    torque_scale: NonNegative = 1.0 / 2000.0
-    """Multiplies every external torque before it enters the ODS (paper: 1/2000)."""
+    force_scale: NonNegative | None = None
+    """The paper's law only: multiplies every measured force before it enters the ODS
+    (default 1). Under [scaling] law = "similarity" it is derived, not set."""
+    torque_scale: NonNegative | None = None
+    """The paper's law only: multiplies every measured torque before it enters the ODS
+    (default 1/2000, the paper's). Under "similarity" it is derived, not set."""
+
+
+PAPER_FORCE_SCALE = 1.0
+PAPER_TORQUE_SCALE = 1.0 / 2000.0
+
+
+class ScalingConfig(_Model):
+    """How the lab plays the orbit (app/sim/scaling.py). ``paper``: the ODS integrates the
+    mockup itself under the two hand-set knobs [orbit] force_scale and torque_scale.
+    ``similarity``: each satellite is a virtual body (its mass_kg and inertia_kgm2, in
+    orbit units; its initial state too) played at these orbit-per-lab factors."""
+
+    law: Literal["paper", "similarity"] = "paper"
+    length: Positive = 1.0
+    """k_L: orbit metres per lab metre."""
+    time: Positive = 1.0
+    """k_T: orbit seconds per lab second (100: a 100 s orbit phenomenon plays in 1 s)."""
+    mass: Positive = 1.0
+    """k_M: orbit kilograms per lab kilogram (what a lab newton is worth: k_M k_L / k_T² N)."""
 
 
 class SatelliteConfig(_Model):
@@ -92,9 +114,15 @@ class SatelliteConfig(_Model):
 
     name: Annotated[str, Field(min_length=1, max_length=64)]
     mass_kg: Positive = 1.0
+    """The body the ODS integrates (under the paper's law: the mockup itself)."""
     size_m: PositiveVec3 = (0.2, 0.2, 0.1)
+    """The mockup's box (lab metres): contact, drawing, and the default inertia."""
     inertia_kgm2: PositiveVec3 | None = None
-    """Principal moments [Ixx, Iyy, Izz]; default: uniform box of size_m and mass_kg."""
+    """Principal moments [Ixx, Iyy, Izz]; default: uniform box of mass_kg and size_m
+    (times the length scale under "similarity")."""
+    mockup_mass_kg: Positive | None = None
+    """The physical mockup the arm carries (its sensor chain compensates it); default:
+    mass_kg under the paper's law, required under "similarity"."""
     position_m: Vec3 = (0.0, 0.0, 0.0)
     velocity_mps: Vec3 = (0.0, 0.0, 0.0)
     attitude_wxyz: Quaternion = IDENTITY_WXYZ
@@ -423,6 +451,40 @@ class EmulatorConfig(_Model):
                          Field(max_length=MAX_MATERIALS)] = DEFAULT_MATERIALS
     hand: HandConfig = HandConfig()
     loop: LoopConfig = LoopConfig()
+    scaling: ScalingConfig = ScalingConfig()
+
+    @model_validator(mode="after")
+    def _similar(self) -> EmulatorConfig:
+        """What the similarity law needs and refuses (app/sim/scaling.py)."""
+        sc = self.scaling
+        if sc.law == "paper":
+            if (sc.length, sc.time, sc.mass) != (1.0, 1.0, 1.0):
+                raise ValueError("scaling: length, time and mass apply under law = "
+                                 "'similarity'; the paper's law has [orbit] force_scale "
+                                 "and torque_scale")
+            return self
+        for key in ("force_scale", "torque_scale"):
+            if getattr(self.orbit, key) is not None:
+                raise ValueError(f"orbit.{key}: derived under scaling.law = 'similarity' "
+                                 f"(from scaling.mass and scaling.length); remove it")
+        for i, sat in enumerate(self.satellites):
+            if sat.mockup_mass_kg is None:
+                raise ValueError(f"satellites.{i}.mockup_mass_kg: required under "
+                                 f"scaling.law = 'similarity' (mass_kg is the virtual "
+                                 f"satellite's, {sat.mass_kg:g} kg; the sensor chain "
+                                 f"compensates the mockup's)")
+        damped = sorted({s.material for s in self.satellites
+                         if s.material in self.materials
+                         and self.materials[s.material].damping_spm > 0.0})
+        if len(self.satellites) >= 2 and damped and not math.isclose(sc.length, sc.time,
+                                                                     rel_tol=1e-12):
+            raise ValueError(
+                f"scaling: length {sc.length:g} and time {sc.time:g} play velocities at "
+                f"{sc.time / sc.length:g} x the orbit's, but the contact's Hunt-Crossley "
+                f"damping (materials {', '.join(damped)}) makes restitution depend on the "
+                f"impact speed, which the lab's mockups meet at the lab's speed: with "
+                f"contact, scaling.length must equal scaling.time")
+        return self
 
     @model_validator(mode="after")
     def _references(self) -> EmulatorConfig:

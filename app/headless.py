@@ -71,7 +71,7 @@ def run_scenario(
             files = [out / "telemetry.csv", out / "metrics.json"]
             files += plot_run(
                 em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms),
-                metrics.get("collision"),
+                metrics.get("collision"), note=metrics["scaling"]["text"],
             )
             if bag:
                 files.append(write_bag(replace_bag_dir(out / "bag"), em.config,

@@ -8,6 +8,8 @@ import numpy as np
 
 from app.config import EmulatorConfig
 from app.sim.loop import Emulator
+from app.sim.scaling import describe as describe_scaling
+from app.sim.scaling import scaling_of
 
 
 def _cols(rows: np.ndarray, index: dict, prefix: str, names) -> np.ndarray:
@@ -337,7 +339,7 @@ def _sensing_limits(cfg: EmulatorConfig, with_arms: bool, pair: tuple[int, int],
         return 0.0, None
     deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
     masses = [cfg.satellites[s - 1].mass_kg for s in pair]
-    gain = cfg.orbit.force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
+    gain = scaling_of(cfg).force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
     return deadband, (cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz, gain)
 
 
@@ -353,6 +355,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
     configuration and the facts the loop kept."""
     sim_s = float(rows[-1, 0]) if len(rows) else 0.0
     n_sat = len(config.satellites)
+    scaling = scaling_of(config)
     sats = []
     for i, sat in enumerate(config.satellites):
         entry = {"id": i + 1, "name": sat.name}
@@ -375,8 +378,9 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
         "rate_hz": config.loop.rate_hz,
         "realtime_factor": sim_s / facts.wall_s if facts.wall_s > 0 else None,
         "cycle_time_us": dict(facts.cycle_time_us),
-        "force_scale": config.orbit.force_scale,
-        "torque_scale": config.orbit.torque_scale,
+        "force_scale": scaling.force_scale,
+        "torque_scale": scaling.torque_scale,
+        "scaling": describe_scaling(config),
         "vfdm_iterations": config.vfdm.iterations,
         "seed": config.loop.seed,
         "satellites": sats,

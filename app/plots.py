@@ -13,6 +13,13 @@ import numpy as np  # noqa: E402
 AXES = ("x", "y", "z")
 
 
+def _save(fig, path: Path, note: str) -> None:
+    """Save a figure with the run's note (the scaling in force) above its titles."""
+    if note:
+        fig.suptitle(note, fontsize=8, color="0.35")
+    fig.savefig(path, dpi=100)
+
+
 def _series(rows, index, prefix, fields):
     return rows[:, [index[f"{prefix}_{f}"] for f in fields]]
 
@@ -24,11 +31,11 @@ def _three(ax, t, data, label, unit, style="-"):
     ax.grid(alpha=0.3)
 
 
-def plot_free_floating(rows, index, out_dir: Path, sat: int = 1) -> list[Path]:
+def plot_free_floating(rows, index, out_dir: Path, sat: int = 1, note: str = "") -> list[Path]:
     """Fig. 6: force and torque the ODS received (measured: force in R, torque in body
     axes), the satellite's velocity, angular velocity and position."""
     t = rows[:, 0]
-    fig, axes = plt.subplots(5, 1, figsize=(9, 12), sharex=True)
+    fig, axes = plt.subplots(5, 1, figsize=(9, 12), sharex=True, layout="constrained")
     pre = f"sat{sat}"
     _three(axes[0], t, _series(rows, index, pre, ("fx_N", "fy_N", "fz_N")), "F", "force [N]")
     _three(axes[1], t, _series(rows, index, pre, ("tx_Nm", "ty_Nm", "tz_Nm")), "T",
@@ -44,14 +51,14 @@ def plot_free_floating(rows, index, out_dir: Path, sat: int = 1) -> list[Path]:
     axes[-1].set_xlabel("time [s]")
     for ax in axes:
         ax.legend(loc="upper right", fontsize=7, ncol=3)
-    fig.tight_layout()
     path = out_dir / "fig6_free_floating.png"
-    fig.savefig(path, dpi=100)
+    _save(fig, path, note)
     plt.close(fig)
     return [path]
 
 
-def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict) -> Path:
+def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict,
+                         note: str = "") -> Path:
     """The contact window ± 0.1 s: along the contact normal's main axis (x here), each
     satellite's force (received by the ODS, and the true contact force) and velocity
     (ODS, and the mockup where an arm carries it): how the impact went, cycle by cycle."""
@@ -80,7 +87,7 @@ def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict
     ax_v.set_xlabel("time [s]")
     ax_f.set_title("The contact, close up (shaded: in contact)")
     path = out_dir / "fig8b_contact_closeup.png"
-    fig.savefig(path, dpi=100)
+    _save(fig, path, note)
     plt.close(fig)
     return path
 
@@ -133,7 +140,7 @@ def _collision_text(coll: dict) -> str:
 
 
 def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
-                   collision: dict | None = None) -> list[Path]:
+                   collision: dict | None = None, note: str = "") -> list[Path]:
     """Figs. 8-11: forces in R, desired vs actual velocity and position, position error.
 
     Fig. 8 zooms on the contact (its window ± 0.1 s) when ``collision`` (the metrics) is
@@ -158,17 +165,18 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
             ax.set_xlim(collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1)
     axes[-1, 0].set_xlabel("time [s]")
     paths.append(out_dir / "fig8_forces.png")
-    fig.savefig(paths[-1], dpi=100)
+    _save(fig, paths[-1], note)
     plt.close(fig)
     if collision is not None:
-        paths.append(plot_contact_closeup(rows, index, out_dir, n_sat, collision))
+        paths.append(plot_contact_closeup(rows, index, out_dir, n_sat, collision, note))
 
     for name, fields, rfields, unit in (
         ("fig9_velocity.png", ("vx_mps", "vy_mps", "vz_mps"), ("vx_mps", "vy_mps", "vz_mps"),
          "velocity [m/s]"),
         ("fig10_position.png", ("x_m", "y_m", "z_m"), ("x_m", "y_m", "z_m"), "position [m]"),
     ):
-        fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True, squeeze=False)
+        fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True, squeeze=False,
+                                 layout="constrained")
         for ax, s in zip(axes[:, 0], sats, strict=True):
             _three(ax, t, _series(rows, index, f"sat{s}", fields), "ODS", unit)
             if s <= n_rob:
@@ -176,13 +184,12 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
             ax.set_title(f"Satellite {s}: desired (ODS, solid) vs actual (robot, dashed)")
             ax.legend(loc="upper right", fontsize=7, ncol=2)
         axes[-1, 0].set_xlabel("time [s]")
-        fig.tight_layout()
         paths.append(out_dir / name)
-        fig.savefig(paths[-1], dpi=100)
+        _save(fig, paths[-1], note)
         plt.close(fig)
 
     if n_rob:
-        fig, ax = plt.subplots(figsize=(9, 4))
+        fig, ax = plt.subplots(figsize=(9, 4), layout="constrained")
         for s in range(1, min(n_sat, n_rob) + 1):
             d = _series(rows, index, f"rob{s}", ("x_m", "y_m", "z_m")) - _series(
                 rows, index, f"sat{s}", ("x_m", "y_m", "z_m")
@@ -193,20 +200,20 @@ def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
         ax.set_title("Isochronous position error, actual (robot) vs desired (ODS)")
         ax.grid(alpha=0.3)
         ax.legend()
-        fig.tight_layout()
         paths.append(out_dir / "fig11_position_error.png")
-        fig.savefig(paths[-1], dpi=100)
+        _save(fig, paths[-1], note)
         plt.close(fig)
     return paths
 
 
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, n_sat: int, n_rob: int,
-             collision: dict | None = None) -> list[Path]:
+             collision: dict | None = None, note: str = "") -> list[Path]:
     """The paper's figures for a run: Fig. 6 style with one satellite, Figs. 8-11 with more
-    (``collision``: the run's collision metrics, shown on Fig. 8)."""
+    (``collision``: the run's collision metrics, shown on Fig. 8; ``note``: a line on top
+    of every figure, the scaling in force)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     if len(rows) == 0:
         return []
     if n_sat == 1:
-        return plot_free_floating(rows, index, out_dir)
-    return plot_collision(rows, index, out_dir, n_sat, n_rob, collision)
+        return plot_free_floating(rows, index, out_dir, note=note)
+    return plot_collision(rows, index, out_dir, n_sat, n_rob, collision, note)

@@ -44,6 +44,7 @@ def run_summary(metrics: dict) -> str:
         f"simulated {metrics['duration_s']:.2f} s in {metrics['cycles']} cycles, "
         f"real-time factor {num(rtf, '.2f')}, cycle p50 {num(ct['p50'], '.0f')} us / p99 "
         f"{num(ct['p99'], '.0f')} us",
+        metrics["scaling"]["text"] if "scaling" in metrics else
         f"force scale {metrics['force_scale']:g}, torque scale {metrics['torque_scale']:g}",
         "",
         f"{'sat':>3} {'name':12s} {'pos err max':>12} {'pos err rms':>12} {'vel err rms':>12} "

@@ -24,7 +24,10 @@ def test_defaults_reproduce_the_paper():
     cfg = EmulatorConfig()
     assert cfg.orbit.altitude_m == 800e3
     assert cfg.orbit.gravity_gradient is True
-    assert cfg.orbit.torque_scale == pytest.approx(1 / 2000)
+    from app.sim.scaling import scaling_of
+
+    assert cfg.scaling.law == "paper"
+    assert scaling_of(cfg).torque_scale == pytest.approx(1 / 2000)
     sat = cfg.satellites[0]
     assert sat.mass_kg == 1.0 and sat.size_m == (0.2, 0.2, 0.1)
     np.testing.assert_allclose(sat.principal_inertia(), [0.05 / 12, 0.05 / 12, 0.08 / 12])

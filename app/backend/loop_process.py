@@ -38,6 +38,7 @@ from app.config import EmulatorConfig
 from app.metrics import passivity_metrics
 from app.sim.loop import Emulator
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
+from app.sim.scaling import scaling_of, summary_line
 
 log = logging.getLogger("orbit_emulator.runner")
 
@@ -283,6 +284,7 @@ class LoopCore:
         em = self.em
         ods = em.ods
         cfg = em.config
+        scaling = scaling_of(cfg)
         T_W_R = em.T_W_R
         R_W_R = T_W_R[:3, :3]
         sats = []
@@ -336,7 +338,8 @@ class LoopCore:
                 "duration_s": cfg.loop.duration_s,
                 "hand_stiffness_Npm": cfg.hand.stiffness_Npm,
                 "hand_max_force_N": cfg.hand.max_force_N,
-                "force_scale": cfg.orbit.force_scale, "torque_scale": cfg.orbit.torque_scale,
+                "force_scale": scaling.force_scale, "torque_scale": scaling.torque_scale,
+                "scaling": summary_line(cfg),
             },
             "n_satellites": em.n_sat,
             "satellites": sats,

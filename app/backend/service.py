@@ -252,7 +252,8 @@ class EmulatorService:
                  "config": config.model_dump(mode="json")}, indent=2))
             index = {name: k for k, name in enumerate(columns)}
             for path in plot_run(rows, index, Path(tmp), len(snap["satellites"]),
-                                 len(snap["robots"]), metrics.get("collision")):
+                                 len(snap["robots"]), metrics.get("collision"),
+                                 note=metrics["scaling"]["text"]):
                 zf.write(path, f"plots/{path.name}")
         return buffer.getvalue()
 

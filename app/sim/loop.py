@@ -90,7 +90,7 @@ class Emulator:
         self._tracking_out = np.zeros((len(self.arms), 2))
         self.coupling = OdsCoupling(
             config.passivity, self.dt_s, [arm.satellite for arm in self.arms],
-            [s.mass_kg for s in config.satellites], config.orbit.force_scale,
+            list(self.ods.params.mass_kg), self.ods.params.force_scale,
             int(round(force_lag_s(config, hold=False) / self.dt_s)))
         self.gate = None
         if config.wrench.contact_gate:

@@ -24,6 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from app.sim.scaling import box_inertia as box_inertia  # (was defined here)
+from app.sim.scaling import ods_inertia_kgm2, scaling_of
+
 MU_EARTH_M3PS2 = 3.986004418e14
 R_EARTH_M = 6378.137e3
 
@@ -34,12 +37,6 @@ def orbit_rate(altitude_m: float) -> float:
     """Mean motion Omega = sqrt(mu / a^3) of a circular orbit of radius a = R_E + h."""
     a = R_EARTH_M + altitude_m
     return float(np.sqrt(MU_EARTH_M3PS2 / a**3))
-
-
-def box_inertia(mass_kg: float, size_m) -> np.ndarray:
-    """Principal moments of a uniform box: I_x = m (b^2 + c^2) / 12 and so on."""
-    sx, sy, sz = size_m
-    return mass_kg / 12.0 * np.array([sy**2 + sz**2, sx**2 + sz**2, sx**2 + sy**2])
 
 
 @dataclass(frozen=True)
@@ -212,24 +209,29 @@ class OrbitalSimulator:
 
     @classmethod
     def from_config(cls, config) -> OrbitalSimulator:
-        """Build from an :class:`app.config.EmulatorConfig` (initial state relative to R)."""
-        W = orbit_rate(config.orbit.altitude_m)
+        """Build from an :class:`app.config.EmulatorConfig` (initial state relative to R),
+        in lab units under its scaling (app/sim/scaling.py): the virtual bodies' mass and
+        inertia, the orbit rate k_T Omega, the measured wrench times force_scale and
+        torque_scale, the initial state divided down from orbit units."""
+        sc = scaling_of(config)
+        W = sc.orbit_rate_lab(orbit_rate(config.orbit.altitude_m))
         sats = config.satellites
         params = OdsParams(
             orbit_rate_radps=W,
             mass_kg=np.array([s.mass_kg for s in sats], dtype=float),
-            inertia_kgm2=np.array([s.principal_inertia() for s in sats], dtype=float),
+            inertia_kgm2=np.array([ods_inertia_kgm2(s, sc) for s in sats], dtype=float),
             gravity_gradient=config.orbit.gravity_gradient,
-            force_scale=config.orbit.force_scale,
-            torque_scale=config.orbit.torque_scale,
+            force_scale=sc.force_scale,
+            torque_scale=sc.torque_scale,
         )
         y = np.zeros((len(sats), 13))
-        y[:, POS] = [s.position_m for s in sats]
-        y[:, VEL] = [s.velocity_mps for s in sats]
+        p, v, w = sc.to_lab([s.position_m for s in sats], [s.velocity_mps for s in sats],
+                            [s.omega_radps for s in sats])
+        y[:, POS], y[:, VEL] = p, v
         q = np.array([s.attitude_wxyz for s in sats], dtype=float)
         q *= np.where(q[:, :1] < 0.0, -1.0, 1.0)
         y[:, QUAT] = q
-        y[:, OMEGA] = omega_inertial_from_relative(q, [s.omega_radps for s in sats], W)
+        y[:, OMEGA] = omega_inertial_from_relative(q, w, W)
         return cls(params=params, y=y, names=[s.name for s in sats])
 
     def step(self, force_R_N: np.ndarray, torque_B_Nm: np.ndarray, dt_s: float) -> None:

@@ -23,6 +23,7 @@ from app.config import EmulatorConfig, RobotConfig
 from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
 from app.sim.rotations import invert_transform
+from app.sim.scaling import mockup_mass_kg
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.ur10e import (
     T_F_C_from_config,
@@ -179,7 +180,7 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
     sat = config.satellite_index(robot.satellite)
     T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
     q_home = np.array(robot.q_home_rad)
-    mass = config.satellites[sat].mass_kg
+    mass = mockup_mass_kg(config.satellites[sat], config)  # what the sensor carries
     return ArmRig(
         index=index,
         satellite=sat,
