@@ -36,6 +36,7 @@ __all__ = [
     "RobotConfig",
     "SatelliteConfig",
     "ScalingConfig",
+    "SuccessConfig",
     "SensorConfig",
     "ServoConfig",
     "VfdmConfig",
@@ -380,6 +381,16 @@ class HandConfig(_Model):
     max_force_N: Positive = 20.0
 
 
+class SuccessConfig(_Model):
+    """What a scenario must achieve (app/success.py): each criterion given is computed
+    from the run's telemetry and reported in metrics.json ``success``."""
+
+    libration_period_error_max: Annotated[float, AfterValidator(_finite),
+                                          Field(gt=0.0, lt=1.0)] | None = None
+    """Gravity-gradient pitch libration: the measured period against theory (the
+    large-amplitude pendulum in 2 theta, Omega sqrt(3 (Iy - Ix) / Iz)), as a fraction."""
+
+
 class LoopConfig(_Model):
     """The emulation loop."""
 
@@ -452,6 +463,7 @@ class EmulatorConfig(_Model):
     hand: HandConfig = HandConfig()
     loop: LoopConfig = LoopConfig()
     scaling: ScalingConfig = ScalingConfig()
+    success: SuccessConfig = SuccessConfig()
 
     @model_validator(mode="after")
     def _similar(self) -> EmulatorConfig:

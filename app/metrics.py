@@ -10,6 +10,7 @@ from app.config import EmulatorConfig
 from app.sim.loop import Emulator
 from app.sim.scaling import describe as describe_scaling
 from app.sim.scaling import scaling_of
+from app.success import success_metrics
 
 
 def _cols(rows: np.ndarray, index: dict, prefix: str, names) -> np.ndarray:
@@ -408,6 +409,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                     f"sensor's {config.sensor.range_force_N:g} N range: its readings "
                     f"clipped, and the ODS received less than the mockups exchanged")
         metrics["collision"] = coll
+    metrics["success"] = success_metrics(config, rows, index) if len(rows) else None
     metrics["warnings"] = _run_warnings(metrics, ideal_collision)
     return metrics
 

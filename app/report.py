@@ -83,6 +83,18 @@ def run_summary(metrics: dict) -> str:
             f"{1e3 * coll['contact_energy_J']:.2f} mJ",
             *(f"WARNING: {w}" for w in coll.get("warnings", [])),
         ]
+    success = metrics.get("success")
+    if success:
+        lines += ["", "success: " + ("passed" if success["passed"] else "NOT MET")]
+        lib = success.get("libration")
+        if lib:
+            period = "-" if lib["period_s"] is None else f"{lib['period_s']:.1f} s"
+            error = "-" if lib["period_error"] is None else f"{100 * lib['period_error']:+.3f} %"
+            lines.append(
+                f"  libration of {lib['satellite']} ({lib['amplitude_deg']:.1f} deg, "
+                f"{lib['periods_seen']:g} periods seen): period {period} (orbit time), "
+                f"theory {lib['period_theory_s']:.1f} s, error {error} (limit "
+                f"{100 * lib['limit']:g} %)")
     pc = metrics.get("passivity")
     if pc:
         d = pc["dissipated_J"]
