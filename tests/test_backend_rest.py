@@ -445,3 +445,23 @@ def _recording_duration_s(recording: bytes) -> float:
     inner = zstandard.ZstdDecompressor().decompress(recording[8:], max_output_size=1 << 30)
     n = int.from_bytes(inner[:8], "little")
     return msgspec.msgpack.decode(inner[8:8 + n])["durationSeconds"]
+
+
+def test_a_start_whose_course_leaves_the_arm_s_reach_is_refused_before_the_arms_move(live):
+    live.client.post("/api/stop")
+    before = live.client.post("/api/reset").json()
+    r = live.client.post("/api/scenarios/free-floating/start",
+                         json={"satellites": {"0": {"velocity_mps": [0.0, 0.05, 0.0]}}})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith(
+        "pre-flight: the ideal run predicts that robot 1 (ceiling): satellite 'cubesat' "
+        "leaves the arm's reach")
+    after = live.state()
+    assert after["status"] == "idle" and after["generation"] == before["generation"]
+    assert after["loop"]["cycles"] == 0
+    # ideal mode has no arms to protect: the same course starts
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "ideal",
+                               "satellites": {"0": {"velocity_mps": [0.0, 0.05, 0.0]}}}).json()
+    assert s["status"] == "running" and s["mode"] == "ideal"
+    live.client.post("/api/stop")

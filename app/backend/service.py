@@ -17,6 +17,7 @@ import numpy as np
 
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
+from app.preflight import PreflightRefused, preflight
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.telemetry import loop_columns
@@ -112,6 +113,17 @@ class EmulatorService:
             raise InvalidRequest("robots: hil mode needs at least one [[robots]] entry")
         return config, mode
 
+    @staticmethod
+    def preflight(config: EmulatorConfig, mode: str | None) -> None:
+        """Refuse a hil start whose predicted course leaves an arm's reach, safety volume
+        or speed (app/preflight.py; InvalidRequest naming the robot, time and limit)."""
+        if (mode or config.loop.mode) != "hil":
+            return
+        try:
+            preflight(config, config.loop.duration_s)
+        except PreflightRefused as err:
+            raise InvalidRequest(str(err)) from None
+
     # --- commands ---------------------------------------------------------------------
 
     def start(
@@ -121,6 +133,8 @@ class EmulatorService:
         """Start scenario `name`; returns the state once running (or failed to start)."""
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
+            if self.runner.status not in ("running", "starting"):  # (else 409 below)
+                self.preflight(config, mode)
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
             self.last_config, self._last_run = config, (name, config, mode)

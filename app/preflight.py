@@ -1,0 +1,131 @@
+"""Pre-flight: before the arms move, an ideal run predicts where each mockup will go, and a
+run whose course leaves an arm's reach, its safety volume or its speed is refused.
+
+The prediction is the scenario's ideal run (no arms: the ODS with exact contact, the
+scripted pulses, the satellites' own actuation), over the run's duration. Each carried
+satellite's predicted mockup centre (its COM, the arm's TCP) must stay
+
+* inside the robot's safety box ([[robots]] safety_box_min_m / _max_m, in W);
+* within :data:`app.sim.ur10e.HOLD_RADIUS_M` of the arm's shoulder (its reach);
+* below :data:`MAX_TCP_SPEED_MPS` and :data:`MAX_TCP_RATE_RADPS` (what the arm can follow).
+
+What an operator will do cannot be predicted: the web app's hand can still push a
+satellite out, and the panel's course warning and the arm's own stops are there for that.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.config import EmulatorConfig, merge_overrides
+from app.sim.loop import Emulator
+from app.sim.rotations import make_transform, quat_to_matrix
+from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M, T_W_B_from_config
+
+__all__ = ["MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS", "PreflightRefused", "Violation",
+           "check_course", "predict", "preflight"]
+
+MAX_TCP_SPEED_MPS = 1.0
+"""The UR10e's TCP speed limit (data sheet: 1 m/s)."""
+MAX_TCP_RATE_RADPS = 3.0
+"""Just under the wrist joints' 3.14 rad/s (data sheet): a faster spin cannot be followed."""
+COARSE_RATE_HZ = 100.0
+"""The prediction's rate where no contact can happen (one satellite): 5x fewer cycles."""
+
+
+class PreflightRefused(ValueError):
+    """The predicted course leaves what an arm can do; the message names each robot, the
+    time and the limit."""
+
+
+@dataclass(frozen=True)
+class Violation:
+    """The first moment a robot's satellite breaks one limit on its predicted course."""
+
+    robot: int  # 1-based
+    robot_name: str
+    satellite: str
+    t_s: float
+    limit: str
+
+    def __str__(self) -> str:
+        return (f"robot {self.robot} ({self.robot_name}): satellite {self.satellite!r} "
+                f"{self.limit} at t = {self.t_s:.2f} s")
+
+
+def predict(config: EmulatorConfig, duration_s: float) -> Emulator:
+    """The ideal run of ``config`` over ``duration_s`` (its telemetry: the course). With
+    one satellite (no contact) at a coarser rate, for speed."""
+    loop = {"telemetry_capacity": 0}
+    if len(config.satellites) == 1 and config.loop.rate_hz > COARSE_RATE_HZ:
+        loop["rate_hz"] = COARSE_RATE_HZ
+    rate = loop.get("rate_hz", config.loop.rate_hz)
+    loop["telemetry_capacity"] = int(duration_s * rate) + 3
+    em = Emulator(merge_overrides(config, {"loop": loop}), mode="ideal")
+    em.run(duration_s)
+    return em
+
+
+def check_course(config: EmulatorConfig, rows: np.ndarray, index: dict) -> list[Violation]:
+    """Each robot's first violation of each limit along the predicted telemetry ``rows``
+    (an ideal run's; columns ``index``), earliest first."""
+    T_W_R = make_transform(quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m)
+    found = []
+    for k, robot in enumerate(config.robots):
+        found += _robot_violations(k, robot, config.satellite_index(robot.satellite) + 1,
+                                   rows, index, T_W_R)
+    return sorted(found, key=lambda v: v.t_s)
+
+
+def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
+                      T_W_R: np.ndarray) -> list[Violation]:
+    """Robot k's (0-based) first violation of each limit, carrying satellite s (1-based)."""
+    p_W = rows[:, [index[f"sat{s}_{a}_m"] for a in "xyz"]] @ T_W_R[:3, :3].T + T_W_R[:3, 3]
+    speed = np.linalg.norm(rows[:, [index[f"sat{s}_v{a}_mps"] for a in "xyz"]], axis=1)
+    rate = np.linalg.norm(rows[:, [index[f"sat{s}_w{a}_radps"] for a in "xyz"]], axis=1)
+    T_W_B = T_W_B_from_config(robot)
+    shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+    reach = np.linalg.norm(p_W - shoulder_W, axis=1)
+    lo, hi = np.asarray(robot.safety_box_min_m), np.asarray(robot.safety_box_max_m)
+    checks = [
+        (np.any((p_W < lo) | (p_W > hi), axis=1),
+         lambda j: f"leaves the safety volume (at {_fmt(p_W[j])} m in W; box {_fmt(lo)} to "
+                   f"{_fmt(hi)})"),
+        (reach > HOLD_RADIUS_M,
+         lambda j: f"leaves the arm's reach ({reach[j]:.3f} m from its shoulder; limit "
+                   f"{HOLD_RADIUS_M:g} m)"),
+        (speed > MAX_TCP_SPEED_MPS,
+         lambda j: f"moves faster than the arm's TCP ({speed[j]:.3g} m/s; limit "
+                   f"{MAX_TCP_SPEED_MPS:g} m/s)"),
+        (rate > MAX_TCP_RATE_RADPS,
+         lambda j: f"turns faster than the arm's wrist ({rate[j]:.3g} rad/s; limit "
+                   f"{MAX_TCP_RATE_RADPS:g} rad/s)"),
+    ]
+    found = []
+    for bad, describe in checks:
+        if bad.any():
+            j = int(np.argmax(bad))
+            found.append(Violation(k + 1, robot.name, robot.satellite, float(rows[j, 0]),
+                                   describe(j)))
+    return found
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"
+
+
+def preflight(config: EmulatorConfig, duration_s: float) -> Emulator | None:
+    """Refuse (PreflightRefused) a hil run of ``config`` whose predicted course breaks a
+    limit; else the prediction (its ideal run; None with no robots: nothing to check)."""
+    if not config.robots:
+        return None
+    em = predict(config, duration_s)
+    violations = check_course(config, em.telemetry.rows(), em.telemetry.index)
+    if violations:
+        raise PreflightRefused(
+            "pre-flight: the ideal run predicts that "
+            + "; ".join(str(v) for v in violations)
+            + ". The arms have not moved; change the scenario (or run it --mode ideal)")
+    return em

@@ -1,0 +1,64 @@
+"""Pre-flight (app/preflight.py): the ideal run's course against each arm's reach, safety
+volume and speed, before the arms move."""
+
+import math
+
+import numpy as np
+import pytest
+
+from app.config import merge_overrides
+from app.preflight import HOLD_RADIUS_M, PreflightRefused, preflight
+from app.scenarios import load_scenario, scenario_names
+from app.sim.ur10e import SHOULDER_B_M, T_W_B_from_config
+
+
+@pytest.mark.parametrize("name", scenario_names())
+def test_every_built_in_scenario_passes(name):
+    cfg = load_scenario(name)
+    em = preflight(cfg, cfg.loop.duration_s)
+    assert em is not None and em.ods.t_s == pytest.approx(cfg.loop.duration_s, abs=0.011)
+
+
+def _drifting(velocity_mps):
+    return merge_overrides(load_scenario("free-floating"),
+                           {"satellites": {"0": {"velocity_mps": velocity_mps}}})
+
+
+def test_a_satellite_drifting_out_of_reach_is_refused_with_the_robot_time_and_limit():
+    """0.05 m/s along y from 0.96 m off the shoulder: out of the 1.2 m reach after
+    sqrt(1.2² - d0²) / 0.05 s (CW bends the line by Omega v t², 1 cm here)."""
+    cfg = _drifting([0.0, 0.05, 0.0])
+    T_W_B = T_W_B_from_config(cfg.robots[0])
+    shoulder = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+    d0 = np.linalg.norm(np.array([-0.35, 0.0, 1.0]) - shoulder)
+    t_out = math.sqrt(HOLD_RADIUS_M**2 - d0**2) / 0.05
+    with pytest.raises(PreflightRefused) as err:
+        preflight(cfg, cfg.loop.duration_s)
+    text = str(err.value)
+    assert text.startswith("pre-flight: the ideal run predicts that robot 1 (ceiling): "
+                           "satellite 'cubesat' leaves the arm's reach (1.200 m from its "
+                           "shoulder; limit 1.2 m) at t = ")
+    t_said = float(text.split("at t = ")[1].split(" s")[0])
+    assert t_said == pytest.approx(t_out, rel=0.03)
+    assert "leaves the safety volume (at (-0.303, 1.500, 1.000) m in W" in text  # 30 s
+    assert text.endswith("The arms have not moved; change the scenario (or run it "
+                         "--mode ideal)")
+
+
+def test_a_satellite_faster_than_the_arm_is_refused_at_once():
+    with pytest.raises(PreflightRefused,
+                       match=r"moves faster than the arm's TCP \(1\.5 m/s; limit 1 m/s\) "
+                             r"at t = 0\.00 s"):
+        preflight(_drifting([1.5, 0.0, 0.0]), 5.0)
+
+
+def test_a_spin_faster_than_the_wrist_is_refused():
+    cfg = merge_overrides(load_scenario("free-floating"),
+                          {"satellites": {"0": {"omega_radps": [0.0, 0.0, 4.0]}}})
+    with pytest.raises(PreflightRefused, match=r"turns faster than the arm's wrist \(4 rad/s"):
+        preflight(cfg, 1.0)
+
+
+def test_an_ideal_only_layout_has_nothing_to_check():
+    cfg = merge_overrides(_drifting([1.5, 0.0, 0.0]), {"robots": []})
+    assert preflight(cfg, 5.0) is None
