@@ -25,6 +25,7 @@ from pydantic import (
 )
 
 __all__ = [
+    "CaptureConfig",
     "ConfigError",
     "ContactMaterial",
     "EmulatorConfig",
@@ -381,6 +382,21 @@ class HandConfig(_Model):
     max_force_N: Positive = 20.0
 
 
+class CaptureConfig(_Model):
+    """Docking capture (app/sim/capture.py): when the target's COM, seen from the chaser's
+    body frame, is within position_tolerance_m of mated_offset_m, and the relative speed,
+    attitude and rate are within theirs, the pair latches and moves as one body."""
+
+    chaser: str
+    target: str
+    mated_offset_m: Vec3
+    """The target's COM in the chaser's body frame when docked (lab metres)."""
+    position_tolerance_m: Positive = 0.01
+    velocity_tolerance_mps: Positive = 0.01
+    attitude_tolerance_rad: Positive = 0.05
+    rate_tolerance_radps: Positive = 0.05
+
+
 class SuccessConfig(_Model):
     """What a scenario must achieve (app/success.py): each criterion given is computed
     from the run's telemetry and reported in metrics.json ``success``."""
@@ -389,6 +405,10 @@ class SuccessConfig(_Model):
                                           Field(gt=0.0, lt=1.0)] | None = None
     """Gravity-gradient pitch libration: the measured period against theory (the
     large-amplitude pendulum in 2 theta, Omega sqrt(3 (Iy - Ix) / Iz)), as a fraction."""
+    captured: StrictBool | None = None
+    """Docking: the pair must (true) or must not (false) be captured ([capture])."""
+    residual_rate_max_radps: NonNegative | None = None
+    """Docking: the compound's angular rate relative to R at the end, at most."""
 
 
 class LoopConfig(_Model):
@@ -464,6 +484,7 @@ class EmulatorConfig(_Model):
     loop: LoopConfig = LoopConfig()
     scaling: ScalingConfig = ScalingConfig()
     success: SuccessConfig = SuccessConfig()
+    capture: CaptureConfig | None = None
 
     @model_validator(mode="after")
     def _similar(self) -> EmulatorConfig:
@@ -516,6 +537,13 @@ class EmulatorConfig(_Model):
         carried = [r.satellite for r in self.robots]
         if len(set(carried)) != len(carried):
             raise ValueError("robots: each satellite can be carried by one robot only")
+        if self.capture is not None:
+            for key in ("chaser", "target"):
+                if getattr(self.capture, key) not in names:
+                    raise ValueError(f"capture.{key}: {getattr(self.capture, key)!r} names "
+                                     f"no satellite (have {names})")
+            if self.capture.chaser == self.capture.target:
+                raise ValueError("capture.target: must differ from capture.chaser")
         for i, s in enumerate(self.satellites):
             if s.material not in self.materials:
                 raise ValueError(f"satellites.{i}.material: {s.material!r} is not in materials")

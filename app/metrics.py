@@ -313,6 +313,8 @@ class RunFacts:
     passivity: dict | None
     arm_of: dict[int, int]
     """Satellite (0-based) → the arm (0-based) that carries it."""
+    capture: dict | None = None
+    """The docking capture (Emulator.capture_event), if one happened."""
 
 
 def run_facts(em: Emulator, wall_s: float) -> RunFacts:
@@ -323,7 +325,7 @@ def run_facts(em: Emulator, wall_s: float) -> RunFacts:
         cycle_time_us={"p50": float(np.percentile(ct, 50)) if len(ct) else None,
                        "p99": float(np.percentile(ct, 99)) if len(ct) else None},
         safety_stop=em.safety_stop, passivity=passivity_metrics(em),
-        arm_of={arm.satellite: arm.index for arm in em.arms})
+        arm_of={arm.satellite: arm.index for arm in em.arms}, capture=em.capture_event)
 
 
 def sensing_limits(em: Emulator, pair: tuple[int, int] = (1, 2),
@@ -409,9 +411,41 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                     f"sensor's {config.sensor.range_force_N:g} N range: its readings "
                     f"clipped, and the ODS received less than the mockups exchanged")
         metrics["collision"] = coll
-    metrics["success"] = success_metrics(config, rows, index) if len(rows) else None
+    if config.capture is not None:
+        metrics["capture"] = capture_metrics(config, rows, index, facts.capture)
+        if facts.capture and metrics.get("collision"):  # latched: no rebound to measure
+            metrics["collision"]["warnings"] = [
+                w for w in metrics["collision"]["warnings"] if "restitution" not in w]
+            metrics["collision"]["warnings"].append(
+                "captured: the pair latched, so there is no restitution to measure")
+    metrics["success"] = success_metrics(config, rows, index, metrics.get("capture")) \
+        if len(rows) else None
     metrics["warnings"] = _run_warnings(metrics, ideal_collision)
     return metrics
+
+
+def capture_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
+                    event: dict | None) -> dict:
+    """Docking: captured or not (and the relative state at capture), the peak contact
+    force before it, and the compound's residual rates at the end (lab units)."""
+    cap = config.capture
+    c, t = config.satellite_index(cap.chaser) + 1, config.satellite_index(cap.target) + 1
+    out = {"captured": event is not None, **(event or {})}
+    if not len(rows):
+        return out
+    before = rows[:, 0] <= (event["t_s"] if event else np.inf)
+    true = [_cols(rows, index, f"sat{s}", ("true_fx_N", "true_fy_N", "true_fz_N"))
+            for s in (c, t)]
+    out["peak_contact_force_N"] = float(max(np.linalg.norm(f[before], axis=1).max()
+                                            for f in true))
+    if event:
+        w = _cols(rows[-1:], index, f"sat{c}", ("wx_radps", "wy_radps", "wz_radps"))[0]
+        m = np.array([config.satellites[s - 1].mass_kg for s in (c, t)])
+        v = sum(m[k] * _cols(rows[-1:], index, f"sat{s}", ("vx_mps", "vy_mps", "vz_mps"))[0]
+                for k, s in enumerate((c, t))) / m.sum()
+        out["residual_rate_radps"] = float(np.linalg.norm(w))
+        out["residual_speed_mps"] = float(np.linalg.norm(v))
+    return out
 
 
 def _run_warnings(metrics: dict, ideal_collision: dict | None) -> list[str]:

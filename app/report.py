@@ -95,6 +95,23 @@ def run_summary(metrics: dict) -> str:
                 f"{lib['periods_seen']:g} periods seen): period {period} (orbit time), "
                 f"theory {lib['period_theory_s']:.1f} s, error {error} (limit "
                 f"{100 * lib['limit']:g} %)")
+    cap = metrics.get("capture")
+    if cap:
+        lines.append("")
+        if cap["captured"]:
+            lines.append(
+                f"captured at {cap['t_s']:.3f} s (miss {1e3 * cap['position_miss_m']:.1f} mm, "
+                f"{1e3 * cap['relative_speed_mps']:.1f} mm/s, "
+                f"{1e3 * cap['relative_angle_rad']:.1f} mrad); peak contact force "
+                f"{cap.get('peak_contact_force_N', 0.0):.1f} N; residual rate "
+                f"{1e3 * cap.get('residual_rate_radps', 0.0):.2f} mrad/s, speed "
+                f"{1e3 * cap.get('residual_speed_mps', 0.0):.1f} mm/s")
+        else:
+            lines.append("NOT captured (peak contact force "
+                         f"{cap.get('peak_contact_force_N', 0.0):.1f} N)")
+    if success and success.get("docking"):
+        d = success["docking"]
+        lines.append(f"success (docking): {'passed' if d['passed'] else 'NOT MET'}")
     pc = metrics.get("passivity")
     if pc:
         d = pc["dissipated_J"]

@@ -15,21 +15,40 @@ from app.config import EmulatorConfig
 from app.sim.orbital import orbit_rate
 from app.sim.scaling import ods_inertia_kgm2, scaling_of
 
-__all__ = ["libration", "libration_period_theory_s", "pitch_rad", "success_metrics"]
+__all__ = ["docking", "libration", "libration_period_theory_s", "pitch_rad", "success_metrics"]
 
 
-def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict) -> dict | None:
-    """The ``success`` block of metrics.json (None when the scenario names no criterion)."""
+def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
+                    capture: dict | None = None) -> dict | None:
+    """The ``success`` block of metrics.json (None when the scenario names no criterion);
+    ``capture``: the run's capture metrics, if it has a [capture]."""
     crit = config.success
-    if crit.libration_period_error_max is None:
-        return None
     checks = {}
-    lib = libration(config, rows, index, satellite=0)
-    lib["limit"] = crit.libration_period_error_max
-    lib["passed"] = lib["period_error"] is not None and \
-        abs(lib["period_error"]) <= crit.libration_period_error_max
-    checks["libration"] = lib
+    if crit.libration_period_error_max is not None:
+        lib = libration(config, rows, index, satellite=0)
+        lib["limit"] = crit.libration_period_error_max
+        lib["passed"] = lib["period_error"] is not None and \
+            abs(lib["period_error"]) <= crit.libration_period_error_max
+        checks["libration"] = lib
+    if crit.captured is not None or crit.residual_rate_max_radps is not None:
+        checks["docking"] = docking(config, capture, crit)
+    if not checks:
+        return None
     return {"passed": all(c["passed"] for c in checks.values()), **checks}
+
+
+def docking(config: EmulatorConfig, capture: dict | None, crit) -> dict:
+    """Captured as required, and the compound's residual rate within its limit."""
+    capture = capture or {"captured": False}
+    out = {"captured": capture["captured"], "required": crit.captured,
+           "residual_rate_radps": capture.get("residual_rate_radps"),
+           "residual_rate_max_radps": crit.residual_rate_max_radps}
+    ok = crit.captured is None or capture["captured"] == crit.captured
+    if crit.residual_rate_max_radps is not None:
+        rate = capture.get("residual_rate_radps")
+        ok = ok and rate is not None and rate <= crit.residual_rate_max_radps
+    out["passed"] = bool(ok)
+    return out
 
 
 def pitch_rad(q_wxyz: np.ndarray) -> np.ndarray:

@@ -302,8 +302,8 @@ def test_cli_scenarios_and_bad_input(tmp_path):
     assert listing.returncode == 0
     for name, desc in scenario_descriptions().items():
         assert f"{name}" in listing.stdout and desc in listing.stdout
-    bad = subprocess.run([EXE, "run", "docking"], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "invalid choice: 'docking'" in bad.stderr
+    bad = subprocess.run([EXE, "run", "berthing"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "invalid choice: 'berthing'" in bad.stderr
     bad = subprocess.run([EXE, "run", "collision", "--duration", "-1"], capture_output=True,
                          text=True, timeout=60)
     assert bad.returncode == 2 and "must be a positive finite number" in bad.stderr

@@ -345,6 +345,7 @@ class LoopCore:
             "satellites": sats,
             "robots": robots,
             "contact_active": bool(em.contact_active),
+            "capture": em.capture_event,
             "passivity": passivity_metrics(em),
             "layout": {
                 "T_W_R": T_W_R.tolist(),

@@ -151,6 +151,11 @@ class BoxContactModel:
         """Boxes of each satellite's size_m with its named material."""
         return cls([s.size_m for s in satellites], [materials[s.material] for s in satellites])
 
+    def exclude(self, a: int, b: int) -> None:
+        """Bodies a and b no longer touch (they were latched together: their contact is
+        internal to one body)."""
+        self.pairs = [p for p in self.pairs if p != (min(a, b), max(a, b))]
+
     def law(self, a: int, b: int) -> tuple[float, float]:
         """(k_eff, c_eff) used for the pair (a, b)."""
         return self._law[(min(a, b), max(a, b))]

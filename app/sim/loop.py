@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.sim.capture import Compound, compound_wrench, join, relative_state, spread
 from app.sim.compensation import force_lag_s, lag_model, predicted_state
 from app.sim.contact import BoxContactModel
 from app.sim.contact_gate import ContactGate, fuse_pair_forces, hold_cycles_for
@@ -39,7 +40,7 @@ from app.sim.interaction import (
     body_torque_B,
     ods_bodies,
 )
-from app.sim.orbital import OrbitalSimulator
+from app.sim.orbital import OdsParams, OrbitalSimulator, rk4_step
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
@@ -109,6 +110,9 @@ class Emulator:
         self.applied_force_R = np.zeros((self.n_sat, 3))
         self.applied_torque_B = np.zeros((self.n_sat, 3))
         self.true_force_R = np.zeros((self.n_sat, 3))
+        self.compound: Compound | None = None  # a docked pair, once captured
+        self._compound_y: tuple[np.ndarray, np.ndarray] | None = None  # (now, next) rows
+        self.capture_event: dict | None = None
         self._final_recorded_at = -1
         self._load_kernels()
 
@@ -135,6 +139,7 @@ class Emulator:
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
         self._record()
         self.ods.commit(y_next, self.dt_s)
+        self._capture()
         predicted = {}
         for arm in self.arms:  # TCP target (where the satellite will be) -> VFDM -> servo
             if arm.lead_s not in predicted:
@@ -224,14 +229,57 @@ class Emulator:
         RK4 under the cycle's input; in an ideal run, a cycle that starts or ends in
         contact has the contact law integrated within it (:mod:`app.sim.reference`)."""
         y_next = self.ods.advance(force_R, torque_B, self.dt_s)
-        if self.mode == "hil" or not (self.interaction.contact_active
-                                      or self._overlap(y_next)):
-            return y_next, force_R, torque_B
-        y_next, force_R, torque_B = substepped_advance(
-            self.ods, self.interaction, self.T_W_R, self.ods.t_s, self.dt_s,
-            self.config.loop.reference_substeps)
-        self.true_force_R = force_R  # no sensor in an ideal run: the ODS gets the truth
+        if self.mode == "ideal" and (self.interaction.contact_active
+                                     or self._overlap(y_next)):
+            y_next, force_R, torque_B = substepped_advance(
+                self.ods, self.interaction, self.T_W_R, self.ods.t_s, self.dt_s,
+                self.config.loop.reference_substeps)
+            self.true_force_R = force_R  # no sensor in an ideal run: the ODS gets the truth
+        if self.compound is not None:  # the docked pair moves as one body
+            y_next = self._advance_compound(y_next, force_R, torque_B)
         return y_next, force_R, torque_B
+
+    def _advance_compound(self, y_next: np.ndarray, force_R: np.ndarray,
+                          torque_B: np.ndarray) -> np.ndarray:
+        """The compound's step under its members' summed wrench (app/sim/capture.py),
+        spread over the members' rows of y_next."""
+        row = self._compound_y[0]
+        F, tau = compound_wrench(self.compound, row, force_R, torque_B)
+        p = self.ods.params
+        params = OdsParams(p.orbit_rate_radps, np.array([self.compound.mass_kg]),
+                           self.compound.inertia_kgm2[None, :], p.gravity_gradient,
+                           p.force_scale, p.torque_scale)
+        row_next = rk4_step(params, row[None, :], F[None, :], tau[None, :], self.dt_s)[0]
+        y_next = y_next.copy()
+        spread(self.compound, row_next, p.orbit_rate_radps, y_next)
+        self._compound_y = (row, row_next)
+        return y_next
+
+    def _capture(self) -> None:
+        """After a step: a docked pair becomes one body once inside its capture envelope
+        (``[capture]``); from the next step on the ODS moves it as one."""
+        cap = self.config.capture
+        if self.compound is not None:
+            self._compound_y = (self._compound_y[1], self._compound_y[1])
+            return
+        if cap is None:
+            return
+        c, t = self.config.satellite_index(cap.chaser), self.config.satellite_index(cap.target)
+        p = self.ods.params
+        p_rel, v_rel, angle, rate = relative_state(self.ods.y, c, t, p.orbit_rate_radps)
+        miss = float(np.linalg.norm(p_rel - np.asarray(cap.mated_offset_m)))
+        speed = float(np.linalg.norm(v_rel))
+        if (miss > cap.position_tolerance_m or speed > cap.velocity_tolerance_mps
+                or angle > cap.attitude_tolerance_rad or rate > cap.rate_tolerance_radps):
+            return
+        self.compound, row = join(self.ods.y, (c, t), p.mass_kg, p.inertia_kgm2,
+                                  p.force_scale, p.torque_scale, p.orbit_rate_radps)
+        spread(self.compound, row, p.orbit_rate_radps, self.ods.y)
+        self._compound_y = (row, row)
+        self.interaction.contact.exclude(c, t)
+        self.capture_event = {"t_s": float(self.ods.t_s), "position_miss_m": miss,
+                              "relative_speed_mps": speed, "relative_angle_rad": angle,
+                              "relative_rate_radps": rate}
 
     def _overlap(self, y: np.ndarray) -> bool:
         """Whether any two bodies overlap in the ODS state y."""

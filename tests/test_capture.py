@@ -1,0 +1,167 @@
+"""Capture (app/sim/capture.py): a docked pair joins into one rigid body, conserving its
+momenta; the compound's inertia, wrench and members' states against closed forms."""
+
+import numpy as np
+import pytest
+
+from app.sim.capture import compound_wrench, join, relative_state, spread
+from app.sim.orbital import OdsParams, box_inertia, rk4_step
+from app.sim.rotations import quat_to_matrix, rotvec_to_quat
+
+W = 1.0e-3
+MASS = np.array([2.0, 3.0])
+SIZE = [0.2, 0.2, 0.1]
+
+
+def _pair(rng) -> np.ndarray:
+    y = np.zeros((2, 13))
+    y[:, :3] = [[0.0, 0.0, 0.0], [0.25, 0.03, -0.02]]
+    y[:, 3:6] = rng.normal(0.0, 0.02, (2, 3))
+    y[:, 6:10] = [rotvec_to_quat(rng.normal(0.0, 0.4, 3)) for _ in range(2)]
+    y[:, 10:13] = rng.normal(0.0, 0.05, (2, 3))
+    return y
+
+
+def _momenta(y, mass_eq, inertia_eq, p0):
+    """Linear momentum (R) and angular momentum about p0 (R), inertial velocities."""
+    P, H = np.zeros(3), np.zeros(3)
+    for i in range(len(y)):
+        R = quat_to_matrix(y[i, 6:10])
+        r = y[i, :3] - p0
+        u = y[i, 3:6] + W * np.cross([0.0, 0.0, 1.0], y[i, :3])
+        P += mass_eq[i] * y[i, 3:6]
+        H += R @ (np.diag(inertia_eq[i]) @ y[i, 10:13]) + mass_eq[i] * np.cross(r, u)
+    return P, H
+
+
+def _energy(y, mass_eq, inertia_eq):
+    """Kinetic energy, translation relative to the COM frame moving with R's origin plus
+    rotation (the part a latch can change)."""
+    e = 0.0
+    for i in range(len(y)):
+        e += 0.5 * mass_eq[i] * y[i, 3:6] @ y[i, 3:6]
+        e += 0.5 * y[i, 10:13] @ (inertia_eq[i] * y[i, 10:13])
+    return e
+
+
+@pytest.mark.parametrize(("fs", "ts"), [(1.0, 1.0), (0.005, 0.0005), (3.0, 48.0)])
+def test_join_conserves_momenta_and_never_adds_energy(fs, ts):
+    rng = np.random.default_rng(3)
+    y = _pair(rng)
+    inertia = np.array([box_inertia(m, SIZE) for m in MASS])
+    compound, row = join(y, (0, 1), MASS, inertia, fs, ts, W)
+    m_eq, i_eq = MASS / fs, inertia / ts
+    p_c = row[:3]
+    after = np.zeros((2, 13))
+    spread(compound, row, W, after)
+    np.testing.assert_allclose(after[:, :3], y[:, :3], atol=1e-12)  # nobody jumps
+    for a, b in zip(after[:, 6:10], y[:, 6:10], strict=True):  # nor turns
+        np.testing.assert_allclose(quat_to_matrix(a), quat_to_matrix(b), atol=1e-12)
+    P0, H0 = _momenta(y, m_eq, i_eq, p_c)
+    P1, H1 = _momenta(after, m_eq, i_eq, p_c)
+    np.testing.assert_allclose(P1, P0, atol=1e-12)
+    np.testing.assert_allclose(H1, H0, atol=1e-12 * max(1.0, np.abs(H0).max()))
+    assert _energy(after, m_eq, i_eq) <= _energy(y, m_eq, i_eq) + 1e-12
+    assert compound.mass_kg == pytest.approx(MASS.sum())
+
+
+def test_two_boxes_face_to_face_make_the_double_box():
+    y = np.zeros((2, 13))
+    y[:, 6] = 1.0
+    y[1, 0] = 0.2  # touching along x
+    m = np.array([1.0, 1.0])
+    inertia = np.array([box_inertia(1.0, SIZE)] * 2)
+    compound, row = join(y, (0, 1), m, inertia, 1.0, 1.0, W)
+    expected = np.sort(box_inertia(2.0, [0.4, 0.2, 0.1]))
+    np.testing.assert_allclose(np.sort(compound.inertia_kgm2), expected, rtol=1e-12)
+    np.testing.assert_allclose(row[:3], [0.1, 0.0, 0.0], atol=1e-15)
+
+
+def test_the_compound_wrench_sums_forces_with_their_moments_and_cancels_internal_pairs():
+    y = np.zeros((2, 13))
+    y[:, 6] = 1.0
+    y[1, 0] = 0.2
+    inertia = np.array([box_inertia(1.0, SIZE)] * 2)
+    compound, row = join(y, (0, 1), np.array([1.0, 1.0]), inertia, 1.0, 1.0, W)
+    R_R_Bc = quat_to_matrix(row[6:10])
+    force = np.array([[0.0, 2.0, 0.0], [0.0, 0.0, 0.0]])  # on the first member's COM
+    F, tau = compound_wrench(compound, row, force, np.zeros((2, 3)))
+    np.testing.assert_allclose(F, [0.0, 2.0, 0.0])
+    np.testing.assert_allclose(R_R_Bc @ tau, np.cross([-0.1, 0.0, 0.0], [0.0, 2.0, 0.0]),
+                               atol=1e-15)
+    # a contact at x = 0.1: +F on the second, -F on the first, with their moments
+    f = np.array([0.0, 1.0, 0.5])
+    force = np.array([-f, f])
+    torque = np.array([np.cross([0.1, 0.0, 0.0], -f), np.cross([-0.1, 0.0, 0.0], f)])
+    F, tau = compound_wrench(compound, row, force, torque)
+    np.testing.assert_allclose(F, 0.0, atol=1e-15)
+    np.testing.assert_allclose(tau, 0.0, atol=1e-15)
+
+
+def test_the_joined_pair_moves_as_one_rigid_body():
+    """Integrate the compound (one ODS body) with gravity gradient and spread each step:
+    the members keep their distance and relative attitude, and their velocities are the
+    rigid field v_c + w_rel x r (finite differences of the spread positions)."""
+    rng = np.random.default_rng(7)
+    y = _pair(rng)
+    inertia = np.array([box_inertia(m, SIZE) for m in MASS])
+    compound, row = join(y, (0, 1), MASS, inertia, 1.0, 1.0, W)
+    params = OdsParams(orbit_rate_radps=W, mass_kg=np.array([compound.mass_kg]),
+                       inertia_kgm2=compound.inertia_kgm2[None, :], torque_scale=1.0)
+    dt, rows = 0.01, []
+    members = np.zeros((2, 13))
+    for _ in range(200):
+        row = rk4_step(params, row[None, :], np.zeros((1, 3)), np.zeros((1, 3)), dt)[0]
+        spread(compound, row, W, members)
+        rows.append(members.copy())
+    rows = np.array(rows)
+    d = np.linalg.norm(rows[:, 1, :3] - rows[:, 0, :3], axis=1)
+    np.testing.assert_allclose(d, d[0], rtol=1e-12)
+    fd = (rows[2:, :, :3] - rows[:-2, :, :3]) / (2 * dt)
+    np.testing.assert_allclose(fd, rows[1:-1, :, 3:6], atol=1e-6)
+    p_rel, v_rel, angle, rate = relative_state(rows[-1], 0, 1, W)
+    p0, _, angle0, _ = relative_state(rows[0], 0, 1, W)
+    np.testing.assert_allclose(p_rel, p0, atol=1e-12)
+    assert np.linalg.norm(v_rel) < 1e-12 and rate < 1e-12 and angle == pytest.approx(angle0)
+
+
+def _docking(tmp_path, name, *args):
+    import json
+    import subprocess
+
+    from tests.test_cli import EXE
+
+    out = tmp_path / name
+    proc = subprocess.run([EXE, "run", "docking", "--out", str(out), "--quiet", *args],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    lines = (out / "telemetry.csv").read_text().splitlines()
+    index = {c: k for k, c in enumerate(lines[0].split(","))}
+    rows = np.array([[float(x) for x in line.split(",")] for line in lines[1:]])
+    return proc, json.loads((out / "metrics.json").read_text()), rows, index
+
+
+def test_docking_captures_on_the_arms_as_in_the_ideal_run_and_then_moves_as_one(tmp_path):
+    proc, hil, rows, index = _docking(tmp_path, "hil")
+    cap = hil["capture"]
+    assert hil["safety_stop"] is None and hil["success"]["passed"] and cap["captured"]
+    assert "captured at" in proc.stdout and "success (docking): passed" in proc.stdout
+    assert cap["position_miss_m"] <= 0.005 and cap["relative_speed_mps"] <= 0.01
+    # momentum: two equal 100 kg bodies, one at 2 cm/s: the compound goes on at 1 cm/s
+    assert cap["residual_speed_mps"] == pytest.approx(0.01, rel=0.05)
+    after = rows[:, 0] > cap["t_s"] + 0.01
+    gap = np.linalg.norm(rows[after][:, [index[f"sat2_{a}_m"] for a in "xyz"]]
+                         - rows[after][:, [index[f"sat1_{a}_m"] for a in "xyz"]], axis=1)
+    assert np.ptp(gap) < 1e-9  # one rigid body in the ODS
+    _, ideal, _, _ = _docking(tmp_path, "ideal", "--mode", "ideal")
+    assert ideal["capture"]["captured"]
+    assert cap["t_s"] == pytest.approx(ideal["capture"]["t_s"], abs=0.1)
+    assert cap["peak_contact_force_N"] == pytest.approx(ideal["capture"]["peak_contact_force_N"],
+                                                        rel=0.2)
+
+
+def test_a_latch_that_needs_a_slower_contact_does_not_capture(tmp_path):
+    _, metrics, _, _ = _docking(tmp_path, "strict", "--mode", "ideal", "--set",
+                                "capture.velocity_tolerance_mps=0.001")
+    assert metrics["capture"]["captured"] is False
+    assert metrics["success"]["passed"] is False
