@@ -465,3 +465,16 @@ def test_a_start_whose_course_leaves_the_arm_s_reach_is_refused_before_the_arms_
                                "satellites": {"0": {"velocity_mps": [0.0, 0.05, 0.0]}}}).json()
     assert s["status"] == "running" and s["mode"] == "ideal"
     live.client.post("/api/stop")
+
+
+def test_the_web_app_runs_a_docking_to_capture_and_its_metrics_say_so(live):
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/docking/start", json={}).json()
+    assert s["status"] == "running" and s["mode"] == "hil", s
+    s = live.wait_for(lambda s: s.get("capture") is not None or s["status"] != "running",
+                      timeout_s=40)
+    assert s["status"] == "running" and s["capture"]["t_s"] == pytest.approx(8.17, abs=0.2)
+    live.client.post("/api/stop")
+    metrics = live.client.get("/api/metrics").json()
+    assert metrics["capture"]["captured"] and metrics["success"]["passed"]
+    assert "similarity" in metrics["scaling"]["text"]
