@@ -9,14 +9,9 @@ import sys
 from pathlib import Path
 
 from app.backend.cli import register_serve
-from app.config import (
-    EmulatorConfig,
-    assignment_override,
-    load_config,
-    max_telemetry_rows,
-    merge_overrides,
-)
-from app.scenarios import load_scenario, scenario_descriptions, scenario_names
+from app.config import EmulatorConfig, assignment_override, load_config
+from app.run_config import resolve_run_config
+from app.scenarios import scenario_descriptions, scenario_names
 
 
 def _positive_float(text: str) -> float:
@@ -59,21 +54,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
-    config = load_config(args.config) if args.config else load_scenario(args.scenario)
-    overrides: dict = {"loop": {}}
-    if args.seed is not None:
-        overrides["loop"]["seed"] = args.seed
-    config = merge_overrides(config, overrides)
-    for assignment in args.set:
-        config = merge_overrides(config, assignment_override(assignment))
-    duration = args.duration or config.loop.duration_s
-    cycles = duration * config.loop.rate_hz
-    max_cycles = max_telemetry_rows(len(config.satellites), len(config.robots)) - 2
-    if cycles > max_cycles:
-        raise ValueError(
-            f"--duration: {duration:g} s at {config.loop.rate_hz:g} Hz is {cycles:.3g} cycles; "
-            f"a headless run keeps every cycle in memory, at most {max_cycles:,} "
-            f"({max_cycles / config.loop.rate_hz:g} s at this rate)")
+    config = resolve_run_config(args.scenario, args.config, mode=args.mode,
+                                duration_s=args.duration, seed=args.seed,
+                                overrides=[assignment_override(a) for a in args.set])
+    duration = config.loop.duration_s
     out_dir = _output_dir(default_out(args))
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
                disable=args.quiet, file=sys.stderr)
@@ -81,7 +65,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     def progress(k, n):
         bar.update(k - bar.n)
 
-    result = run_scenario(config, mode=args.mode, duration_s=duration, out_dir=out_dir,
+    result = run_scenario(config, mode=config.loop.mode, duration_s=duration, out_dir=out_dir,
                           progress=progress, bag=args.bag, bag_rate_hz=args.bag_rate)
     bar.update(bar.total - bar.n)
     bar.close()

@@ -40,6 +40,7 @@ def run_scenario(
     with_ideal: bool = True,
     bag: bool = False,
     bag_rate_hz: float | None = None,
+    ideal: dict | None = None,
 ) -> RunResult:
     """Run a scenario headless; with out_dir, write its telemetry, metrics and plots (and
     with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.bag.write_bag`).
@@ -47,11 +48,12 @@ def run_scenario(
     The telemetry buffer is sized to hold the whole run, so nothing recorded is dropped;
     on a safety stop the run ends there and everything up to it is written. A hil run
     with two or more satellites is compared with its ideal run unless ``with_ideal`` is
-    False.
+    False; ``ideal``: that run's :func:`ideal_collision`, if already computed (it does not
+    depend on the seed), else it is computed here.
     """
     duration_s = duration_s or config.loop.duration_s
-    cycles = int(round(duration_s * config.loop.rate_hz)) + 2
-    if cycles > config.loop.telemetry_capacity:
+    cycles = max(int(round(duration_s * config.loop.rate_hz)) + 2, TELEMETRY_MIN_ROWS)
+    if cycles != config.loop.telemetry_capacity:
         config = merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
     em = Emulator(config, mode=mode)
     t0 = time.perf_counter()
@@ -59,21 +61,39 @@ def run_scenario(
         em.run(duration_s, progress=progress)
     finally:
         wall_s = time.perf_counter() - t0
-        ideal = None
         if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
-            ideal = ideal_collision(config, duration_s)
+            if ideal is None:
+                ideal = ideal_collision(config, duration_s)
+        else:
+            ideal = None
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal)
         files = []
         if out_dir is not None:
-            out = Path(out_dir)
-            write_telemetry_csv(out / "telemetry.csv", em.columns, em.telemetry.rows())
-            write_json(out / "metrics.json", metrics)
-            files = [out / "telemetry.csv", out / "metrics.json"]
-            files += plot_run(
-                em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms),
-                metrics.get("collision"),
-            )
-            if bag:
-                files.append(write_bag(replace_bag_dir(out / "bag"), em.config,
-                                       em.telemetry.rows(), em.telemetry.index, bag_rate_hz))
+            files = write_run_files(em, metrics, out_dir, bag=bag, bag_rate_hz=bag_rate_hz)
     return RunResult(em, metrics, files)
+
+
+TELEMETRY_MIN_ROWS = 100
+"""The least telemetry capacity a configuration takes ([loop] telemetry_capacity)."""
+
+
+def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry: bool = True,
+                    plots: bool = True, bag: bool = False,
+                    bag_rate_hz: float | None = None) -> list[Path]:
+    """Write what a headless run leaves in ``out_dir``: metrics.json, and as asked
+    telemetry.csv, the plots and the ROS 2 bag; the paths written."""
+    out = Path(out_dir)
+    rows = em.telemetry.rows()
+    files = []
+    if telemetry:
+        write_telemetry_csv(out / "telemetry.csv", em.columns, rows)
+        files.append(out / "telemetry.csv")
+    write_json(out / "metrics.json", metrics)
+    files.append(out / "metrics.json")
+    if plots:
+        files += plot_run(rows, em.telemetry.index, out, em.n_sat, len(em.arms),
+                          metrics.get("collision"))
+    if bag:
+        files.append(write_bag(replace_bag_dir(out / "bag"), em.config, rows,
+                               em.telemetry.index, bag_rate_hz))
+    return files
