@@ -606,8 +606,8 @@ def _merge_patch(target, patch, path: str = ""):
     merge_overrides); path: where we are, for the messages."""
     if not isinstance(patch, dict):
         return patch
-    if isinstance(target, list):
-        return _patch_items(target, patch, path)
+    if isinstance(target, (list, tuple)):  # a list of items, or a vector (a tuple)
+        return _patch_items(list(target), patch, path)
     out = dict(target) if isinstance(target, dict) else {}
     for key, value in patch.items():
         if value is None:
