@@ -12,6 +12,7 @@ from app.backend.cli import register_serve
 from app.config import EmulatorConfig, assignment_override, load_config
 from app.run_config import resolve_run_config
 from app.scenarios import scenario_descriptions, scenario_names
+from app.sweep import KEEP
 
 
 def _positive_float(text: str) -> float:
@@ -80,6 +81,43 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from app.sweep import load_spec, plan_sweep
+    from app.sweep_ray import describe, parse_address, run_sweep
+
+    if args.address is not None:
+        parse_address(args.address)
+    plan = plan_sweep(load_spec(args.spec), Path(args.spec).parent, args.spec)
+    out = _output_dir(args.out or f"sweeps/{Path(args.spec).stem}")
+    try:
+        summary = run_sweep(plan, out, address=args.address, workers=args.workers,
+                            resume=args.resume, keep=args.keep, quiet=args.quiet)
+    except KeyboardInterrupt:
+        print(f"interrupted: the runs that ended are in {out / 'results.csv'} "
+              f"(--resume continues the sweep)", file=sys.stderr)
+        return 130
+    print(describe(summary, out))
+    return 0
+
+
+def _cmd_sweep_plot(args: argparse.Namespace) -> int:
+    from app.sweep_plot import plot_sweep
+
+    path = plot_sweep(Path(args.dir), args.x, args.y, args.metric, args.out)
+    print(f"wrote {path}")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
+
+
 EXIT_SAFETY_STOP = 3
 """`run`'s exit status when the run ended in a safety stop (2: the user's mistake)."""
 
@@ -142,6 +180,37 @@ def build_parser() -> argparse.ArgumentParser:
                         "time (default: every cycle)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("sweep", help="run a campaign (parameter sweep, Monte Carlo) on Ray")
+    p.add_argument("spec", metavar="SPEC.toml",
+                   help="sweep spec: scenario, mode, [grid] and [random] settings, seeds or "
+                        "draws, metrics (README: Campaigns)")
+    p.add_argument("--out", default=None,
+                   help="output directory: results.csv, summary.json, runs/ "
+                        "(default: sweeps/SPEC)")
+    p.add_argument("--address", default=None, metavar="HOST:PORT",
+                   help="join this Ray cluster's head (default: start Ray on this machine "
+                        "for the sweep)")
+    p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                   help="at most N runs at once (default: one per CPU Ray has)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the sweep in --out: runs already in results.csv are not "
+                        "run again")
+    p.add_argument("--keep", choices=KEEP, default="metrics",
+                   help="what each run leaves in OUT/runs/RUN-ID: none, metrics "
+                        "(metrics.json, default), telemetry (+ telemetry.csv), all (+ plots)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("sweep-plot", help="plot a metric of a sweep over one or two settings")
+    p.add_argument("dir", metavar="DIR", help="a sweep's output directory (its results.csv)")
+    p.add_argument("--x", required=True, metavar="KEY", help="the setting on the x axis")
+    p.add_argument("--y", default=None, metavar="KEY",
+                   help="a second setting: a heat map (mean over the other columns)")
+    p.add_argument("--metric", required=True, metavar="NAME", help="a metric column")
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="PNG to write (default: DIR/METRIC_vs_X[_Y].png)")
+    p.set_defaults(func=_cmd_sweep_plot)
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios")
     p.set_defaults(func=_cmd_scenarios)

@@ -52,9 +52,7 @@ def run_scenario(
     depend on the seed), else it is computed here.
     """
     duration_s = duration_s or config.loop.duration_s
-    cycles = max(int(round(duration_s * config.loop.rate_hz)) + 2, TELEMETRY_MIN_ROWS)
-    if cycles != config.loop.telemetry_capacity:
-        config = merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
+    config = headless_config(config, duration_s)
     em = Emulator(config, mode=mode)
     t0 = time.perf_counter()
     try:
@@ -71,6 +69,15 @@ def run_scenario(
         if out_dir is not None:
             files = write_run_files(em, metrics, out_dir, bag=bag, bag_rate_hz=bag_rate_hz)
     return RunResult(em, metrics, files)
+
+
+def headless_config(config: EmulatorConfig, duration_s: float) -> EmulatorConfig:
+    """The configuration with its telemetry sized to hold a whole headless run of
+    duration_s (and no more: a sweep's worker runs many)."""
+    cycles = max(int(round(duration_s * config.loop.rate_hz)) + 2, TELEMETRY_MIN_ROWS)
+    if cycles == config.loop.telemetry_capacity:
+        return config
+    return merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
 
 
 TELEMETRY_MIN_ROWS = 100

@@ -27,12 +27,34 @@ def resolve_run_config(
 ) -> EmulatorConfig:
     """The configuration of one headless run.
 
-    The base is ``config_file`` if given, else the built-in ``scenario``; then the seed,
-    then each override (a merge patch, :func:`app.config.merge_overrides`) in order; the
-    mode and duration default to the configuration's own. A duration whose telemetry would
-    not fit in memory is refused, named by ``duration_name``.
+    The base is ``config_file`` if given, else the built-in ``scenario``
+    (:func:`base_config`); then :func:`finish_run_config`.
     """
-    config = load_config(config_file) if config_file else load_scenario(scenario)
+    return finish_run_config(base_config(scenario, config_file), mode=mode,
+                             duration_s=duration_s, seed=seed, overrides=overrides,
+                             duration_name=duration_name)
+
+
+def base_config(scenario: str | None = None,
+                config_file: str | Path | None = None) -> EmulatorConfig:
+    """A run's starting point: the TOML file ``config_file`` if given, else the built-in
+    ``scenario``."""
+    return load_config(config_file) if config_file else load_scenario(scenario)
+
+
+def finish_run_config(
+    config: EmulatorConfig,
+    *,
+    mode: str | None = None,
+    duration_s: float | None = None,
+    seed: int | None = None,
+    overrides: list[dict] = (),
+    duration_name: str = "--duration",
+) -> EmulatorConfig:
+    """The run's configuration from its base: the seed, then each override (a merge patch,
+    :func:`app.config.merge_overrides`) in order; the mode and duration default to the
+    configuration's own. A duration whose telemetry would not fit in memory is refused,
+    named by ``duration_name``."""
     if seed is not None:
         config = merge_overrides(config, {"loop": {"seed": seed}})
     for patch in overrides:
