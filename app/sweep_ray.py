@@ -90,7 +90,9 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         summary["workers"] = min(cpus, workers) if workers else cpus
-        window = 2 * summary["workers"]
+        # runs submitted at once: two per worker keeps them busy; on a cluster, --workers
+        # caps the runs under way (locally Ray itself has only that many CPUs)
+        window = workers if (address and workers) else 2 * summary["workers"]
         run_task = ray.remote(num_cpus=1, max_retries=1)(execute_run)
         ideal_task = ray.remote(num_cpus=1, max_retries=1)(compute_ideal)
         ideals: OrderedDict = OrderedDict()

@@ -111,6 +111,16 @@ def test_the_ideal_reference_is_shared_by_the_seeds_of_a_configuration(tmp_path)
     assert ideal_id(one) is None  # nor a run of one satellite
 
 
+def test_a_spec_may_name_a_scenario_file_beside_it(tmp_path):
+    (tmp_path / "mine.toml").write_text('extends = "collision"\n[loop]\nduration_s = 2.5\n'
+                                        '[servo]\ndelay_cycles = 2\n')
+    plan = plan_of(tmp_path, 'config = "mine.toml"\nseeds = [4]\n'
+                             'metrics = ["collision.restitution"]\n')
+    [run] = plan.runs()
+    assert (run.config.loop.duration_s, run.config.servo.delay_cycles, run.seed) == (2.5, 2, 4)
+    assert run.config == resolve_run_config(None, tmp_path / "mine.toml", seed=4)
+
+
 def test_a_linked_axis_takes_its_keys_together(tmp_path):
     plan = plan_of(tmp_path, """
         scenario = "collision"
