@@ -75,9 +75,12 @@ def headless_config(config: EmulatorConfig, duration_s: float) -> EmulatorConfig
     """The configuration with its telemetry sized to hold a whole headless run of
     duration_s (and no more: a sweep's worker runs many)."""
     cycles = max(int(round(duration_s * config.loop.rate_hz)) + 2, TELEMETRY_MIN_ROWS)
-    if cycles == config.loop.telemetry_capacity:
-        return config
-    return merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
+    if cycles > config.loop.telemetry_capacity:  # validated: the 1 GiB bound
+        return merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
+    if cycles < config.loop.telemetry_capacity:  # smaller is always valid
+        return config.model_copy(update={
+            "loop": config.loop.model_copy(update={"telemetry_capacity": cycles})})
+    return config
 
 
 TELEMETRY_MIN_ROWS = 100
