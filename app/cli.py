@@ -9,14 +9,10 @@ import sys
 from pathlib import Path
 
 from app.backend.cli import register_serve
-from app.config import (
-    EmulatorConfig,
-    assignment_override,
-    load_config,
-    max_telemetry_rows,
-    merge_overrides,
-)
-from app.scenarios import load_scenario, scenario_descriptions, scenario_names
+from app.config import EmulatorConfig, assignment_override, load_config
+from app.run_config import resolve_run_config
+from app.scenarios import scenario_descriptions, scenario_names
+from app.sweep import KEEP
 
 
 def _positive_float(text: str) -> float:
@@ -56,26 +52,20 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from app.headless import run_scenario
+    from app.headless import headless_config, run_scenario
     from app.report import run_summary
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
-    config = load_config(args.config) if args.config else load_scenario(args.scenario)
-    overrides: dict = {"loop": {}}
-    if args.seed is not None:
-        overrides["loop"]["seed"] = args.seed
-    config = merge_overrides(config, overrides)
-    for assignment in args.set:
-        config = merge_overrides(config, assignment_override(assignment))
-    duration = args.duration or config.loop.duration_s
-    cycles = duration * config.loop.rate_hz
-    max_cycles = max_telemetry_rows(len(config.satellites), len(config.robots)) - 2
-    if cycles > max_cycles:
-        raise ValueError(
-            f"--duration: {duration:g} s at {config.loop.rate_hz:g} Hz is {cycles:.3g} cycles; "
-            f"a headless run keeps every cycle in memory, at most {max_cycles:,} "
-            f"({max_cycles / config.loop.rate_hz:g} s at this rate)")
+    config = resolve_run_config(args.scenario, args.config, mode=args.mode,
+                                duration_s=args.duration, seed=args.seed,
+                                overrides=[assignment_override(a) for a in args.set])
+    duration = config.loop.duration_s
+    ideal = None
+    if config.loop.mode == "hil":  # refused before anything is created or moves
+        from app.headless import checked_reference
+
+        ideal = checked_reference(headless_config(config, duration), duration)
     out_dir = _output_dir(default_out(args))
     if args.bag:
         from app.bag import check_bag_dir
@@ -87,8 +77,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     def progress(k, n):
         bar.update(k - bar.n)
 
-    result = run_scenario(config, mode=args.mode, duration_s=duration, out_dir=out_dir,
-                          progress=progress, bag=args.bag, bag_rate_hz=args.bag_rate)
+    result = run_scenario(config, mode=config.loop.mode, duration_s=duration, out_dir=out_dir,
+                          progress=progress, bag=args.bag, bag_rate_hz=args.bag_rate,
+                          ideal=ideal, preflight_done=True)
     bar.update(bar.total - bar.n)
     bar.close()
     print(run_summary(result.metrics))
@@ -100,6 +91,43 @@ def _cmd_run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return EXIT_SAFETY_STOP
     return 0
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from app.sweep import load_spec, plan_sweep
+    from app.sweep_ray import describe, parse_address, run_sweep
+
+    if args.address is not None:
+        parse_address(args.address)
+    plan = plan_sweep(load_spec(args.spec), Path(args.spec).parent, args.spec)
+    out = _output_dir(args.out or f"sweeps/{Path(args.spec).stem}")
+    try:
+        summary = run_sweep(plan, out, address=args.address, workers=args.workers,
+                            resume=args.resume, keep=args.keep, quiet=args.quiet)
+    except KeyboardInterrupt:
+        print(f"interrupted: the runs that ended are in {out / 'results.csv'} "
+              f"(--resume continues the sweep)", file=sys.stderr)
+        return 130
+    print(describe(summary, out))
+    return 0
+
+
+def _cmd_sweep_plot(args: argparse.Namespace) -> int:
+    from app.sweep_plot import plot_sweep
+
+    path = plot_sweep(Path(args.dir), args.x, args.y, args.metric, args.out)
+    print(f"wrote {path}")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
 
 
 EXIT_SAFETY_STOP = 3
@@ -164,6 +192,37 @@ def build_parser() -> argparse.ArgumentParser:
                         "time (default: every cycle)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("sweep", help="run a campaign (parameter sweep, Monte Carlo) on Ray")
+    p.add_argument("spec", metavar="SPEC.toml",
+                   help="sweep spec: scenario, mode, [grid] and [random] settings, seeds or "
+                        "draws, metrics (README: Campaigns)")
+    p.add_argument("--out", default=None,
+                   help="output directory: results.csv, summary.json, runs/ "
+                        "(default: sweeps/SPEC)")
+    p.add_argument("--address", default=None, metavar="HOST:PORT",
+                   help="join this Ray cluster's head (default: start Ray on this machine "
+                        "for the sweep)")
+    p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                   help="at most N runs at once (default: one per CPU Ray has)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the sweep in --out: runs already in results.csv are not "
+                        "run again")
+    p.add_argument("--keep", choices=KEEP, default="metrics",
+                   help="what each run leaves in OUT/runs/RUN-ID: none, metrics "
+                        "(metrics.json, default), telemetry (+ telemetry.csv), all (+ plots)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("sweep-plot", help="plot a metric of a sweep over one or two settings")
+    p.add_argument("dir", metavar="DIR", help="a sweep's output directory (its results.csv)")
+    p.add_argument("--x", required=True, metavar="KEY", help="the setting on the x axis")
+    p.add_argument("--y", default=None, metavar="KEY",
+                   help="a second setting: a heat map (mean over the other columns)")
+    p.add_argument("--metric", required=True, metavar="NAME", help="a metric column")
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="PNG to write (default: DIR/METRIC_vs_X[_Y].png)")
+    p.set_defaults(func=_cmd_sweep_plot)
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios")
     p.set_defaults(func=_cmd_scenarios)

@@ -42,6 +42,7 @@ __all__ = [
     "ServoConfig",
     "VfdmConfig",
     "WrenchProcessingConfig",
+    "dotted_override",
     "load_config",
     "parse_config",
 ]
@@ -683,18 +684,27 @@ def assignment_override(text: str) -> dict:
     → ``{"robots": {"1": {"q_home_rad": ...}}}``); a list value replaces the whole list.
     """
     key, sep, value = text.partition("=")
-    path = [part.strip() for part in key.split(".")]
-    if not sep or not all(path):
+    if not sep:
         raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text!r}")
     try:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()
+    return dotted_override(key, parsed, text)
+
+
+def dotted_override(key: str, value, text: str | None = None) -> dict:
+    """``("satellites.0.mass_kg", 2)`` → ``{"satellites": {"0": {"mass_kg": 2}}}`` for
+    merge_overrides: what ``--set KEY=VALUE`` does with a value already read (a numeric
+    part picks a list item). text: the assignment as given, for the message."""
+    path = [part.strip() for part in key.split(".")]
+    if not all(path):
+        raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text or key!r}")
     if path[0].isdigit():
         raise ConfigError(f"{key.strip()}: the first part of KEY must be a section name")
     for part in reversed(path):
-        parsed = {part: parsed}  # a number picks a list item (merge_overrides)
-    return parsed
+        value = {part: value}  # a number picks a list item (merge_overrides)
+    return value
 
 
 def _merge_patch(target, patch, path: str = ""):
@@ -702,8 +712,8 @@ def _merge_patch(target, patch, path: str = ""):
     merge_overrides); path: where we are, for the messages."""
     if not isinstance(patch, dict):
         return patch
-    if isinstance(target, list):
-        return _patch_items(target, patch, path)
+    if isinstance(target, (list, tuple)):  # a list of items, or a vector (a tuple)
+        return _patch_items(list(target), patch, path)
     out = dict(target) if isinstance(target, dict) else {}
     for key, value in patch.items():
         if value is None:

@@ -10,6 +10,7 @@ from app.bag import replace_bag_dir, write_bag
 from app.config import EmulatorConfig, merge_overrides
 from app.metrics import collision_metrics, compute_metrics, contact_pair
 from app.plots import plot_run
+from app.preflight import preflight
 from app.report import write_json, write_telemetry_csv
 from app.sim.loop import Emulator
 
@@ -26,9 +27,28 @@ def ideal_collision(config: EmulatorConfig, duration_s: float) -> dict:
     when the ideal run has no contact."""
     em = Emulator(config, mode="ideal")
     em.run(duration_s)
+    return collision_of(em)
+
+
+def collision_of(em: Emulator) -> dict:
+    """The collision metrics of an ideal run that ran; {} without contact."""
     rows, index = em.telemetry.rows(), em.telemetry.index
     pair = contact_pair(rows, index, em.n_sat) if em.n_sat >= 2 and len(rows) else None
     return {} if pair is None else collision_metrics(rows, index, em.dt_s, *pair) or {}
+
+
+def checked_reference(config: EmulatorConfig, duration_s: float,
+                      with_ideal: bool = True) -> dict | None:
+    """Before a hil run: its pre-flight (app/preflight.py; raises PreflightRefused naming
+    the robot, the time and the limit), and from the same ideal run the collision
+    reference a run with two or more satellites is compared with (None when it needs
+    none). Nothing of the run itself has started."""
+    prediction = preflight(config, duration_s)
+    if not with_ideal or len(config.satellites) < 2:
+        return None
+    if prediction is None:  # no robots: no pre-flight, but a reference still
+        return ideal_collision(config, duration_s)
+    return collision_of(prediction)  # at the run's rate (two satellites)
 
 
 def run_scenario(
@@ -40,6 +60,8 @@ def run_scenario(
     with_ideal: bool = True,
     bag: bool = False,
     bag_rate_hz: float | None = None,
+    ideal: dict | None = None,
+    preflight_done: bool = False,
 ) -> RunResult:
     """Run a scenario headless; with out_dir, write its telemetry, metrics and plots (and
     with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.bag.write_bag`).
@@ -47,33 +69,68 @@ def run_scenario(
     The telemetry buffer is sized to hold the whole run, so nothing recorded is dropped;
     on a safety stop the run ends there and everything up to it is written. A hil run
     with two or more satellites is compared with its ideal run unless ``with_ideal`` is
-    False.
+    False; ``ideal``: that run's :func:`ideal_collision`, if already computed (it does not
+    depend on the seed), else it is computed here. A hil run is refused before it starts
+    when its pre-flight fails (PreflightRefused), unless ``preflight_done`` (the caller
+    ran :func:`checked_reference`).
     """
     duration_s = duration_s or config.loop.duration_s
-    cycles = int(round(duration_s * config.loop.rate_hz)) + 2
-    if cycles > config.loop.telemetry_capacity:
-        config = merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
+    config = headless_config(config, duration_s)
+    hil = (mode or config.loop.mode) == "hil"
+    if hil and not preflight_done:
+        reference = checked_reference(config, duration_s, with_ideal)
+        ideal = reference if ideal is None else ideal
     em = Emulator(config, mode=mode)
     t0 = time.perf_counter()
     try:
         em.run(duration_s, progress=progress)
     finally:
         wall_s = time.perf_counter() - t0
-        ideal = None
         if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
-            ideal = ideal_collision(config, duration_s)
+            if ideal is None:
+                ideal = ideal_collision(config, duration_s)
+        else:
+            ideal = None
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal)
         files = []
         if out_dir is not None:
-            out = Path(out_dir)
-            write_telemetry_csv(out / "telemetry.csv", em.columns, em.telemetry.rows())
-            write_json(out / "metrics.json", metrics)
-            files = [out / "telemetry.csv", out / "metrics.json"]
-            files += plot_run(
-                em.telemetry.rows(), em.telemetry.index, out, em.n_sat, len(em.arms),
-                metrics.get("collision"), note=metrics["scaling"]["text"],
-            )
-            if bag:
-                files.append(write_bag(replace_bag_dir(out / "bag"), em.config,
-                                       em.telemetry.rows(), em.telemetry.index, bag_rate_hz))
+            files = write_run_files(em, metrics, out_dir, bag=bag, bag_rate_hz=bag_rate_hz)
     return RunResult(em, metrics, files)
+
+
+def headless_config(config: EmulatorConfig, duration_s: float) -> EmulatorConfig:
+    """The configuration with its telemetry sized to hold a whole headless run of
+    duration_s (and no more: a sweep's worker runs many)."""
+    cycles = max(int(round(duration_s * config.loop.rate_hz)) + 2, TELEMETRY_MIN_ROWS)
+    if cycles > config.loop.telemetry_capacity:  # validated: the 1 GiB bound
+        return merge_overrides(config, {"loop": {"telemetry_capacity": cycles}})
+    if cycles < config.loop.telemetry_capacity:  # smaller is always valid
+        return config.model_copy(update={
+            "loop": config.loop.model_copy(update={"telemetry_capacity": cycles})})
+    return config
+
+
+TELEMETRY_MIN_ROWS = 100
+"""The least telemetry capacity a configuration takes ([loop] telemetry_capacity)."""
+
+
+def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry: bool = True,
+                    plots: bool = True, bag: bool = False,
+                    bag_rate_hz: float | None = None) -> list[Path]:
+    """Write what a headless run leaves in ``out_dir``: metrics.json, and as asked
+    telemetry.csv, the plots and the ROS 2 bag; the paths written."""
+    out = Path(out_dir)
+    rows = em.telemetry.rows()
+    files = []
+    if telemetry:
+        write_telemetry_csv(out / "telemetry.csv", em.columns, rows)
+        files.append(out / "telemetry.csv")
+    write_json(out / "metrics.json", metrics)
+    files.append(out / "metrics.json")
+    if plots:
+        files += plot_run(rows, em.telemetry.index, out, em.n_sat, len(em.arms),
+                          metrics.get("collision"))
+    if bag:
+        files.append(write_bag(replace_bag_dir(out / "bag"), em.config, rows,
+                               em.telemetry.index, bag_rate_hz))
+    return files

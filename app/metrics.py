@@ -411,6 +411,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                     f"sensor's {config.sensor.range_force_N:g} N range: its readings "
                     f"clipped, and the ODS received less than the mockups exchanged")
         metrics["collision"] = coll
+    metrics["capture"] = None
     if config.capture is not None:
         metrics["capture"] = capture_metrics(config, rows, index, facts.capture)
         if facts.capture and metrics.get("collision"):  # latched: no rebound to measure

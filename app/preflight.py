@@ -31,6 +31,8 @@ MAX_TCP_SPEED_MPS = 1.0
 """The UR10e's TCP speed limit (data sheet: 1 m/s)."""
 MAX_TCP_RATE_RADPS = 3.0
 """Just under the wrist joints' 3.14 rad/s (data sheet): a faster spin cannot be followed."""
+MIN_TELEMETRY_ROWS = 100
+"""The least telemetry capacity a configuration takes ([loop] telemetry_capacity)."""
 COARSE_RATE_HZ = 100.0
 """The prediction's rate where no contact can happen (one satellite): 5x fewer cycles."""
 
@@ -62,7 +64,7 @@ def predict(config: EmulatorConfig, duration_s: float) -> Emulator:
     if len(config.satellites) == 1 and config.loop.rate_hz > COARSE_RATE_HZ:
         loop["rate_hz"] = COARSE_RATE_HZ
     rate = loop.get("rate_hz", config.loop.rate_hz)
-    loop["telemetry_capacity"] = int(duration_s * rate) + 3
+    loop["telemetry_capacity"] = max(int(duration_s * rate) + 3, MIN_TELEMETRY_ROWS)
     em = Emulator(merge_overrides(config, {"loop": loop}), mode="ideal")
     em.run(duration_s)
     return em

@@ -15,8 +15,9 @@ from pathlib import Path
 
 APP = Path(__file__).resolve().parent.parent / "app"
 
-#: What app/sim/ (the numeric core) must not import: the web stack and the backend.
-WEB_IMPORTS = ("fastapi", "uvicorn", "viser", "app.backend")
+#: What app/sim/ (the numeric core) must not import: the web stack, the backend, and Ray
+#: (campaigns run the core; app/sweep_ray.py).
+WEB_IMPORTS = ("fastapi", "uvicorn", "viser", "app.backend", "ray", "app.sweep_ray")
 
 
 def module_name(path: Path) -> str:

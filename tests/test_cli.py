@@ -27,7 +27,8 @@ MISTAKES = {
                         "satellites.2: index out of range"),
     "out of reach": (["run", "collision", "--set", "satellites.0.position_m=[3,0,0]",
                       "--duration", "1", "--out", "OUT"],
-                     "robot 1: start pose of satellite 'cubesat' not reached"),
+                     "pre-flight: the ideal run predicts that robot 1 (ceiling): satellite "
+                     "'cubesat' leaves the safety volume (at (3.000, 0.000, 1.000) m in W"),
     "bad value": (["run", "collision", "--set", "compensation.lead_s=-1"],
                   "compensation.lead_s: Input should be greater than 0"),
 }

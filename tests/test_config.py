@@ -185,6 +185,16 @@ def test_assignment_override_merges_one_field_of_one_item():
     assert cfg.satellites[0] == base.satellites[0]
 
 
+def test_assignment_override_sets_one_component_of_a_vector():
+    """A number after a vector setting picks its component (a tuple in the model)."""
+    base = load_scenario("collision")
+    cfg = merge_overrides(base, assignment_override("satellites.0.velocity_mps.0=0.05"))
+    assert cfg.satellites[0].velocity_mps == (0.05, 0.0, 0.0)
+    assert cfg.satellites[1] == base.satellites[1]
+    with pytest.raises(ConfigError, match=r"satellites\.0\.velocity_mps\.3: index out of range"):
+        merge_overrides(base, assignment_override("satellites.0.velocity_mps.3=1"))
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [("passivity", "expected KEY=VALUE"), ("a..b=1", "expected KEY=VALUE"),

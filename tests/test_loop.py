@@ -146,7 +146,8 @@ def test_driven_out_of_the_safety_volume_stops_and_keeps_telemetry(tmp_path):
          "satellites": {"0": {"velocity_mps": [0.0, 0.0, 0.2]}},  # rises 0.2 m/s in R (z up)
          "pulses": []},
     )
-    result = run_scenario(cfg, duration_s=6.0, out_dir=tmp_path)
+    # the servo's own stop, the net behind the pre-flight (which would refuse this course)
+    result = run_scenario(cfg, duration_s=6.0, out_dir=tmp_path, preflight_done=True)
     stop = result.metrics["safety_stop"]
     assert stop is not None and stop["reason"] == "TCP left safety volume"
     assert stop["robot"] == 1 and 2.0 < stop["t_s"] < 3.0

@@ -62,3 +62,25 @@ def test_a_spin_faster_than_the_wrist_is_refused():
 def test_an_ideal_only_layout_has_nothing_to_check():
     cfg = merge_overrides(_drifting([1.5, 0.0, 0.0]), {"robots": []})
     assert preflight(cfg, 5.0) is None
+
+
+def test_a_sweep_run_the_pre_flight_refuses_is_a_row_refused_and_nothing_runs():
+    """The sweep's shared reference carries the pre-flight: a refused configuration is
+    the outcome "refused" with the reason, for every seed, and no run starts."""
+    from app.run_config import finish_run_config
+    from app.sweep import compute_ideal, execute_run
+
+    base = merge_overrides(load_scenario("collision"),
+                           {"satellites": {"0": {"velocity_mps": [0.6, 0.0, 0.0]}}})
+    config = finish_run_config(base, mode="hil", duration_s=4.0)
+    reference = compute_ideal(config)
+    assert reference[0] == "refused" and reference[1].startswith(
+        "pre-flight: the ideal run predicts that robot 1 (ceiling)")
+    outcome = execute_run(config, reference, "none", None)
+    assert (outcome["status"], outcome["reason"], outcome["metrics"]) == (
+        "refused", reference[1], None)
+    assert outcome["wall_s"] < 0.5
+    # a single-satellite run has no shared reference: it checks itself
+    single = finish_run_config(_drifting([0.0, 0.05, 0.0]), mode="hil", duration_s=30.0)
+    outcome = execute_run(single, None, "none", None)
+    assert outcome["status"] == "refused" and "leaves the arm's reach" in outcome["reason"]

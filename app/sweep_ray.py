@@ -1,0 +1,267 @@
+"""Running a sweep's runs as Ray tasks (app/sweep.py plans them, keeps the table).
+
+With no address, Ray starts on this machine for the sweep and stops at its end; with one,
+the sweep joins that Ray cluster (``ray start --head`` there) and leaves it running. Each
+run is one task (``max_retries=1``: a worker that dies is retried once) that returns only
+its row's outcome (the metrics), never its telemetry; a hil run of two or more satellites
+gets its ideal reference from a task computed once per configuration (apart from the seed)
+and shared by the runs of every seed. Rows are appended to results.csv as runs end; Ctrl+C
+cancels what is under way and keeps them.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+import threading
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+from app.report import write_json
+from app.sweep import (
+    ResultsTable,
+    Run,
+    SweepPlan,
+    compute_ideal,
+    execute_run,
+    lost_outcome,
+    read_results,
+    row_of,
+    status_counts,
+    unresolved_outcome,
+)
+
+CONNECT_TIMEOUT_S = 20.0
+"""How long joining a cluster may take before the sweep gives up (Ray's own connect
+retries for minutes)."""
+PROBE_TIMEOUT_S = 5.0
+"""The TCP connect to the head's port, before Ray is asked to join."""
+OBJECT_STORE_BYTES = 256 * 2**20
+"""A local Ray's object store: runs return only their metrics."""
+IDEAL_CACHE = 64
+"""Ideal references kept for runs still to come (runs of one configuration are adjacent)."""
+
+
+def run_sweep(plan: SweepPlan, out_dir: Path, *, address: str | None = None,
+              workers: int | None = None, resume: bool = False, keep: str = "metrics",
+              quiet: bool = False) -> dict:
+    """Run a planned sweep into out_dir (results.csv, summary.json, runs/<run-id>/); its
+    summary. Starts Ray only if a run is left to do."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table = ResultsTable(out_dir / "results.csv", plan.columns(), resume)
+    t0 = time.perf_counter()
+    summary = {"runs_planned": plan.count, "skipped": 0, "ran": 0, "ideal_runs": 0,
+               "address": address or "local", "workers": None, "interrupted": False}
+    pending = _pending(plan, table, summary)
+    first = next(pending, None)
+    try:
+        if first is not None:
+            _execute(plan, [first], pending, table, out_dir, summary, address=address,
+                     workers=workers, keep=keep, quiet=quiet)
+    except KeyboardInterrupt:
+        summary["interrupted"] = True
+        raise
+    finally:
+        table.close()
+        if table.path.exists():  # not when Ray could not start: nothing to continue
+            _write_summary(out_dir, table, summary, time.perf_counter() - t0)
+    return summary
+
+
+def _pending(plan: SweepPlan, table: ResultsTable, summary: dict):
+    """The plan's runs not yet in the table (and each run once: equal configurations
+    are one run)."""
+    seen = set()
+    for run in plan.runs():
+        if run.run_id in table.done or run.run_id in seen:
+            summary["skipped"] += 1
+            continue
+        seen.add(run.run_id)
+        yield run
+
+
+def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, address, workers,
+             keep, quiet) -> None:
+    from tqdm import tqdm
+
+    ray = start_ray(address, workers)
+    try:
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        summary["workers"] = min(cpus, workers) if workers else cpus
+        # runs submitted at once: two per worker keeps them busy; on a cluster, --workers
+        # caps the runs under way (locally Ray itself has only that many CPUs)
+        window = workers if (address and workers) else 2 * summary["workers"]
+        run_task = ray.remote(num_cpus=1, max_retries=1)(execute_run)
+        ideal_task = ray.remote(num_cpus=1, max_retries=1)(compute_ideal)
+        ideals: OrderedDict = OrderedDict()
+        in_flight: dict = {}
+        runs = iter(first)
+        bar = tqdm(total=plan.count - summary["skipped"], unit="run", file=sys.stderr,
+                   disable=quiet, smoothing=0.1)
+        counts = status_counts([])
+        try:
+            while True:
+                while len(in_flight) < window:
+                    run = next(runs, None) or next(pending, None)
+                    if run is None:
+                        break
+                    if run.config is None:  # its settings are not valid together
+                        _finish(plan, run, unresolved_outcome(run), table, out_dir, keep)
+                        counts["error"] += 1
+                        bar.update(1)
+                        continue
+                    ideal = None
+                    if run.ideal_id is not None:
+                        ideal = _ideal_ref(ideals, run, ideal_task, summary)
+                    ref = run_task.remote(run.config, ideal, keep,
+                                          str(out_dir / "runs" / run.run_id))
+                    in_flight[ref] = run
+                bar.total = plan.count - summary["skipped"]
+                if not in_flight:
+                    break
+                done, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
+                for ref in done:
+                    run = in_flight.pop(ref)
+                    try:
+                        outcome = ray.get(ref)
+                    except ray.exceptions.RayError as err:
+                        outcome = lost_outcome(err)
+                    _finish(plan, run, outcome, table, out_dir, keep)
+                    summary["ran"] += 1
+                    counts[outcome["status"]] = counts.get(outcome["status"], 0) + 1
+                    bar.update(1)
+                    bar.set_postfix({k: v for k, v in counts.items() if v}, refresh=False)
+        except KeyboardInterrupt:
+            for ref in in_flight:
+                ray.cancel(ref, force=True)
+            raise
+        finally:
+            bar.close()
+    finally:
+        ray.shutdown()
+
+
+def _ideal_ref(ideals: OrderedDict, run: Run, ideal_task, summary: dict):
+    """The ObjectRef of the run's ideal reference: submitted once per configuration."""
+    if run.ideal_id in ideals:
+        ideals.move_to_end(run.ideal_id)
+    else:
+        ideals[run.ideal_id] = ideal_task.remote(run.config)
+        summary["ideal_runs"] += 1
+        if len(ideals) > IDEAL_CACHE:
+            ideals.popitem(last=False)
+    return ideals[run.ideal_id]
+
+
+def _finish(plan: SweepPlan, run: Run, outcome: dict, table: ResultsTable, out_dir: Path,
+            keep: str) -> None:
+    """A run's row into the table, and its metrics.json unless --keep none."""
+    if keep != "none" and outcome["metrics"] is not None:
+        write_json(out_dir / "runs" / run.run_id / "metrics.json", outcome["metrics"])
+    table.append(row_of(plan, run, outcome))
+
+
+def _write_summary(out_dir: Path, table: ResultsTable, summary: dict, wall_s: float) -> None:
+    summary["rows"] = len(table.done)
+    summary["counts"] = status_counts(table.done.values())
+    summary["wall_s"] = round(wall_s, 3)
+    summary["runs_per_minute"] = round(60.0 * summary["ran"] / wall_s, 3) if wall_s else None
+    _, rows = read_results(table.path)
+    rss = [float(r["worker_rss_peak_MiB"]) for r in rows if r["worker_rss_peak_MiB"]]
+    summary["worker_rss_peak_MiB"] = max(rss) if rss else None
+    write_json(out_dir / "summary.json", summary)
+
+
+# --- Ray ---------------------------------------------------------------------------------------
+
+
+def start_ray(address: str | None, workers: int | None):
+    """Ray, started here (no address: for this sweep only) or joined (a
+    cluster's head, HOST:PORT); the ``ray`` module. Usage statistics stay off."""
+    os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
+    import logging
+
+    import ray
+
+    common = {"include_dashboard": False, "log_to_driver": False,
+              "logging_level": logging.WARNING, "configure_logging": True}
+    if address is None:
+        ray.init(address="local", num_cpus=workers or os.cpu_count() or 1,
+                 object_store_memory=OBJECT_STORE_BYTES, **common)
+        return ray
+    host, port = parse_address(address)
+    probe_address(host, port)
+    if "RAY_AUTH_MODE" not in os.environ and _auth_token_available():
+        os.environ["RAY_AUTH_MODE"] = "token"  # as Ray does for a cluster it finds itself
+    _join(ray, f"{host}:{port}", common)
+    return ray
+
+
+def _auth_token_available() -> bool:
+    """Whether this machine has a Ray authentication token (RAY_AUTH_TOKEN,
+    RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token): a cluster with token authentication
+    (Ray's default where a token exists) admits only a driver that presents it."""
+    return bool(os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH")
+                or (Path.home() / ".ray" / "auth_token").is_file())
+
+
+def parse_address(address: str) -> tuple[str, int]:
+    """HOST:PORT of a Ray head."""
+    host, sep, port = address.strip().rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--address: expected HOST:PORT of a Ray head (e.g. "
+                         f"10.0.0.5:6379), got {address!r}")
+    return host, int(port)
+
+
+def probe_address(host: str, port: int) -> None:
+    """A TCP connect to the head's port, so that a dead address fails in seconds."""
+    try:
+        with socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S):
+            pass
+    except OSError as err:
+        reason = "timed out" if isinstance(err, TimeoutError) else (err.strerror or str(err))
+        raise ValueError(
+            f"--address {host}:{port}: no Ray head answers there ({reason}); start one "
+            f"with `ray start --head --port={port}` on that machine, or leave --address "
+            f"out to run on this one") from None
+
+
+def _join(ray, address: str, options: dict) -> None:
+    """ray.init to the cluster, given up after CONNECT_TIMEOUT_S: Ray's own connect retries
+    for minutes on a port that is open but no Ray head of this version."""
+    joined = threading.Event()
+
+    def give_up():
+        if not joined.is_set():
+            print(f"error: --address {address}: no Ray cluster answered within "
+                  f"{CONNECT_TIMEOUT_S:g} s (is it a Ray {ray.__version__} head, started with "
+                  f"`ray start --head`?)", file=sys.stderr, flush=True)
+            os._exit(2)  # ray.init cannot be interrupted; nothing has started yet
+
+    timer = threading.Timer(CONNECT_TIMEOUT_S, give_up)
+    timer.daemon = True
+    timer.start()
+    try:
+        ray.init(address=address, **options)
+    except Exception as err:  # noqa: BLE001 - Ray raises many kinds; all are this
+        raise ValueError(f"--address {address}: cannot join the Ray cluster: "
+                         f"{' '.join(str(err).split())}") from None
+    finally:
+        joined.set()
+        timer.cancel()
+
+
+def describe(summary: dict, out_dir: Path) -> str:
+    """The lines the command prints at the end."""
+    counts = ", ".join(f"{n} {s}" for s, n in summary["counts"].items() if n) or "no rows"
+    lines = [f"{summary['rows']} of {summary['runs_planned']} runs in "
+             f"{out_dir / 'results.csv'}: {counts}",
+             f"this time: {summary['ran']} run(s) in {summary['wall_s']:.1f} s"
+             + (f" ({summary['runs_per_minute']:.1f} runs/min on {summary['workers']} "
+                f"worker(s), {summary['ideal_runs']} ideal reference run(s))"
+                if summary["ran"] else "")
+             + (f", {summary['skipped']} already in the table" if summary["skipped"] else "")]
+    return "\n".join(lines)
