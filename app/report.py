@@ -127,6 +127,9 @@ def gnc_success_lines(success: dict) -> list[str]:
     if rec:
         if rec["pulse_end_s"] is None:
             lines.append(f"  recovery of {rec['satellite']}: no scripted push on it")
+        elif rec["waypoint"] is None:
+            lines.append(f"  recovery of {rec['satellite']}: the run ended before its push "
+                         f"did ({rec['pulse_end_s']:.1f} s, orbit time)")
         else:
             back = "not back" if rec["recovery_time_s"] is None else \
                 f"back in {rec['recovery_time_s']:.1f} s"

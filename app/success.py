@@ -184,7 +184,8 @@ def recovery(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: i
     """The recovery from the last scripted pulse on the satellite: the waypoint it was
     flying to when the pulse began, how far the pulse put it off (orbit m), and how long
     (orbit s) from the pulse's end until it was within tolerance of that waypoint again
-    (position and speed). No pulse, or no return: not passed."""
+    (position and speed). No pulse (or none that ended within the run), or no return:
+    not passed."""
     name, sc = config.satellites[satellite].name, scaling_of(config)
     out = {"satellite": name, "limit_s": limit_s, "pulse_end_s": None, "waypoint": None,
            "excursion_max_m": None, "recovery_time_s": None, "passed": False}
@@ -195,6 +196,9 @@ def recovery(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: i
     gnc = config.satellites[satellite].gnc
     t, p, v = orbit_track(config, rows, index, satellite)
     t_lab = rows[:, 0]
+    if t_lab[-1] < pulse.end_s:
+        out["pulse_end_s"] = sc.time * pulse.end_s  # the run ended before the push did
+        return out
     k = min(sum(1 for r in reached_rows if t_lab[r] < pulse.start_s), len(gnc.waypoints) - 1)
     target = np.asarray(gnc.waypoints[k].position_m)
     after = np.flatnonzero((t_lab >= pulse.end_s) & _inside(gnc, target, p, v))

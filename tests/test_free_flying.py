@@ -111,3 +111,14 @@ def test_its_bag_carries_the_gnc_wrench(runs):
     np.testing.assert_allclose([msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z],
                                force_B, rtol=1e-9, atol=1e-12)
     assert abs(force_B[0]) > 0.1
+
+
+def test_a_run_that_stops_short_of_its_waypoints_does_not_pass(tmp_path):
+    """8 s: the first waypoint only, no push yet; nothing to recover from is not met."""
+    proc, m, _, _ = _run(tmp_path, "--mode", "ideal", "--duration", "8")
+    s = m["success"]
+    assert s["passed"] is False and s["waypoints"]["reached"] == 1
+    assert s["final_position"]["passed"] is False
+    assert s["recovery"]["recovery_time_s"] is None and s["recovery"]["passed"] is False
+    assert "success: NOT MET" in proc.stdout and "1 of 3 reached" in proc.stdout
+    assert "the run ended before its push did (113.0 s" in proc.stdout
