@@ -80,6 +80,7 @@ def test_free_flying_starts_over_rest_and_flies_on_its_own(live):
     with no push, and its thrust is in the telemetry, not in the F/T columns."""
     listed = {s["name"]: s for s in live.client.get("/api/scenarios").json()}
     assert "waypoints" in listed["free-flying"]["description"]
+    live.client.post("/api/stop")  # whatever ran before
     s = live.client.post("/api/scenarios/free-flying/start", json={}).json()
     assert s["status"] == "running" and s["scenario"] == "free-flying", s
     s = live.wait_for(lambda s: s["t_s"] >= 2.0)
