@@ -18,7 +18,9 @@ Topics (frames: ``world`` = the lab W, ``R`` = the orbit frame, ``robot<k>_base`
   after the coupling), in the satellite's body frame;
 * ``/sat<i>/true_wrench`` (WrenchStamped): the true external force on the mockup, in R;
 * ``/sat<i>/twist`` (geometry_msgs/TwistStamped): the satellite's velocity and angular
-  velocity relative to R, in its body frame.
+  velocity relative to R, in its body frame;
+* ``/sat<i>/gnc_wrench`` (WrenchStamped), for a satellite with a GNC (app/sim/gnc.py):
+  its own thrusters' force and wheels' torque, in its body frame, in orbit units.
 """
 
 from __future__ import annotations
@@ -166,6 +168,10 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                 topic(f"/{p}/true_wrench", "geometry_msgs/msg/WrenchStamped"),
                 topic(f"/{p}/twist", "geometry_msgs/msg/TwistStamped"),
             ))
+        gnc = [(i, _cols(rows, index, f"sat{i}", ("gnc_fx_N", "gnc_fy_N", "gnc_fz_N")),
+                _cols(rows, index, f"sat{i}", ("gnc_tx_Nm", "gnc_ty_Nm", "gnc_tz_Nm")),
+                sats[i - 1][2], topic(f"/sat{i}/gnc_wrench", "geometry_msgs/msg/WrenchStamped"))
+               for i in range(1, n_sat + 1) if config.satellites[i - 1].gnc is not None]
         robots = []
         for k in range(1, n_rob + 1):
             p = f"rob{k}"
@@ -193,6 +199,9 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                 write(c_in, stamp, msgs.wrench(stamp, frame, R_R_B.T @ force[r], torque[r]))
                 write(c_true, stamp, msgs.wrench(stamp, "R", true_f[r], (0.0, 0.0, 0.0)))
                 write(c_tw, stamp, msgs.twist(stamp, frame, R_R_B.T @ vel[r], omega[r]))
+            for i, force, torque, quat, c_gnc in gnc:
+                write(c_gnc, stamp, msgs.wrench(stamp, f"sat{i}",
+                                                quat_to_matrix(quat[r]).T @ force[r], torque[r]))
             for k, sat, pos, quat, q, ft, pft, c_js, c_ft, c_pft in robots:
                 transforms.append(msgs.transform(stamp, "R", f"sat{sat}_mockup", pos[r],
                                                  quat[r]))

@@ -29,6 +29,7 @@ __all__ = [
     "ConfigError",
     "ContactMaterial",
     "EmulatorConfig",
+    "GncConfig",
     "HandConfig",
     "LabConfig",
     "LoopConfig",
@@ -41,6 +42,7 @@ __all__ = [
     "SensorConfig",
     "ServoConfig",
     "VfdmConfig",
+    "WaypointConfig",
     "WrenchProcessingConfig",
     "dotted_override",
     "load_config",
@@ -112,6 +114,76 @@ class ScalingConfig(_Model):
     """k_M: orbit kilograms per lab kilogram (what a lab newton is worth: k_M k_L / k_T² N)."""
 
 
+MAX_WAYPOINTS = 100
+
+
+class WaypointConfig(_Model):
+    """A point a satellite's GNC flies to (orbit units)."""
+
+    position_m: Vec3
+    """In R (orbit metres)."""
+    hold_s: NonNegative = 0.0
+    """How long (orbit s) it must stay within tolerance before the next waypoint."""
+
+
+Damping = Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=2.0)]
+
+
+class GncConfig(_Model):
+    """A satellite's own guidance, navigation and control (app/sim/gnc.py), in ORBIT units:
+    thrusters and reaction wheels whose wrench goes straight into the ODS (not through the
+    F/T sensor). Translation PD with the Clohessy-Wiltshire terms cancelled, attitude
+    quaternion PD; both sampled every ``period_s`` and held."""
+
+    waypoints: Annotated[list[WaypointConfig], Field(min_length=1, max_length=MAX_WAYPOINTS)]
+    """Flown in order; the last is held."""
+    position_omega_radps: Positive = 0.1
+    """Natural frequency of the translation PD (kp = omega^2, kd = 2 zeta omega)."""
+    position_damping: Damping = 0.8
+    attitude_omega_radps: Positive = 0.2
+    attitude_damping: Damping = 0.8
+    attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    """The attitude held, relative to R."""
+    thrust_max_N: Positive = 1.0
+    """Per body axis, each direction."""
+    min_impulse_bit_Ns: NonNegative = 0.01
+    """An axis whose impulse over a control period is below this is not fired."""
+    torque_max_Nm: Positive = 0.1
+    """Reaction wheels, per body axis."""
+    period_s: Positive = 1.0
+    """Control period (orbit s): the command is computed, then held, once per period."""
+    tolerance_m: Positive = 0.05
+    """Within tolerance of a waypoint: closer than this (orbit m) ..."""
+    tolerance_mps: Positive = 0.005
+    """... and slower than this (orbit m/s); reached once held so for its hold_s."""
+
+    @model_validator(mode="after")
+    def _can_fire_and_is_stable(self) -> GncConfig:
+        if self.min_impulse_bit_Ns >= self.thrust_max_N * self.period_s:
+            raise ValueError(
+                f"min_impulse_bit_Ns: {self.min_impulse_bit_Ns:g} N s is not below a whole "
+                f"period at full thrust ({self.thrust_max_N * self.period_s:g} N s): the "
+                f"thrusters would never fire")
+        for name in ("position", "attitude"):
+            omega, zeta = getattr(self, f"{name}_omega_radps"), getattr(self, f"{name}_damping")
+            if sampled_pd_radius(omega * self.period_s, zeta) >= 1.0:
+                raise ValueError(
+                    f"{name}_omega_radps: {omega:g} rad/s with damping {zeta:g}, sampled "
+                    f"every {self.period_s:g} s, is unstable (the held PD of a double "
+                    f"integrator): lower the frequency or the period")
+        return self
+
+
+def sampled_pd_radius(omega_period: float, damping: float) -> float:
+    """Spectral radius of a double integrator under a PD (kp = ω², kd = 2ζω) sampled and
+    held every T, as a function of ωT: x' = (A − B K) x with A = [[1, T], [0, 1]],
+    B = [T²/2, T]; below 1 it converges."""
+    w, T = omega_period, 1.0
+    closed = np.array([[1.0 - w * w / 2.0, T - damping * w],
+                       [-w * w, 1.0 - 2.0 * damping * w]])
+    return float(np.max(np.abs(np.linalg.eigvals(closed))))
+
+
 class SatelliteConfig(_Model):
     """One satellite: its mockup and its initial state (all relative to R)."""
 
@@ -132,6 +204,8 @@ class SatelliteConfig(_Model):
     omega_radps: Vec3 = (0.0, 0.0, 0.0)
     """Angular velocity relative to R, body axes (zero: at rest in the lab)."""
     material: Literal["rigid", "sponge"] = "rigid"
+    gnc: GncConfig | None = None
+    """The satellite's own thrusters and wheels under a GNC (none: it is free)."""
 
     @model_validator(mode="after")
     def _inertia_is_physical(self) -> SatelliteConfig:
@@ -410,6 +484,19 @@ class SuccessConfig(_Model):
     """Docking: the pair must (true) or must not (false) be captured ([capture])."""
     residual_rate_max_radps: NonNegative | None = None
     """Docking: the compound's angular rate relative to R at the end, at most."""
+    waypoints_reached: StrictBool = False
+    """The first satellite with a GNC reached every waypoint, in order (within its
+    tolerance for its hold, judged on the ODS state)."""
+    final_position_error_max_m: Positive | None = None
+    """... and ends within this distance (orbit m) of its last waypoint."""
+    recovery_time_max_s: Positive | None = None
+    """... and, after the last scripted pulse on it ends, is back within tolerance of the
+    waypoint it was flying to within this time (orbit s)."""
+
+    @property
+    def needs_gnc(self) -> bool:
+        return (self.waypoints_reached or self.final_position_error_max_m is not None
+                or self.recovery_time_max_s is not None)
 
 
 class LoopConfig(_Model):
@@ -451,8 +538,8 @@ MAX_VFDM_ITERATIONS_PER_S = 100_000
 
 def telemetry_row_floats(n_satellites: int, n_robots: int) -> int:
     """Values in one telemetry row (app/sim/telemetry.py loop_columns): the time, 19 ODS
-    values and 3 true-force values per satellite, 28 values per arm."""
-    return 1 + 22 * n_satellites + 28 * n_robots
+    values, 3 true-force values and 6 GNC values per satellite, 28 values per arm."""
+    return 1 + 28 * n_satellites + 28 * n_robots
 
 
 def max_telemetry_rows(n_satellites: int, n_robots: int) -> int:
@@ -518,6 +605,29 @@ class EmulatorConfig(_Model):
                 f"damping (materials {', '.join(damped)}) makes restitution depend on the "
                 f"impact speed, which the lab's mockups meet at the lab's speed: with "
                 f"contact, scaling.length must equal scaling.time")
+        return self
+
+    @model_validator(mode="after")
+    def _gnc(self) -> EmulatorConfig:
+        """A GNC's period spans at least one loop cycle, its wrench can enter the ODS, and
+        the GNC success criteria have a GNC to judge."""
+        cycle_orbit_s = (self.scaling.time if self.scaling.law == "similarity" else 1.0) \
+            / self.loop.rate_hz
+        for i, sat in enumerate(self.satellites):
+            if sat.gnc is None:
+                continue
+            if sat.gnc.period_s < cycle_orbit_s * (1.0 - 1e-9):
+                raise ValueError(f"satellites.{i}.gnc.period_s: {sat.gnc.period_s:g} s is "
+                                 f"shorter than one loop cycle ({cycle_orbit_s:g} s of "
+                                 f"orbit time)")
+            if self.scaling.law == "paper" and 0.0 in (self.orbit.force_scale,
+                                                        self.orbit.torque_scale):
+                raise ValueError(f"satellites.{i}.gnc: a zero [orbit] force_scale or "
+                                 f"torque_scale lets no thrust into the ODS")
+        if self.success.needs_gnc and all(s.gnc is None for s in self.satellites):
+            raise ValueError("success: waypoints_reached, final_position_error_max_m and "
+                             "recovery_time_max_s judge a satellite's GNC; no satellite "
+                             "has a [satellites.gnc]")
         return self
 
     @model_validator(mode="after")

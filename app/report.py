@@ -95,6 +95,7 @@ def run_summary(metrics: dict) -> str:
                 f"{lib['periods_seen']:g} periods seen): period {period} (orbit time), "
                 f"theory {lib['period_theory_s']:.1f} s, error {error} (limit "
                 f"{100 * lib['limit']:g} %)")
+        lines += gnc_success_lines(success)
     cap = metrics.get("capture")
     if cap:
         lines.append("")
@@ -124,3 +125,33 @@ def run_summary(metrics: dict) -> str:
             f"SAFETY STOP: robot {stop['robot']} at t = {stop['t_s']:.3f} s: {stop['reason']}"
         )
     return "\n".join(lines)
+
+
+def gnc_success_lines(success: dict) -> list[str]:
+    """The summary's lines for the GNC criteria (app/success.py), orbit units."""
+    lines = []
+    wp = success.get("waypoints")
+    if wp:
+        at = ", ".join(f"{t:.1f}" for t in wp["reached_at_s"]) or "-"
+        lines.append(f"  waypoints of {wp['satellite']}: {wp['reached']} of {wp['count']} "
+                     f"reached in order, at {at} s (orbit time)")
+    fp = success.get("final_position")
+    if fp:
+        err = "-" if fp["error_m"] is None else f"{fp['error_m']:.3f} m"
+        lines.append(f"  final position of {fp['satellite']}: {err} from its last waypoint "
+                     f"(limit {fp['limit_m']:g} m)")
+    rec = success.get("recovery")
+    if rec:
+        if rec["pulse_end_s"] is None:
+            lines.append(f"  recovery of {rec['satellite']}: no scripted push on it")
+        elif rec["waypoint"] is None:
+            lines.append(f"  recovery of {rec['satellite']}: the run ended before its push "
+                         f"did ({rec['pulse_end_s']:.1f} s, orbit time)")
+        else:
+            back = "not back" if rec["recovery_time_s"] is None else \
+                f"back in {rec['recovery_time_s']:.1f} s"
+            lines.append(
+                f"  recovery of {rec['satellite']} from the push ending at "
+                f"{rec['pulse_end_s']:.1f} s: {rec['excursion_max_m']:.3f} m off waypoint "
+                f"{rec['waypoint']}, {back} (limit {rec['limit_s']:g} s, orbit time)")
+    return lines

@@ -15,7 +15,9 @@ from app.config import EmulatorConfig
 from app.sim.orbital import orbit_rate
 from app.sim.scaling import ods_inertia_kgm2, scaling_of
 
-__all__ = ["docking", "libration", "libration_period_theory_s", "pitch_rad", "success_metrics"]
+__all__ = ["docking", "final_position", "gnc_satellite", "libration",
+           "libration_period_theory_s", "pitch_rad", "recovery", "success_metrics",
+           "waypoints_flown"]
 
 
 def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
@@ -32,6 +34,8 @@ def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
         checks["libration"] = lib
     if crit.captured is not None or crit.residual_rate_max_radps is not None:
         checks["docking"] = docking(config, capture, crit)
+    if crit.needs_gnc:
+        checks.update(gnc_checks(config, rows, index))
     if not checks:
         return None
     return {"passed": all(c["passed"] for c in checks.values()), **checks}
@@ -49,6 +53,23 @@ def docking(config: EmulatorConfig, capture: dict | None, crit) -> dict:
         ok = ok and rate is not None and rate <= crit.residual_rate_max_radps
     out["passed"] = bool(ok)
     return out
+
+
+def gnc_checks(config: EmulatorConfig, rows: np.ndarray, index: dict) -> dict:
+    """The GNC criteria the scenario names, about its first satellite with a GNC."""
+    crit, sat = config.success, gnc_satellite(config)
+    flown = waypoints_flown(config, rows, index, sat)
+    checks = {}
+    if crit.waypoints_reached:
+        checks["waypoints"] = flown
+    if crit.final_position_error_max_m is not None:
+        checks["final_position"] = final_position(config, rows, index, sat,
+                                                  crit.final_position_error_max_m)
+    if crit.recovery_time_max_s is not None:
+        checks["recovery"] = recovery(config, rows, index, sat, flown["reached_rows"],
+                                      crit.recovery_time_max_s)
+    flown.pop("reached_rows")
+    return checks
 
 
 def pitch_rad(q_wxyz: np.ndarray) -> np.ndarray:
@@ -109,3 +130,103 @@ def libration(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: 
             "amplitude_deg": math.degrees(amplitude),
             "periods_seen": max(0, (len(crossings) - 1) / 2),
             "period_s": period_s, "period_theory_s": theory_s, "period_error": error}
+
+
+# --- a satellite's own GNC (app/sim/gnc.py): judged on the ODS state, in orbit units --------
+
+
+def gnc_satellite(config: EmulatorConfig) -> int:
+    """The first satellite with a ``[satellites.gnc]`` (0-based)."""
+    return next(i for i, s in enumerate(config.satellites) if s.gnc is not None)
+
+
+def orbit_track(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(time, position in R, velocity in R) of a satellite's ODS state in orbit units:
+    t = k_T t', x = k_L x', v = (k_L / k_T) v' (app/sim/scaling.py)."""
+    sc, pre = scaling_of(config), f"sat{satellite + 1}"
+    return (sc.time * rows[:, 0],
+            sc.length * rows[:, [index[f"{pre}_{a}_m"] for a in "xyz"]],
+            sc.velocity * rows[:, [index[f"{pre}_v{a}_mps"] for a in "xyz"]])
+
+
+def _inside(gnc, target_m, p: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rows within the GNC's tolerance of a waypoint: |r − r_wp| < tolerance_m and
+    |v| < tolerance_mps (the guidance's own test, app/sim/gnc.py within_tolerance)."""
+    return ((np.linalg.norm(p - np.asarray(target_m), axis=1) < gnc.tolerance_m)
+            & (np.linalg.norm(v, axis=1) < gnc.tolerance_mps))
+
+
+def _first_held(t: np.ndarray, inside: np.ndarray, start: int, hold_s: float) -> int | None:
+    """The first row from ``start`` at which the satellite has been inside for hold_s
+    without a break (the guidance's hold: a stretch begins at its first row inside)."""
+    rows = np.flatnonzero(inside[start:]) + start
+    if not len(rows):
+        return None
+    begins = rows[(rows == start) | ~inside[rows - 1]]
+    since = begins[np.searchsorted(begins, rows, side="right") - 1]
+    held = rows[t[rows] - t[since] >= hold_s]
+    return int(held[0]) if len(held) else None
+
+
+def waypoints_flown(config: EmulatorConfig, rows: np.ndarray, index: dict,
+                    satellite: int) -> dict:
+    """Which of its waypoints the satellite reached, in order, and when (orbit s): each
+    the first time after the previous one it stayed within tolerance for its hold_s,
+    judged on the recorded ODS state as the guidance judges it."""
+    gnc = config.satellites[satellite].gnc
+    t, p, v = orbit_track(config, rows, index, satellite)
+    reached, start = [], 0
+    for wp in gnc.waypoints:
+        row = _first_held(t, _inside(gnc, wp.position_m, p, v), start, wp.hold_s)
+        if row is None:
+            break
+        reached.append(row)
+        start = row + 1
+    return {"satellite": config.satellites[satellite].name, "count": len(gnc.waypoints),
+            "reached": len(reached), "reached_at_s": [float(t[r]) for r in reached],
+            "reached_rows": reached, "passed": len(reached) == len(gnc.waypoints)}
+
+
+def final_position(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
+                   limit_m: float) -> dict:
+    """How far (orbit m) the satellite ends from its last waypoint."""
+    _, p, _ = orbit_track(config, rows, index, satellite)
+    target = config.satellites[satellite].gnc.waypoints[-1].position_m
+    error = float(np.linalg.norm(p[-1] - np.asarray(target))) if len(p) else None
+    return {"satellite": config.satellites[satellite].name, "error_m": error,
+            "limit_m": limit_m, "passed": error is not None and error <= limit_m}
+
+
+def recovery(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
+             reached_rows: list[int], limit_s: float) -> dict:
+    """The recovery from the last scripted pulse on the satellite: the waypoint it was
+    flying to when the pulse began, how far the pulse put it off (orbit m), and how long
+    (orbit s) from the pulse's end until it was within tolerance of that waypoint again
+    (position and speed). No pulse (or none that ended within the run), or no return:
+    not passed."""
+    name, sc = config.satellites[satellite].name, scaling_of(config)
+    out = {"satellite": name, "limit_s": limit_s, "pulse_end_s": None, "waypoint": None,
+           "excursion_max_m": None, "recovery_time_s": None, "passed": False}
+    pulses = [q for q in config.pulses if q.satellite == name]
+    if not pulses or not len(rows):
+        return out
+    pulse = max(pulses, key=lambda q: q.end_s)
+    gnc = config.satellites[satellite].gnc
+    t, p, v = orbit_track(config, rows, index, satellite)
+    t_lab = rows[:, 0]
+    if t_lab[-1] < pulse.end_s:
+        out["pulse_end_s"] = sc.time * pulse.end_s  # the run ended before the push did
+        return out
+    k = min(sum(1 for r in reached_rows if t_lab[r] < pulse.start_s), len(gnc.waypoints) - 1)
+    target = np.asarray(gnc.waypoints[k].position_m)
+    after = np.flatnonzero((t_lab >= pulse.end_s) & _inside(gnc, target, p, v))
+    end = int(after[0]) if len(after) else len(rows) - 1
+    window = (t_lab >= pulse.start_s) & (np.arange(len(rows)) <= end)
+    out.update(pulse_end_s=sc.time * pulse.end_s, waypoint=k + 1,
+               excursion_max_m=float(np.max(np.linalg.norm(p[window] - target, axis=1),
+                                            initial=0.0)))
+    if len(after):
+        out["recovery_time_s"] = float(t[after[0]] - sc.time * pulse.end_s)
+        out["passed"] = out["recovery_time_s"] <= limit_s
+    return out

@@ -74,6 +74,25 @@ def test_push_changes_velocity_by_impulse(live):
     assert err < 0.01
 
 
+def test_free_flying_starts_over_rest_and_flies_on_its_own(live):
+    """The scenario file is listed and starts like any other; its GNC moves the satellite
+    toward its first waypoint (orbit (0.75, -0.5, 0) m: (0.15, -0.1, 0) m in the lab)
+    with no push, and its thrust is in the telemetry, not in the F/T columns."""
+    listed = {s["name"]: s for s in live.client.get("/api/scenarios").json()}
+    assert "waypoints" in listed["free-flying"]["description"]
+    live.client.post("/api/stop")  # whatever ran before
+    s = live.client.post("/api/scenarios/free-flying/start", json={}).json()
+    assert s["status"] == "running" and s["scenario"] == "free-flying", s
+    s = live.wait_for(lambda s: s["t_s"] >= 2.0)
+    x, y, _ = s["satellites"][0]["position_m"]
+    assert x > 0.05 and y < -0.03, s["satellites"][0]
+    s = live.client.post("/api/stop").json()
+    lines = live.client.get("/api/telemetry", params={"format": "csv"}).text.splitlines()
+    header = lines[0].split(",")
+    fx = np.array([float(line.split(",")[header.index("sat1_gnc_fx_N")]) for line in lines[1:]])
+    assert fx.max() > 0.5 and fx[0] == pytest.approx(0.75)  # the first command, unsaturated
+
+
 BAD_PUSHES = [
     ('{"satellite": 1, "force_N": [NaN, 0, 0], "duration_s": 0.3}', "force_N"),
     ('{"satellite": 1, "force_N": [0, Infinity, 0], "duration_s": 0.3}', "force_N"),

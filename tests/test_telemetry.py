@@ -15,10 +15,12 @@ from app.sim.rotations import (
     rotvec_to_quat,
 )
 from app.sim.telemetry import (
+    GNC_FIELDS,
     ROBOT_FIELDS,
     SAT_FIELDS,
     Recorder,
     TelemetryBuffer,
+    gnc_columns,
     loop_columns,
     robot_columns,
     satellite_columns,
@@ -28,15 +30,17 @@ from app.sim.telemetry import (
 OMEGA = orbit_rate(800e3)
 
 
-def test_loop_columns_are_time_satellites_arms_true_forces():
+def test_loop_columns_are_time_satellites_arms_true_forces_gnc():
     cols = loop_columns(2, 3)
-    assert len(cols) == len(set(cols)) == 1 + 2 * 19 + 3 * 28 + 2 * 3
+    assert len(cols) == len(set(cols)) == 1 + 2 * 19 + 3 * 28 + 2 * 3 + 2 * 6
     assert cols[0] == "t_s"
     assert cols[1:39] == satellite_columns(2)
     assert cols[39:123] == robot_columns(3)
-    assert cols[123:] == true_force_columns(2)
+    assert cols[123:129] == true_force_columns(2)
+    assert cols[129:] == gnc_columns(2)
     assert cols[1:20] == [f"sat1_{f}" for f in SAT_FIELDS]
-    assert cols[20] == "sat2_x_m" and cols[39] == "rob1_x_m" and cols[-1] == "sat2_true_fz_N"
+    assert cols[20] == "sat2_x_m" and cols[39] == "rob1_x_m" and cols[128] == "sat2_true_fz_N"
+    assert cols[129:135] == [f"sat1_{f}" for f in GNC_FIELDS] and cols[-1] == "sat2_gnc_tz_Nm"
     assert ROBOT_FIELDS[10:16] == tuple(f"q{j}_rad" for j in range(1, 7))
 
 
@@ -56,11 +60,12 @@ def recorded():
     arms = [(make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3)),
              rng.normal(size=3), rng.normal(size=6), rng.normal(size=6), rng.normal(size=6))
             for _ in range(n_arms)]
+    gnc = rng.normal(size=(n_sat, 6))
     rec = Recorder(n_sat, n_arms, 10, T_R_W, OMEGA)
-    rec.record(12.5, y, force_R, torque_B, arms, true_R)
+    rec.record(12.5, y, force_R, torque_B, arms, true_R, gnc)
     row = dict(zip(rec.buffer.columns, rec.buffer.rows()[-1], strict=True))
     return row, {"T_R_W": T_R_W, "y": y, "force_R": force_R, "torque_B": torque_B,
-                 "true_R": true_R, "arms": arms}
+                 "true_R": true_R, "arms": arms, "gnc": gnc}
 
 
 def _vals(row, prefix, names):
@@ -86,6 +91,7 @@ def test_recorder_row_satellite_columns(recorded):
                                       inp["torque_B"][i])
         np.testing.assert_array_equal(_vals(row, s, ("true_fx_N", "true_fy_N", "true_fz_N")),
                                       inp["true_R"][i])
+        np.testing.assert_array_equal(_vals(row, s, GNC_FIELDS), inp["gnc"][i])
 
 
 def test_recorder_row_arm_columns(recorded):
@@ -122,6 +128,7 @@ def test_recorder_without_arms_and_each_record_is_a_new_row():
     np.testing.assert_array_equal(rows[:, 0], [0.0, 0.002, 0.004])
     np.testing.assert_array_equal(rec.buffer.column("sat1_fx_N"), [0.0, 1.0, 2.0])
     np.testing.assert_array_equal(rec.buffer.column("sat1_wz_radps"), 0.0)
+    np.testing.assert_array_equal(rows[:, -6:], 0.0)  # no GNC: its columns are zeros
 
 
 def test_recorder_refuses_a_state_of_the_wrong_shape_and_records_nothing():
@@ -131,7 +138,8 @@ def test_recorder_refuses_a_state_of_the_wrong_shape_and_records_nothing():
     y[0, 6] = 1.0
     arm = (np.eye(4), np.zeros(3), np.zeros(6), np.zeros(6))
     for bad in ((np.zeros((2, 13)), z, z, [], z), (y, np.zeros((2, 3)), z, [], z),
-                (y, z, z, [arm], z), (y, z, z, [], np.zeros((2, 3)))):
+                (y, z, z, [arm], z), (y, z, z, [], np.zeros((2, 3))),
+                (y, z, z, [], z, np.zeros((1, 3)))):
         with pytest.raises(ValueError, match="recorder of 1 satellites and 0 arms"):
             rec.record(0.0, *bad)
     assert rec.buffer.count == 0

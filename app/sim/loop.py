@@ -12,9 +12,10 @@ reference the HIL run is measured against.
 
 The parts live in their own modules: :mod:`app.sim.rig` (one arm: FK, F/T chain, VFDM,
 servo), :mod:`app.sim.interaction` (contact + hand on the bodies), :mod:`app.sim.coupling`
-(measured wrench → ODS input), :mod:`app.sim.orbital` (the ODS) and
-:mod:`app.sim.telemetry` (the recorder). The loop wires them, owns their state and is
-single-threaded: anything from outside (a REST push, a gizmo drag) arrives as a command
+(measured wrench → ODS input), :mod:`app.sim.orbital` (the ODS), :mod:`app.sim.gnc` (a
+satellite's own thrusters and wheels, whose wrench enters the ODS directly, not through
+the sensor) and :mod:`app.sim.telemetry` (the recorder). The loop wires them, owns their
+state and is single-threaded: anything from outside (a REST push, a gizmo drag) arrives as a command
 through :meth:`Emulator.post` and is consumed at the start of the next cycle.
 """
 
@@ -32,6 +33,7 @@ from app.sim.contact_gate import ContactGate, fuse_pair_forces, hold_cycles_for
 from app.sim.coupling import OdsCoupling
 from app.sim.frames import satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
+from app.sim.gnc import GncParams, GncState, gnc_step, navigation
 from app.sim.hand import Command, OperatorHand
 from app.sim.interaction import (
     Bodies,
@@ -44,6 +46,7 @@ from app.sim.orbital import OdsParams, OrbitalSimulator, rk4_step
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
+from app.sim.scaling import scaling_of
 from app.sim.telemetry import Recorder
 
 __all__ = ["Emulator", "StartPoseError"]
@@ -113,6 +116,12 @@ class Emulator:
         self.compound: Compound | None = None  # a docked pair, once captured
         self._compound_y: tuple[np.ndarray, np.ndarray] | None = None  # (now, next) rows
         self.capture_event: dict | None = None
+        self.scaling = scaling_of(config)
+        self.gnc = self._gnc_params()
+        self.gnc_states = [GncState() for _ in self.gnc]
+        self.gnc_wrench = np.zeros((self.n_sat, 6))
+        """Each satellite's own GNC wrench of the cycle, orbit units: force in R, torque in
+        body axes (zeros without a GNC)."""
         self._final_recorded_at = -1
         self._load_kernels()
 
@@ -135,11 +144,14 @@ class Emulator:
         force_R, torque_B = self.ods_input(bodies, external_W)  # F/T chains + coupling
         if not self._within_sensor_range():
             return
-        y_next, force_R, torque_B = self.ods_advance(force_R, torque_B)  # the ODS step
+        own = self.own_actuation()  # the satellites' GNC: thrusters, wheels (not sensed)
+        y_next, force_R, torque_B = self.ods_advance(force_R, torque_B, own)  # the ODS step
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
         self._record()
         self.ods.commit(y_next, self.dt_s)
         self._capture()
+        if own is not None:  # the prediction holds the whole input, own actuation included
+            force_R, torque_B = force_R + own[0], torque_B + own[1]
         predicted = {}
         for arm in self.arms:  # TCP target (where the satellite will be) -> VFDM -> servo
             if arm.lead_s not in predicted:
@@ -223,20 +235,52 @@ class Emulator:
                                                                         self.gate.margin_m)
         return self.gate.update(clearance, nearest, crowd), self.gate.partner
 
-    def ods_advance(self, force_R: np.ndarray,
-                    torque_B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(next ODS state, force, torque the ODS received over the cycle): Eqs. 1-7 by
-        RK4 under the cycle's input; in an ideal run, a cycle that starts or ends in
-        contact has the contact law integrated within it (:mod:`app.sim.reference`)."""
-        y_next = self.ods.advance(force_R, torque_B, self.dt_s)
+    def _gnc_params(self) -> list[tuple[int, GncParams]]:
+        """(satellite, its GNC's parameters in orbit units) for each satellite with one."""
+        W = self.ods.params.orbit_rate_radps / self.scaling.time
+        p = self.ods.params
+        return [(i, GncParams.from_config(sat.gnc, p.mass_kg[i], p.inertia_kgm2[i], W))
+                for i, sat in enumerate(self.config.satellites) if sat.gnc is not None]
+
+    def own_actuation(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The satellites' own (force in R, torque in body axes) over this cycle in
+        ODS-input units (None when no satellite has a GNC): each GNC reads its satellite's
+        ODS state in orbit units and commands in orbit units (app/sim/gnc.py), kept in
+        ``gnc_wrench``; the scaling turns that into the ODS's input (F_o k_T² / (k_L
+        force_scale), τ_o k_T² / torque_scale)."""
+        if not self.gnc:
+            return None
+        sc, W_lab = self.scaling, self.ods.params.orbit_rate_radps
+        dt_orbit_s = sc.time * self.dt_s
+        for k, (i, params) in enumerate(self.gnc):
+            nav = navigation(self.ods.y[i], self.ods.t_s, sc, W_lab)
+            self.gnc_states[k], force_R, torque_B = gnc_step(params, self.gnc_states[k], nav,
+                                                             dt_orbit_s)
+            self.gnc_wrench[i, :3], self.gnc_wrench[i, 3:] = force_R, torque_B
+        return sc.ods_force(self.gnc_wrench[:, :3]), sc.ods_torque(self.gnc_wrench[:, 3:])
+
+    def ods_advance(self, force_R: np.ndarray, torque_B: np.ndarray,
+                    own: tuple[np.ndarray, np.ndarray] | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(next ODS state, external force, torque the ODS received over the cycle): Eqs.
+        1-7 by RK4 under the cycle's input plus the satellites' own actuation ``own``
+        (ODS-input units, :meth:`own_actuation`); in an ideal run, a cycle that starts or
+        ends in contact has the contact law integrated within it (:mod:`app.sim.reference`),
+        the own actuation acting in every sub-step; a docked pair moves as one body."""
+        if own is None:
+            y_next = self.ods.advance(force_R, torque_B, self.dt_s)
+        else:
+            y_next = self.ods.advance(force_R + own[0], torque_B + own[1], self.dt_s)
         if self.mode == "ideal" and (self.interaction.contact_active
                                      or self._overlap(y_next)):
             y_next, force_R, torque_B = substepped_advance(
                 self.ods, self.interaction, self.T_W_R, self.ods.t_s, self.dt_s,
-                self.config.loop.reference_substeps)
+                self.config.loop.reference_substeps, own)
             self.true_force_R = force_R  # no sensor in an ideal run: the ODS gets the truth
         if self.compound is not None:  # the docked pair moves as one body
-            y_next = self._advance_compound(y_next, force_R, torque_B)
+            total = (force_R, torque_B) if own is None else (force_R + own[0],
+                                                              torque_B + own[1])
+            y_next = self._advance_compound(y_next, *total)
         return y_next, force_R, torque_B
 
     def _advance_compound(self, y_next: np.ndarray, force_R: np.ndarray,
@@ -294,7 +338,8 @@ class Emulator:
             arms.append((T_W_C, v_W, arm.servo.state.q_rad, arm.last_raw_S,
                          arm.last_processed))
         self.recorder.record(self.ods.t_s, self.ods.y, self.applied_force_R,
-                             self.applied_torque_B, arms, self.true_force_R)
+                             self.applied_torque_B, arms, self.true_force_R,
+                             self.gnc_wrench if self.gnc else None)
 
     def _safety_stop(self, arm: ArmRig, reason: str) -> None:
         self.status = "safety_stop"

@@ -80,6 +80,21 @@ class Scaling:
         """The orbit rate the lab sees, k_T Omega."""
         return self.time * orbit_rate_radps
 
+    def ods_force(self, force_orbit_N):
+        """The ODS input that applies an orbit force F_o to the virtual body:
+        F_o k_T² / (k_L force_scale) (the ODS multiplies its input by force_scale and moves
+        lengths in lab metres and times in lab seconds: a' = a k_T² / k_L)."""
+        return np.asarray(force_orbit_N, float) * (self.time**2 / (self.length
+                                                                   * self.force_scale))
+
+    def ods_torque(self, torque_orbit_Nm):
+        """The ODS input that applies an orbit torque τ_o: τ_o k_T² / torque_scale (angles
+        are not scaled, so the angular acceleration is k_T² the orbit's; the inertia is
+        the virtual body's own and the input is multiplied by torque_scale; under
+        "similarity" torque_scale = k_M k_L², i.e. τ_o k_T² / (k_M k_L²), which is the
+        orbit-per-lab torque factor k_M k_L² / k_T² inverted)."""
+        return np.asarray(torque_orbit_Nm, float) * (self.time**2 / self.torque_scale)
+
     def to_lab(self, position_m, velocity_mps, omega_radps):
         """An orbit state (position, velocity, angular velocity) in lab units."""
         return (np.asarray(position_m, float) / self.length,

@@ -7,7 +7,8 @@ buffer to hold the whole run).
 
 Row layout: ``t_s``; per satellite its ODS state and the wrench the ODS received
 (:data:`SAT_FIELDS`); per arm its actual mockup and joints and the raw F/T reading
-(:data:`ROBOT_FIELDS`); per satellite the true external force on the actual mockup.
+(:data:`ROBOT_FIELDS`); per satellite the true external force on the actual mockup; per
+satellite the wrench of its own GNC (:data:`GNC_FIELDS`; zeros without one).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ ROBOT_FIELDS = (
     "ft_fx_N", "ft_fy_N", "ft_fz_N", "ft_tx_Nm", "ft_ty_Nm", "ft_tz_Nm",
     "pft_fx_N", "pft_fy_N", "pft_fz_N", "pft_tx_Nm", "pft_ty_Nm", "pft_tz_Nm",
 )
+GNC_FIELDS = ("gnc_fx_N", "gnc_fy_N", "gnc_fz_N", "gnc_tx_Nm", "gnc_ty_Nm", "gnc_tz_Nm")
 
 
 def satellite_columns(count: int) -> list[str]:
@@ -48,10 +50,16 @@ def true_force_columns(count: int) -> list[str]:
     return [f"sat{i}_true_f{a}_N" for i in range(1, count + 1) for a in "xyz"]
 
 
+def gnc_columns(count: int) -> list[str]:
+    """Columns of each satellite's own GNC wrench (app/sim/gnc.py), in ORBIT units: the
+    thrusters' force in R and the wheels' torque in body axes."""
+    return [f"sat{i}_{f}" for i in range(1, count + 1) for f in GNC_FIELDS]
+
+
 def loop_columns(n_sat: int, n_arms: int) -> list[str]:
     """Every column of the loop's telemetry, in row order."""
     return ["t_s", *satellite_columns(n_sat), *robot_columns(n_arms),
-            *true_force_columns(n_sat)]
+            *true_force_columns(n_sat), *gnc_columns(n_sat)]
 
 
 class TelemetryBuffer:
@@ -216,24 +224,31 @@ class Recorder:
         self.orbit_rate_radps = float(orbit_rate_radps)
 
     def record(self, t_s: float, y: np.ndarray, force_R: np.ndarray, torque_B: np.ndarray,
-               arms, true_force_R: np.ndarray) -> None:
+               arms, true_force_R: np.ndarray, gnc_wrench: np.ndarray | None = None) -> None:
         """One row: time, ODS state y (N, 13) with the wrench (N, 3) + (N, 3) it receives,
-        each arm's ``(T_W_C, v_W, q_rad, raw_S, processed)`` and the true force on each
-        mockup (N, 3).
+        each arm's ``(T_W_C, v_W, q_rad, raw_S, processed)``, the true force on each
+        mockup (N, 3) and each satellite's GNC wrench (N, 6: force in R, torque in body
+        axes, orbit units; None: zeros).
 
         The kernels write without bounds checks: the shapes are checked here first, so that
         a wrong call raises and records nothing."""
         n = self.n_sat
         if (y.shape != (n, 13) or force_R.shape != (n, 3) or torque_B.shape != (n, 3)
-                or true_force_R.shape != (n, 3) or len(arms) != self.n_arms):
+                or true_force_R.shape != (n, 3) or len(arms) != self.n_arms
+                or (gnc_wrench is not None and gnc_wrench.shape != (n, 6))):
             raise ValueError(
                 f"recorder of {n} satellites and {self.n_arms} arms got a state {y.shape}, "
-                f"wrenches {force_R.shape} {torque_B.shape} {true_force_R.shape}, "
+                f"wrenches {force_R.shape} {torque_B.shape} {true_force_R.shape}"
+                f"{'' if gnc_wrench is None else f' {gnc_wrench.shape}'}, "
                 f"{len(arms)} arms"
             )
         row = self.buffer.next_row()
         k = record_satellites(t_s, y, self.orbit_rate_radps, force_R, torque_B, row)
         for T_W_C, v_W, q_rad, raw_S, processed in arms:
             k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
-        row[k:] = true_force_R.ravel()
+        row[k:k + 3 * n] = true_force_R.ravel()
+        if gnc_wrench is None:
+            row[k + 3 * n:] = 0.0
+        else:
+            row[k + 3 * n:] = gnc_wrench.ravel()
         self.buffer.commit()
