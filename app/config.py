@@ -50,6 +50,12 @@ __all__ = [
 ]
 
 
+def _orbit_rate(altitude_m: float) -> float:
+    """Mean motion of a circular orbit (app/sim/orbital.py orbit_rate; config cannot import
+    the simulator)."""
+    return math.sqrt(3.986004418e14 / (6378.137e3 + altitude_m) ** 3)
+
+
 class ConfigError(ValueError):
     """A configuration could not be read or is invalid; the message names the field."""
 
@@ -95,6 +101,12 @@ class OrbitConfig(_Model):
     (default 1/2000, the paper's). Under "similarity" it is derived, not set."""
 
 
+ScaleFactor = Annotated[float, AfterValidator(_finite), Field(ge=1e-6, le=1e6)]
+"""An orbit-per-lab scale factor: within a millionth and a million."""
+MAX_ORBIT_TURN_PER_CYCLE_RAD = 0.01
+"""The most the orbit frame may turn in one loop cycle under a time scale (k_T Omega / rate):
+beyond, the 2 ms step no longer resolves the orbit's own motions (a libration, CW)."""
+
 PAPER_FORCE_SCALE = 1.0
 PAPER_TORQUE_SCALE = 1.0 / 2000.0
 
@@ -106,11 +118,11 @@ class ScalingConfig(_Model):
     orbit units; its initial state too) played at these orbit-per-lab factors."""
 
     law: Literal["paper", "similarity"] = "paper"
-    length: Positive = 1.0
+    length: ScaleFactor = 1.0
     """k_L: orbit metres per lab metre."""
-    time: Positive = 1.0
+    time: ScaleFactor = 1.0
     """k_T: orbit seconds per lab second (100: a 100 s orbit phenomenon plays in 1 s)."""
-    mass: Positive = 1.0
+    mass: ScaleFactor = 1.0
     """k_M: orbit kilograms per lab kilogram (what a lab newton is worth: k_M k_L / k_T² N)."""
 
 
@@ -594,6 +606,14 @@ class EmulatorConfig(_Model):
                                  f"scaling.law = 'similarity' (mass_kg is the virtual "
                                  f"satellite's, {sat.mass_kg:g} kg; the sensor chain "
                                  f"compensates the mockup's)")
+        rate = _orbit_rate(self.orbit.altitude_m)
+        turn = sc.time * rate / self.loop.rate_hz
+        if turn > MAX_ORBIT_TURN_PER_CYCLE_RAD:
+            k_max = MAX_ORBIT_TURN_PER_CYCLE_RAD * self.loop.rate_hz / rate
+            raise ValueError(
+                f"scaling.time: {sc.time:g} turns the orbit frame {turn:.3g} rad per loop "
+                f"cycle at {self.loop.rate_hz:g} Hz; at most {MAX_ORBIT_TURN_PER_CYCLE_RAD:g} "
+                f"(k_T <= {k_max:.0f} here), or the step cannot follow the orbit's motions")
         damped = sorted({s.material for s in self.satellites
                          if s.material in self.materials
                          and self.materials[s.material].damping_spm > 0.0})
@@ -786,6 +806,26 @@ def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:
     return parse_config(_merge_patch(base.model_dump(), overrides))
 
 
+MAX_KEY_PARTS = 12
+"""A dotted KEY's most parts (satellites.0.gnc.waypoints.0.position_m.0 has 7)."""
+
+
+def merge_overrides_all(base: EmulatorConfig, overrides: list[dict]) -> EmulatorConfig:
+    """Apply several merge patches in order, then validate once: settings that must change
+    together (scaling.length and scaling.time, a satellite's name and the robot carrying
+    it) may be given as separate patches (repeated --set, a sweep's [set] or linked axis)."""
+    data = base.model_dump()
+    for patch in overrides:
+        if not isinstance(patch, dict):
+            raise ConfigError("overrides: expected an object of settings")
+        for key in ("name", "description"):
+            if key in patch:
+                raise ConfigError(f"{key}: the scenario's {key} is not a setting to override "
+                                  f"(a run is reported under its scenario's name)")
+        data = _merge_patch(data, patch)
+    return parse_config(data)
+
+
 def assignment_override(text: str) -> dict:
     """``"passivity.enabled=false"`` → ``{"passivity": {"enabled": False}}`` for merge_overrides.
 
@@ -808,6 +848,9 @@ def dotted_override(key: str, value, text: str | None = None) -> dict:
     merge_overrides: what ``--set KEY=VALUE`` does with a value already read (a numeric
     part picks a list item). text: the assignment as given, for the message."""
     path = [part.strip() for part in key.split(".")]
+    if len(path) > MAX_KEY_PARTS:
+        raise ConfigError(f"{key[:60]}...: a KEY has at most {MAX_KEY_PARTS} dotted parts "
+                          f"(the deepest setting has 7), got {len(path)}")
     if not all(path):
         raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text or key!r}")
     if path[0].isdigit():

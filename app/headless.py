@@ -129,7 +129,7 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
     files.append(out / "metrics.json")
     if plots:
         files += plot_run(rows, em.telemetry.index, out, em.n_sat, len(em.arms),
-                          metrics.get("collision"))
+                          metrics.get("collision"), note=metrics["scaling"]["text"])
     if bag:
         files.append(write_bag(replace_bag_dir(out / "bag"), em.config, rows,
                                em.telemetry.index, bag_rate_hz))

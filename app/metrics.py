@@ -415,10 +415,8 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
     if config.capture is not None:
         metrics["capture"] = capture_metrics(config, rows, index, facts.capture)
         if facts.capture and metrics.get("collision"):  # latched: no rebound to measure
-            metrics["collision"]["warnings"] = [
+            metrics["collision"]["warnings"] = [  # no rebound to measure: not a fault
                 w for w in metrics["collision"]["warnings"] if "restitution" not in w]
-            metrics["collision"]["warnings"].append(
-                "captured: the pair latched, so there is no restitution to measure")
     metrics["success"] = success_metrics(config, rows, index, metrics.get("capture")) \
         if len(rows) else None
     metrics["warnings"] = _run_warnings(metrics, ideal_collision)

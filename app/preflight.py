@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.config import EmulatorConfig, merge_overrides
+from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.sim.loop import Emulator
 from app.sim.rotations import make_transform, quat_to_matrix
 from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M, T_W_B_from_config
@@ -60,12 +60,19 @@ class Violation:
 def predict(config: EmulatorConfig, duration_s: float) -> Emulator:
     """The ideal run of ``config`` over ``duration_s`` (its telemetry: the course). With
     one satellite (no contact) at a coarser rate, for speed."""
-    loop = {"telemetry_capacity": 0}
-    if len(config.satellites) == 1 and config.loop.rate_hz > COARSE_RATE_HZ:
-        loop["rate_hz"] = COARSE_RATE_HZ
-    rate = loop.get("rate_hz", config.loop.rate_hz)
-    loop["telemetry_capacity"] = max(int(duration_s * rate) + 3, MIN_TELEMETRY_ROWS)
-    em = Emulator(merge_overrides(config, {"loop": loop}), mode="ideal")
+    coarse = len(config.satellites) == 1 and config.loop.rate_hz > COARSE_RATE_HZ
+    predicted = None
+    for rate in ([COARSE_RATE_HZ] if coarse else []) + [config.loop.rate_hz]:
+        loop = {"rate_hz": rate,
+                "telemetry_capacity": max(int(duration_s * rate) + 3, MIN_TELEMETRY_ROWS)}
+        try:
+            predicted = merge_overrides(config, {"loop": loop})
+            break
+        except ConfigError:  # too coarse for this configuration (e.g. its time scale)
+            continue
+    if predicted is None:
+        predicted = merge_overrides(config, {"loop": loop})  # (raises, naming the field)
+    em = Emulator(predicted, mode="ideal")
     em.run(duration_s)
     return em
 

@@ -110,9 +110,6 @@ def run_summary(metrics: dict) -> str:
         else:
             lines.append("NOT captured (peak contact force "
                          f"{cap.get('peak_contact_force_N', 0.0):.1f} N)")
-    if success and success.get("docking"):
-        d = success["docking"]
-        lines.append(f"success (docking): {'passed' if d['passed'] else 'NOT MET'}")
     pc = metrics.get("passivity")
     if pc:
         d = pc["dissipated_J"]

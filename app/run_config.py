@@ -11,7 +11,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from app.config import EmulatorConfig, load_config, max_telemetry_rows, merge_overrides
+from app.config import (
+    EmulatorConfig,
+    load_config,
+    max_telemetry_rows,
+    merge_overrides,
+    merge_overrides_all,
+)
 from app.scenarios import load_scenario
 
 
@@ -55,10 +61,8 @@ def finish_run_config(
     :func:`app.config.merge_overrides`) in order; the mode and duration default to the
     configuration's own. A duration whose telemetry would not fit in memory is refused,
     named by ``duration_name``."""
-    if seed is not None:
-        config = merge_overrides(config, {"loop": {"seed": seed}})
-    for patch in overrides:
-        config = merge_overrides(config, patch)
+    seeded = [{"loop": {"seed": seed}}] if seed is not None else []
+    config = merge_overrides_all(config, [*seeded, *overrides])  # validated once, together
     duration_s = duration_s or config.loop.duration_s
     check_headless_duration(config, duration_s, duration_name)
     return merge_overrides(config, {"loop": {"mode": mode or config.loop.mode,

@@ -32,7 +32,13 @@ import numpy as np
 import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from app.config import ConfigError, EmulatorConfig, dotted_override, merge_overrides
+from app.config import (
+    ConfigError,
+    EmulatorConfig,
+    dotted_override,
+    merge_overrides,
+    merge_overrides_all,
+)
 from app.run_config import base_config, finish_run_config
 from app.scenarios import scenario_names
 
@@ -173,6 +179,10 @@ class SweepSpec(_SpecModel):
             raise ValueError('give one of scenario = "NAME" or config = "FILE.toml"')
         if (self.seeds is None) == (self.draws is None):
             raise ValueError("give one of seeds = [0, 1, ...] or draws = N")
+        if self.seeds is not None and len(set(self.seeds)) != len(self.seeds):
+            twice = sorted({s for s in self.seeds if self.seeds.count(s) > 1})
+            raise ValueError(f"seeds: given twice: {twice} (a run is its configuration and "
+                             f"seed: the same seed is the same run)")
         return self
 
     def seed_list(self) -> list[int]:
@@ -364,9 +374,12 @@ def _grid_wheres(spec: SweepSpec) -> dict[str, str]:
 def _check_values(where: str, values: list) -> None:
     if not values:
         raise SpecError(f"{where}: an empty list of values")
-    for i, v in enumerate(values):
-        if v in values[:i]:
+    seen = set()
+    for v in values:  # (linear: a spec may list 100,000 values)
+        mark = json.dumps(v, sort_keys=True, default=str)
+        if mark in seen:
             raise SpecError(f"{where}: the value {v!r} is given twice")
+        seen.add(mark)
 
 
 def plan_sweep(spec: SweepSpec, spec_dir: str | Path = ".", source: str = "") -> SweepPlan:
@@ -390,18 +403,30 @@ def _plan(spec: SweepSpec, spec_dir: Path, source: str) -> SweepPlan:
     base = _base(spec, spec_dir)
     set_patches = []
     for key, value in spec.set.items():
-        _check_key(base, key, value, f"set.{_loc([key])}")
+        _check_exists(base, key, value, f"set.{_loc([key])}")
         set_patches.append(dotted_override(key, value))
-        base = merge_overrides(base, set_patches[-1])
+    if set_patches:  # together: settings that must change together may be set apart
+        try:
+            base = merge_overrides_all(base, set_patches)
+        except ConfigError as err:
+            for key, value in spec.set.items():  # one that is wrong on its own: name it
+                _check_value(base, key, value, f"set.{_loc([key])}")
+            raise SpecError(f"set (together): {err}") from None
     param_keys: list[str] = []
     wheres = _grid_wheres(spec)
     for axis in axes:
         for key in axis[0]:
-            where = wheres[key]
-            _check_key(base, key, axis[0][key], where)
-            for point in axis[1:]:
-                _check_value(base, key, point[key], where)
-            _add_key(param_keys, key, where)
+            _check_exists(base, key, axis[0][key], wheres[key])
+        for point in axis:  # a linked axis's keys go together
+            try:
+                merge_overrides_all(base, [dotted_override(k, v) for k, v in point.items()])
+            except ConfigError as err:
+                where = " & ".join(f"{wheres[k]} = {_show(v)}" for k, v in point.items())
+                raise SpecError(f"{where}: {err}") from None
+        for key in axis[0]:
+            if key in spec.set:
+                raise SpecError(f"{wheres[key]}: also in [set]; give it in one place")
+            _add_key(param_keys, key, wheres[key])
     for key, dist in spec.random.items():
         where = f"random.{_loc([key])}"
         probes = dist.probes()
@@ -439,6 +464,18 @@ def _add_key(keys: list[str], key: str, where: str) -> None:
     if key in (*FIXED_COLUMNS_HEAD, *FIXED_COLUMNS_MID, *FIXED_COLUMNS_TAIL):
         raise SpecError(f"{where}: not a setting")
     keys.append(key)
+
+
+def _check_exists(base: EmulatorConfig, key: str, sample, where: str) -> None:
+    """The key names a setting of the scenario, or one the configuration takes (a table
+    the base leaves out, tried with a sample value)."""
+    missing = _missing_part(base.model_dump(mode="json"), key)
+    if missing is None:
+        return
+    try:
+        merge_overrides(base, dotted_override(key, sample))
+    except ConfigError:
+        raise SpecError(f"{where}: unknown key ({missing})") from None
 
 
 def _check_key(base: EmulatorConfig, key: str, sample, where: str) -> None:

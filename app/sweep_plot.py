@@ -84,6 +84,13 @@ def plot_sweep(sweep_dir: Path, x: str, y: str | None, metric: str,
                          + (f" and {y!r}" if y else ""))
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{metric}_vs_{x}" + (f"_{y}" if y else ""))
     path = Path(out) if out else sweep_dir / f"{name}.png"
+    if path.suffix.lower() != ".png":
+        path = path.with_name(path.name + ".png")  # (a PNG, whatever the name said)
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise ValueError(f"--out: {parent} is a file, not a directory")
+    if path.is_dir():
+        raise ValueError(f"--out: {path} is a directory; name the PNG file")
     others = [k for k in settings if k not in (x, y)]
     if y:
         _heat_map(points, x, y, metric, path)

@@ -87,6 +87,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
     from tqdm import tqdm
 
     ray = start_ray(address, workers)
+    _stop_on_sigterm()
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         summary["workers"] = min(cpus, workers) if workers else cpus
@@ -134,8 +135,9 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
                     bar.update(1)
                     bar.set_postfix({k: v for k, v in counts.items() if v}, refresh=False)
         except KeyboardInterrupt:
-            for ref in in_flight:
-                ray.cancel(ref, force=True)
+            # no ray.cancel: a forced cancel racing a task's reply aborts Ray 2.60's core
+            # ("Tried to complete task that was not pending"); the shutdown below ends this
+            # driver, and with it the tasks it owns (a local Ray's workers, too)
             raise
         finally:
             bar.close()
@@ -177,6 +179,19 @@ def _write_summary(out_dir: Path, table: ResultsTable, summary: dict, wall_s: fl
 # --- Ray ---------------------------------------------------------------------------------------
 
 
+def _stop_on_sigterm() -> None:
+    """A scheduler's SIGTERM stops the sweep as Ctrl+C does (rows kept, exit 130); set
+    after ray.init, which installs a handler of its own that dumps a stack trace."""
+    import signal
+    import threading
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, interrupt)
+
+
 def start_ray(address: str | None, workers: int | None):
     """Ray, started here (no address: for this sweep only) or joined (a
     cluster's head, HOST:PORT); the ``ray`` module. Usage statistics stay off."""
@@ -188,7 +203,9 @@ def start_ray(address: str | None, workers: int | None):
     common = {"include_dashboard": False, "log_to_driver": False,
               "logging_level": logging.WARNING, "configure_logging": True}
     if address is None:
-        ray.init(address="local", num_cpus=workers or os.cpu_count() or 1,
+        # at most one worker per core here: more only share the cores and the memory
+        ray.init(address="local", num_cpus=min(workers or os.cpu_count() or 1,
+                                               os.cpu_count() or 1),
                  object_store_memory=OBJECT_STORE_BYTES, **common)
         return ray
     host, port = parse_address(address)

@@ -264,3 +264,10 @@ def test_a_bad_extends_is_an_error_naming_it(tmp_path, files, message):
         (tmp_path / name).write_text(text)
     with pytest.raises(ConfigError, match=re.escape(message)):
         load_config(tmp_path / "a.toml")
+
+
+def test_a_key_of_too_many_parts_is_refused_before_any_recursion():
+    from app.config import assignment_override
+
+    with pytest.raises(ConfigError, match="a KEY has at most 12 dotted parts"):
+        assignment_override("a." * 999 + "a=1")

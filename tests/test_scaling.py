@@ -133,6 +133,12 @@ def test_the_arm_carries_the_mockup_s_mass_not_the_satellite_s():
      "Hunt-Crossley damping (materials rigid, sponge) makes restitution depend on the "
      "impact speed"),
     ({"scaling": {"law": "similarity", "time": 0.0}}, "scaling.time"),
+    ({"scaling": {"law": "similarity", "time": 1e300}}, "scaling.time: Input should be "
+                                                        "less than or equal to 1000000"),
+    ({"scaling": {"law": "similarity", "time": 1e5},
+      "satellites": [{"name": "a", "mockup_mass_kg": 1.0}]},
+     "scaling.time: 100000 turns the orbit frame 0.208 rad per loop cycle at 500 Hz; at "
+     "most 0.01 (k_T <= 4816 here)"),
 ])
 def test_what_breaks_similarity_is_refused_naming_the_field(data, message):
     with pytest.raises(ConfigError) as err:
@@ -146,3 +152,10 @@ def test_a_time_scale_with_contact_is_allowed_where_velocities_are_the_orbit_s()
         "satellites": [{"name": "a", "mockup_mass_kg": 1.0, "material": "sponge"},
                        {"name": "b", "mockup_mass_kg": 1.0}]})
     assert scaling_of(cfg).velocity == 1.0
+
+
+def test_the_config_s_orbit_rate_is_the_simulator_s():
+    from app.config import _orbit_rate
+
+    for altitude_m in (400e3, 800e3, 35786e3):
+        assert _orbit_rate(altitude_m) == orbit_rate(altitude_m)

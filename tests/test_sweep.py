@@ -219,6 +219,15 @@ REFUSED = {
     "swept twice": (HEAD + '[grid]\n"servo.delay_cycles" = [1, 2]\n[random]\n'
                     '"servo.delay_cycles" = { choice = [1, 2] }\n',
                     'spec.toml: random."servo.delay_cycles": the key is swept twice'),
+    "seed twice": (HEAD.replace("seeds = [0]", "seeds = [0, 1, 0]"),
+                   "spec.toml: (top level): seeds: given twice: [0]"),
+    "set and grid": (HEAD + '[set]\n"servo.delay_cycles" = 1\n[grid]\n'
+                     '"servo.delay_cycles" = [1, 2]\n',
+                     'spec.toml: grid."servo.delay_cycles": also in [set]; give it in one '
+                     "place"),
+    "key too deep": (HEAD + '[grid]\n"' + "a." * 999 + 'a" = [1]\n',
+                     'spec.toml: grid."' + "a." * 999 + "a\": unknown key (the "
+                     "configuration has no 'a')"),
     "duration": (HEAD + "duration_s = 1e5\n",
                  "spec.toml: duration_s: 100000 s at 500 Hz is 5e+07 cycles; a headless run "
                  "keeps every cycle in memory"),
@@ -377,3 +386,28 @@ def test_sweep_plot_names_what_is_missing(tmp_path):
     proc = subprocess.run([EXE, "sweep-plot", str(tmp_path), "--x", "servo.delay_cycles",
                            "--metric", "nope"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "error: --metric: 'nope' is not a column" in proc.stderr
+
+
+def test_settings_that_must_change_together_are_checked_together(tmp_path):
+    """Docking has contact: scaling.length must equal scaling.time. Set apart in [set], or
+    as a linked axis, they are applied together and then checked; a plain grid of one
+    of them alone is refused with the reason."""
+    head = 'scenario = "docking"\nseeds = [0]\nmetrics = ["capture.captured"]\n'
+    for extra in ('[set]\n"scaling.length" = 2.0\n"scaling.time" = 2.0\n',
+                  '[grid.k]\n"scaling.length" = [2.0, 3.0]\n"scaling.time" = [2.0, 3.0]\n'):
+        path = tmp_path / "spec.toml"
+        path.write_text(head + extra)
+        plan = plan_sweep(load_spec(path), tmp_path, "spec.toml")
+        assert all(r.config.scaling.length == r.config.scaling.time for r in plan.runs())
+    path.write_text(head + '[grid]\n"scaling.length" = [2.0]\n')
+    with pytest.raises(SpecError, match="scaling.length must equal scaling.time"):
+        plan_sweep(load_spec(path), tmp_path, "spec.toml")
+
+
+def test_run_applies_its_set_options_together():
+    from app.config import assignment_override
+    from app.run_config import resolve_run_config
+
+    cfg = resolve_run_config("docking", None, overrides=[
+        assignment_override("scaling.length=2"), assignment_override("scaling.time=2")])
+    assert (cfg.scaling.length, cfg.scaling.time) == (2.0, 2.0)

@@ -290,7 +290,9 @@ metrics = ["satellites.0.position_error_max_m"]
     assert single.stderr.splitlines()[-1] == "error: " + bad["reason"].split(": ", 1)[1]
 
 
-def test_ctrl_c_stops_the_sweep_and_keeps_the_rows(tmp_path):
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_ctrl_c_stops_the_sweep_and_keeps_the_rows(stop, tmp_path):
+    """Ctrl+C, or a scheduler's SIGTERM: the runs under way are cancelled, the rows kept."""
     (tmp_path / "spec.toml").write_text("""
 scenario = "collision"
 duration_s = 1.0
@@ -307,7 +309,7 @@ metrics = ["satellites.0.position_error_max_m"]
                   "the first row")
         under = _descendants(proc.pid)
         assert under  # Ray's processes
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(stop)
         t0 = time.perf_counter()
         out, err = proc.communicate(timeout=60)
         assert time.perf_counter() - t0 < 30
