@@ -113,13 +113,14 @@ def test_health_turns_degraded_when_the_loop_misses_its_deadlines(live):
 
 
 def test_stop_interrupts_a_start_that_would_take_long(live):
-    """The wedge of old: a start pose out of reach with the longest approach allowed
+    """The wedge of old: a start pose the arm cannot take (the mockup inside its own
+    shoulder: within reach, so the pre-flight passes it) with the longest approach allowed
     (120 s of virtual time, over a second of search here). A stop sent meanwhile ends the
     start-up within 0.5 s; the loop then takes the next start as usual."""
     import threading
 
     live.client.post("/api/stop")
-    body = {"satellites": {"0": {"position_m": [3.0, 0.0, 0.0]}},
+    body = {"satellites": {"0": {"position_m": [-0.5, 0.0, 0.82]}},  # the shoulder, in R
             "loop": {"approach_timeout_s": 120.0}}
     answer = {}
     starter = threading.Thread(target=lambda: answer.update(
@@ -209,8 +210,8 @@ def test_a_start_too_large_for_the_pipe_to_a_stalled_loop_does_not_wedge_the_ser
     os.kill(pid, signal.SIGSTOP)
     try:
         t0 = time.monotonic()
-        r = live.client.post("/api/scenarios/collision/start", json={"pulses": pulses},
-                             timeout=10)
+        r = live.client.post("/api/scenarios/collision/start",  # (ideal: no pre-flight)
+                             json={"pulses": pulses, "mode": "ideal"}, timeout=10)
         assert time.monotonic() - t0 < 3.0, "the start blocked"
         assert r.status_code in (200, 503), r.text  # 200: noticed first and replaced
         t0 = time.monotonic()
