@@ -797,13 +797,7 @@ def merge_overrides(base: EmulatorConfig, overrides: dict) -> EmulatorConfig:
     (``{"satellites": {"1": {"mass_kg": 2}}}`` changes one field of the second satellite;
     an index beyond the list is an error naming it).
     """
-    if not isinstance(overrides, dict):
-        raise ConfigError("overrides: expected an object of settings")
-    for key in ("name", "description"):
-        if key in overrides:
-            raise ConfigError(f"{key}: the scenario's {key} is not a setting to override "
-                              f"(a run is reported under its scenario's name)")
-    return parse_config(_merge_patch(base.model_dump(), overrides))
+    return merge_overrides_all(base, [overrides])
 
 
 MAX_KEY_PARTS = 12
