@@ -136,6 +136,22 @@ class WaypointConfig(_Model):
     """In R (orbit metres)."""
     hold_s: NonNegative = 0.0
     """How long (orbit s) it must stay within tolerance before the next waypoint."""
+    transfer_s: Positive | None = None
+    """Fly the leg to this waypoint as a Clohessy-Wiltshire two-impulse transfer of this
+    duration (orbit s), re-targeted every control period, then brake and hold (none: the
+    PD flies it). Less than 0.9 of an orbit; waypoints in R only."""
+    approach_speed_mps: Positive | None = None
+    """Fly the leg to this waypoint as a straight closing at this speed (orbit m/s)."""
+    free_drift_m: Positive | None = None
+    """Within this distance (orbit m) of this waypoint, stop firing for good and drift
+    (a docking's last stretch into the interface)."""
+
+    @model_validator(mode="after")
+    def _one_way_to_fly(self) -> WaypointConfig:
+        if self.transfer_s is not None and self.approach_speed_mps is not None:
+            raise ValueError("transfer_s and approach_speed_mps: a leg is flown one way; "
+                             "give one of them")
+        return self
 
 
 Damping = Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=2.0)]
@@ -149,13 +165,16 @@ class GncConfig(_Model):
 
     waypoints: Annotated[list[WaypointConfig], Field(min_length=1, max_length=MAX_WAYPOINTS)]
     """Flown in order; the last is held."""
+    relative_to: str | None = None
+    """Another satellite's name: the waypoints and ``attitude_wxyz`` are then in its body
+    frame (from its centre of mass) and move with it; the GNC synchronises with it."""
     position_omega_radps: Positive = 0.1
     """Natural frequency of the translation PD (kp = omega^2, kd = 2 zeta omega)."""
     position_damping: Damping = 0.8
     attitude_omega_radps: Positive = 0.2
     attitude_damping: Damping = 0.8
     attitude_wxyz: Quaternion = IDENTITY_WXYZ
-    """The attitude held, relative to R."""
+    """The attitude held, relative to R (or to ``relative_to``'s body)."""
     thrust_max_N: Positive = 1.0
     """Per body axis, each direction."""
     min_impulse_bit_Ns: NonNegative = 0.01
@@ -504,11 +523,22 @@ class SuccessConfig(_Model):
     recovery_time_max_s: Positive | None = None
     """... and, after the last scripted pulse on it ends, is back within tolerance of the
     waypoint it was flying to within this time (orbit s)."""
+    synchronisation_position_error_max_m: Positive | None = None
+    """A GNC flying relative to another satellite (``relative_to``): at its last waypoint
+    (the capture point), over the hold that reaches it, at most this far (orbit m) from
+    the point that moves with the target ..."""
+    synchronisation_attitude_error_max_rad: Positive | None = None
+    """... and at most this angle from the attitude that turns with it."""
+
+    @property
+    def needs_sync(self) -> bool:
+        return (self.synchronisation_position_error_max_m is not None
+                or self.synchronisation_attitude_error_max_rad is not None)
 
     @property
     def needs_gnc(self) -> bool:
         return (self.waypoints_reached or self.final_position_error_max_m is not None
-                or self.recovery_time_max_s is not None)
+                or self.recovery_time_max_s is not None or self.needs_sync)
 
 
 class LoopConfig(_Model):
@@ -644,11 +674,37 @@ class EmulatorConfig(_Model):
                                                         self.orbit.torque_scale):
                 raise ValueError(f"satellites.{i}.gnc: a zero [orbit] force_scale or "
                                  f"torque_scale lets no thrust into the ODS")
+            self._gnc_legs(i, sat.gnc)
         if self.success.needs_gnc and all(s.gnc is None for s in self.satellites):
-            raise ValueError("success: waypoints_reached, final_position_error_max_m and "
-                             "recovery_time_max_s judge a satellite's GNC; no satellite "
-                             "has a [satellites.gnc]")
+            raise ValueError("success: waypoints_reached, final_position_error_max_m, "
+                             "recovery_time_max_s and the synchronisation errors judge a "
+                             "satellite's GNC; no satellite has a [satellites.gnc]")
+        first = next((s for s in self.satellites if s.gnc is not None), None)
+        if self.success.needs_sync and first is not None and first.gnc.relative_to is None:
+            raise ValueError(f"success: the synchronisation errors judge a GNC flying "
+                             f"relative to another satellite; {first.name!r}'s "
+                             f"[satellites.gnc] has no relative_to")
         return self
+
+    def _gnc_legs(self, i: int, gnc: GncConfig) -> None:
+        """``relative_to`` names another satellite; CW transfers fly between points of R,
+        each shorter than 0.9 of an orbit (a whole orbit is CW's singular transfer time)."""
+        names = [s.name for s in self.satellites]
+        if gnc.relative_to is not None and (gnc.relative_to not in names
+                                            or gnc.relative_to == self.satellites[i].name):
+            raise ValueError(f"satellites.{i}.gnc.relative_to: {gnc.relative_to!r} names no "
+                             f"other satellite (have {names})")
+        period_s = 2.0 * math.pi / _orbit_rate(self.orbit.altitude_m)
+        for k, wp in enumerate(gnc.waypoints):
+            if wp.transfer_s is None:
+                continue
+            if gnc.relative_to is not None:
+                raise ValueError(f"satellites.{i}.gnc.waypoints.{k}.transfer_s: a CW transfer "
+                                 f"flies to a point of R; not with relative_to")
+            if wp.transfer_s >= 0.9 * period_s:
+                raise ValueError(f"satellites.{i}.gnc.waypoints.{k}.transfer_s: "
+                                 f"{wp.transfer_s:g} s is not below 0.9 of an orbit "
+                                 f"({0.9 * period_s:.0f} s of {period_s:.0f} s)")
 
     @model_validator(mode="after")
     def _references(self) -> EmulatorConfig:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -132,6 +133,9 @@ def gnc_success_lines(success: dict) -> list[str]:
         at = ", ".join(f"{t:.1f}" for t in wp["reached_at_s"]) or "-"
         lines.append(f"  waypoints of {wp['satellite']}: {wp['reached']} of {wp['count']} "
                      f"reached in order, at {at} s (orbit time)")
+        for leg in wp.get("transfers", []):
+            lines.append(f"  CW transfer to waypoint {leg['waypoint']}: due at "
+                         f"{leg['due_s']:.1f} s, arrived {leg['miss_m']:.3f} m from it")
     fp = success.get("final_position")
     if fp:
         err = "-" if fp["error_m"] is None else f"{fp['error_m']:.3f} m"
@@ -151,4 +155,16 @@ def gnc_success_lines(success: dict) -> list[str]:
                 f"  recovery of {rec['satellite']} from the push ending at "
                 f"{rec['pulse_end_s']:.1f} s: {rec['excursion_max_m']:.3f} m off waypoint "
                 f"{rec['waypoint']}, {back} (limit {rec['limit_s']:g} s, orbit time)")
+    sync = success.get("synchronisation")
+    if sync:
+        if sync["at_s"] is None:
+            lines.append(f"  synchronisation of {sync['satellite']} with {sync['target']}: "
+                         f"its capture point (waypoint {sync['waypoint']}) not reached")
+        else:
+            lines.append(
+                f"  synchronisation of {sync['satellite']} with {sync['target']} at its "
+                f"capture point ({sync['at_s']:.1f} s, over the {sync['hold_s']:.1f} s hold): "
+                f"position {1e3 * sync['position_error_max_m']:.1f} mm, attitude "
+                f"{math.degrees(sync['attitude_error_max_rad']):.2f} deg, rate "
+                f"{math.degrees(sync['rate_error_max_radps']):.3f} deg/s at most")
     return lines

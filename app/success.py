@@ -12,12 +12,14 @@ import math
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.sim.gnc import moving_point
 from app.sim.orbital import orbit_rate
+from app.sim.rotations import quat_mul, quat_to_matrix
 from app.sim.scaling import ods_inertia_kgm2, scaling_of
 
 __all__ = ["docking", "final_position", "gnc_satellite", "libration",
-           "libration_period_theory_s", "pitch_rad", "recovery", "success_metrics",
-           "waypoints_flown"]
+           "libration_period_theory_s", "pitch_rad", "recovery", "reference_track",
+           "success_metrics", "synchronisation", "waypoints_flown"]
 
 
 def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
@@ -68,6 +70,9 @@ def gnc_checks(config: EmulatorConfig, rows: np.ndarray, index: dict) -> dict:
     if crit.recovery_time_max_s is not None:
         checks["recovery"] = recovery(config, rows, index, sat, flown["reached_rows"],
                                       crit.recovery_time_max_s)
+    if crit.needs_sync:
+        checks["synchronisation"] = synchronisation(config, rows, index, sat,
+                                                    flown["reached_rows"])
     flown.pop("reached_rows")
     return checks
 
@@ -150,11 +155,38 @@ def orbit_track(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite
             sc.velocity * rows[:, [index[f"{pre}_v{a}_mps"] for a in "xyz"]])
 
 
-def _inside(gnc, target_m, p: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rows within the GNC's tolerance of a waypoint: |r − r_wp| < tolerance_m and
-    |v| < tolerance_mps (the guidance's own test, app/sim/gnc.py within_tolerance)."""
-    return ((np.linalg.norm(p - np.asarray(target_m), axis=1) < gnc.tolerance_m)
-            & (np.linalg.norm(v, axis=1) < gnc.tolerance_mps))
+def attitude_track(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(q_R_B rows wxyz, angular velocity relative to R in body axes, orbit rad/s)."""
+    pre = f"sat{satellite + 1}"
+    return (rows[:, [index[f"{pre}_q{a}"] for a in "wxyz"]],
+            rows[:, [index[f"{pre}_w{a}_radps"] for a in "xyz"]] / scaling_of(config).time)
+
+
+def reference_track(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
+                    waypoint: int) -> tuple[np.ndarray, np.ndarray]:
+    """(position, velocity) in R, orbit units, row by row, of what the satellite's GNC
+    flies to for ``waypoint`` (app/sim/gnc.py reference): the waypoint itself, at rest,
+    or, with ``relative_to``, the point of the target's body it names, moving with it."""
+    gnc = config.satellites[satellite].gnc
+    offset = np.asarray(gnc.waypoints[waypoint].position_m, dtype=float)
+    if gnc.relative_to is None:
+        return np.broadcast_to(offset, (len(rows), 3)), np.zeros((len(rows), 3))
+    j = [s.name for s in config.satellites].index(gnc.relative_to)
+    _, p_T, v_T = orbit_track(config, rows, index, j)
+    q_T, w_T = attitude_track(config, rows, index, j)
+    r, v, _ = moving_point(p_T, v_T, q_T, w_T, offset)
+    return r, v
+
+
+def _inside(gnc, ref: tuple[np.ndarray, np.ndarray], p: np.ndarray, v: np.ndarray,
+            ) -> np.ndarray:
+    """Rows within the GNC's tolerance of a waypoint's reference: |r − r_ref| <
+    tolerance_m and |v − v_ref| < tolerance_mps (the guidance's own test, app/sim/gnc.py
+    within_tolerance)."""
+    r_ref, v_ref = ref
+    return ((np.linalg.norm(p - r_ref, axis=1) < gnc.tolerance_m)
+            & (np.linalg.norm(v - v_ref, axis=1) < gnc.tolerance_mps))
 
 
 def _first_held(t: np.ndarray, inside: np.ndarray, start: int, hold_s: float) -> int | None:
@@ -177,23 +209,44 @@ def waypoints_flown(config: EmulatorConfig, rows: np.ndarray, index: dict,
     gnc = config.satellites[satellite].gnc
     t, p, v = orbit_track(config, rows, index, satellite)
     reached, start = [], 0
-    for wp in gnc.waypoints:
-        row = _first_held(t, _inside(gnc, wp.position_m, p, v), start, wp.hold_s)
+    for k, wp in enumerate(gnc.waypoints):
+        ref = reference_track(config, rows, index, satellite, k)
+        row = _first_held(t, _inside(gnc, ref, p, v), start, wp.hold_s)
         if row is None:
             break
         reached.append(row)
         start = row + 1
     return {"satellite": config.satellites[satellite].name, "count": len(gnc.waypoints),
             "reached": len(reached), "reached_at_s": [float(t[r]) for r in reached],
+            "transfers": transfers(gnc, t, p, reached),
             "reached_rows": reached, "passed": len(reached) == len(gnc.waypoints)}
+
+
+def transfers(gnc, t: np.ndarray, p: np.ndarray, reached: list[int]) -> list[dict]:
+    """Each CW transfer leg flown (``transfer_s``): where it began (the previous waypoint
+    reached, or the run's start), when it was due to arrive, and how far (orbit m) from
+    its waypoint the satellite was then (before the braking and the PD's hold)."""
+    out = []
+    for k, wp in enumerate(gnc.waypoints):
+        if wp.transfer_s is None or (k > 0 and len(reached) < k):
+            continue
+        start_s = float(t[reached[k - 1]]) if k > 0 else float(t[0])
+        due_s = start_s + wp.transfer_s
+        if not len(t) or due_s > t[-1]:
+            continue
+        row = int(np.argmin(np.abs(t - due_s)))
+        out.append({"waypoint": k + 1, "start_s": start_s, "due_s": due_s,
+                    "miss_m": float(np.linalg.norm(p[row] - np.asarray(wp.position_m)))})
+    return out
 
 
 def final_position(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
                    limit_m: float) -> dict:
     """How far (orbit m) the satellite ends from its last waypoint."""
     _, p, _ = orbit_track(config, rows, index, satellite)
-    target = config.satellites[satellite].gnc.waypoints[-1].position_m
-    error = float(np.linalg.norm(p[-1] - np.asarray(target))) if len(p) else None
+    last = len(config.satellites[satellite].gnc.waypoints) - 1
+    r_ref, _ = reference_track(config, rows, index, satellite, last)
+    error = float(np.linalg.norm(p[-1] - r_ref[-1])) if len(p) else None
     return {"satellite": config.satellites[satellite].name, "error_m": error,
             "limit_m": limit_m, "passed": error is not None and error <= limit_m}
 
@@ -219,14 +272,59 @@ def recovery(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: i
         out["pulse_end_s"] = sc.time * pulse.end_s  # the run ended before the push did
         return out
     k = min(sum(1 for r in reached_rows if t_lab[r] < pulse.start_s), len(gnc.waypoints) - 1)
-    target = np.asarray(gnc.waypoints[k].position_m)
-    after = np.flatnonzero((t_lab >= pulse.end_s) & _inside(gnc, target, p, v))
+    ref = reference_track(config, rows, index, satellite, k)
+    after = np.flatnonzero((t_lab >= pulse.end_s) & _inside(gnc, ref, p, v))
     end = int(after[0]) if len(after) else len(rows) - 1
     window = (t_lab >= pulse.start_s) & (np.arange(len(rows)) <= end)
     out.update(pulse_end_s=sc.time * pulse.end_s, waypoint=k + 1,
-               excursion_max_m=float(np.max(np.linalg.norm(p[window] - target, axis=1),
+               excursion_max_m=float(np.max(np.linalg.norm(p[window] - ref[0][window], axis=1),
                                             initial=0.0)))
     if len(after):
         out["recovery_time_s"] = float(t[after[0]] - sc.time * pulse.end_s)
         out["passed"] = out["recovery_time_s"] <= limit_s
+    return out
+
+
+def synchronisation(config: EmulatorConfig, rows: np.ndarray, index: dict, satellite: int,
+                    reached_rows: list[int]) -> dict:
+    """How well a GNC flying relative to a target (``relative_to``) is synchronised with it
+    at its capture point (its last waypoint): over the hold that reached it (the last
+    ``hold_s`` before it counted as reached, orbit time), the largest and the final
+    position error to the point that moves with the target, velocity error, attitude
+    error to q_R_T ⊗ q_wp (the rotation angle between them) and rate error (relative to R,
+    in R's axes). Not reached: not passed."""
+    crit, gnc = config.success, config.satellites[satellite].gnc
+    last = len(gnc.waypoints) - 1
+    out = {"satellite": config.satellites[satellite].name, "target": gnc.relative_to,
+           "waypoint": last + 1, "at_s": None,
+           "position_limit_m": crit.synchronisation_position_error_max_m,
+           "attitude_limit_rad": crit.synchronisation_attitude_error_max_rad,
+           "passed": False}
+    if len(reached_rows) < len(gnc.waypoints):
+        return out
+    t, p, v = orbit_track(config, rows, index, satellite)
+    end = reached_rows[-1]
+    hold = np.flatnonzero((t >= t[end] - gnc.waypoints[last].hold_s) & (t <= t[end]))
+    r_ref, v_ref = reference_track(config, rows, index, satellite, last)
+    j = [s.name for s in config.satellites].index(gnc.relative_to)
+    q_T, w_T = attitude_track(config, rows[hold], index, j)
+    q_B, w_B = attitude_track(config, rows[hold], index, satellite)
+    q_ref = quat_mul(q_T, np.asarray(gnc.attitude_wxyz, dtype=float))
+    q_e = quat_mul(q_ref * np.array([1.0, -1.0, -1.0, -1.0]), q_B)
+    angle = 2.0 * np.arccos(np.clip(np.abs(q_e[:, 0]), 0.0, 1.0))
+    rate = np.linalg.norm(np.einsum("kij,kj->ki", quat_to_matrix(q_B), w_B)
+                          - np.einsum("kij,kj->ki", quat_to_matrix(q_T), w_T), axis=1)
+    pos = np.linalg.norm(p[hold] - r_ref[hold], axis=1)
+    vel = np.linalg.norm(v[hold] - v_ref[hold], axis=1)
+    out.update(at_s=float(t[end]), hold_s=float(t[end] - t[hold[0]]),
+               position_error_m=float(pos[-1]), position_error_max_m=float(pos.max()),
+               velocity_error_mps=float(vel[-1]), velocity_error_max_mps=float(vel.max()),
+               attitude_error_rad=float(angle[-1]), attitude_error_max_rad=float(angle.max()),
+               rate_error_radps=float(rate[-1]), rate_error_max_radps=float(rate.max()))
+    ok = True
+    if crit.synchronisation_position_error_max_m is not None:
+        ok = ok and out["position_error_max_m"] <= crit.synchronisation_position_error_max_m
+    if crit.synchronisation_attitude_error_max_rad is not None:
+        ok = ok and out["attitude_error_max_rad"] <= crit.synchronisation_attitude_error_max_rad
+    out["passed"] = bool(ok)
     return out

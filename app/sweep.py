@@ -81,7 +81,8 @@ METRIC_FIELDS: dict[str, tuple[str, ...]] = {
     "capture": ("captured", "t_s", "position_miss_m", "relative_speed_mps",
                 "relative_angle_rad", "relative_rate_radps", "peak_contact_force_N",
                 "residual_rate_radps", "residual_speed_mps"),
-    "success": ("passed", "libration", "docking", "waypoints", "final_position", "recovery"),
+    "success": ("passed", "libration", "docking", "waypoints", "final_position", "recovery",
+                "synchronisation"),
 }
 """The fields of metrics.json (app/metrics.py metrics_of) a metric path is checked against:
 the top level (""), a satellite's entry, the collision's, and the small tables; deeper

@@ -17,18 +17,22 @@ from app.sim.gnc import (
     gnc_step,
     guidance,
     navigation,
+    reference,
     thruster_force_B,
     wheel_torque_B,
+    within_tolerance,
 )
+from app.sim.guidance import two_impulse_transfer
 from app.sim.loop import Emulator
 from app.sim.orbital import (
     OdsParams,
     OrbitalSimulator,
     derivative,
     omega_inertial_from_relative,
+    cw_state_transition,
     orbit_rate,
 )
-from app.sim.rotations import quat_to_matrix, rotvec_to_quat
+from app.sim.rotations import quat_mul, quat_to_matrix, rotvec_to_quat
 from app.sim.scaling import Scaling
 
 OMEGA = orbit_rate(800e3)
@@ -342,3 +346,158 @@ def test_the_stability_bound_is_the_sampled_double_integrator_s():
     assert sampled_pd_radius(1.0, 1.0) == pytest.approx(1.0, abs=1e-6)
     assert sampled_pd_radius(0.1, 0.8) < 0.95 and sampled_pd_radius(0.2, 0.8) < 0.9
     assert GncConfig(waypoints=[{"position_m": [0, 0, 0]}]).period_s == 1.0
+
+
+# --- legs: CW transfers, straight approaches, free drift; relative to a spinning target ------
+
+
+def _leg_params(**kw) -> GncParams:
+    """One waypoint 25 m further along V-bar, flown as a 1200 s CW transfer (500 kg, 2 N
+    thrusters, a 0.05 N s minimum impulse bit, a 2 s period)."""
+    base = dict(mass_kg=500.0, inertia_kgm2=np.array([300.0, 300.0, 400.0]),
+                waypoints_m=np.array([[0.0, -75.0, 0.0]]), hold_s=np.array([0.0]),
+                transfer_s=np.array([1200.0]), position_omega_radps=0.02, thrust_max_N=2.0,
+                min_impulse_bit_Ns=0.05, period_s=2.0, tolerance_m=0.5, tolerance_mps=0.002)
+    return _params(**{**base, **kw})
+
+
+def test_a_cw_transfer_leg_fires_the_closed_form_impulse_and_arrives_on_time():
+    """From rest at y = -100 m to y = -75 m in 1200 s: the first burn (spread over the
+    periods the 2 N thrusters need) delivers the closed-form Δv1 of
+    app/sim/guidance.py; the satellite arrives within 5 cm when due, then brakes to a
+    hold within tolerance."""
+    p = _leg_params()
+    dv1, dv2 = two_impulse_transfer([0, -100, 0], [0, 0, 0], [0, -75, 0], [0, 0, 0], 1200.0,
+                                    OMEGA)
+    assert p.mass_kg * np.max(np.abs(dv1)) > 2 * p.thrust_max_N * p.period_s  # saturated
+    ods, states = _fly(p, _at_rest([0.0, -100.0, 0.0]), 1200.0, dt_s=0.5)
+    burn = [s.force_B_N for s in states[:100:4]]  # one per 2 s period, the first 50 s
+    np.testing.assert_allclose(np.sum(burn, axis=0) * p.period_s / p.mass_kg, dv1, rtol=0.01)
+    assert np.linalg.norm(ods.position_m[0] - [0.0, -75.0, 0.0]) < 0.05
+    np.testing.assert_allclose(ods.velocity_mps[0], -dv2, atol=2e-4)  # what braking removes
+    ods, states = _fly(p, ods.y, 200.0, dt_s=0.5)
+    assert np.linalg.norm(ods.position_m[0] - [0.0, -75.0, 0.0]) < p.tolerance_m
+    assert np.linalg.norm(ods.velocity_mps[0]) < p.tolerance_mps
+
+
+def test_a_cw_transfer_is_re_targeted_after_a_push_mid_course():
+    """A 2 cm/s push at a quarter of the way: coasting, it would miss by metres; the
+    re-targeted guidance fires a mid-course correction and still arrives within 0.5 m."""
+    p = _leg_params()
+    ods, states = _fly(p, _at_rest([0.0, -100.0, 0.0]), 300.0, dt_s=0.5)
+    ods.y[0, 3] += 0.02  # the push, radial
+    free = cw_state_transition(OMEGA, 900.0) @ np.concatenate([ods.position_m[0],
+                                                              ods.velocity_mps[0]])
+    assert np.linalg.norm(free[:3] - [0.0, -75.0, 0.0]) > 5.0
+    state = states[-1]
+    for _ in range(1800):
+        nav = navigation(ods.y[0], ods.t_s, Scaling("paper", 1, 1, 1, 1, 1), OMEGA)
+        state, f_R, tau_B = gnc_step(p, state, nav, 0.5)
+        ods.step(f_R[None, :], tau_B[None, :], 0.5)
+    assert np.linalg.norm(ods.position_m[0] - [0.0, -75.0, 0.0]) < 0.5
+
+
+def test_an_approach_leg_closes_at_its_speed_and_drifts_its_last_stretch():
+    """Straight at a point 1 m away at 2 cm/s (no orbit to speak of): the speed settles at
+    2 cm/s; within free_drift_m it stops firing for good and drifts through."""
+    p = _params(orbit_rate_radps=6e-16, waypoints_m=np.array([[1.0, 0.0, 0.0]]),
+                approach_speed_mps=np.array([0.02]), free_drift_m=np.array([0.05]),
+                position_omega_radps=0.5, period_s=0.2, min_impulse_bit_Ns=0.002)
+    y0 = _at_rest([0.0, 0.0, 0.0], w=6e-16)
+    ods, states = _fly(p, y0, 30.0, gravity_gradient=False)
+    assert ods.velocity_mps[0] == pytest.approx([0.02, 0.0, 0.0], abs=2e-4)
+    assert not states[-1].drifting
+    ods, states = _fly(p, ods.y, 40.0, gravity_gradient=False)
+    start = next(k for k, s in enumerate(states) if s.drifting)
+    assert all(s.drifting and not s.force_B_N.any() and not s.torque_B_Nm.any()
+               for s in states[start:])
+    assert ods.position_m[0, 0] > 1.3  # it did not stop at the point: it drifted on
+
+
+def _spinning(rate_radps=0.05, offset=(-0.5, 0.0, 0.0), yaw_rad=0.3):
+    """A target at R's origin spinning about z and the reference of a point of its body."""
+    q = rotvec_to_quat(np.array([0.0, 0.0, yaw_rad]))
+    target = _nav(q=q, w=(0.0, 0.0, rate_radps))
+    p = _params(waypoints_m=np.array([offset]), relative=True)
+    return p, target, reference(p, 0, target)
+
+
+def test_the_reference_of_a_point_of_a_spinning_target_turns_with_it():
+    """r = R(θ) p, v = ω × r, a = -ω² r (a spin about z through the origin, Ω negligible
+    here: its CW term on the target at rest at the origin is zero); the attitude is the
+    target's, the rate ω."""
+    rate, yaw = 0.05, 0.3
+    p, target, ref = _spinning(rate, yaw_rad=yaw)
+    r = -0.5 * np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    np.testing.assert_allclose(ref.position_m, r, atol=1e-15)
+    np.testing.assert_allclose(ref.velocity_mps, rate * np.array([-r[1], r[0], 0.0]),
+                               atol=1e-15)
+    np.testing.assert_allclose(ref.accel_mps2, -rate**2 * r, atol=1e-15)
+    np.testing.assert_allclose(ref.attitude_wxyz, target.attitude_wxyz)
+    np.testing.assert_allclose(ref.omega_R_radps, [0.0, 0.0, rate])
+    # the tolerance is to the moving reference: at its point, at its velocity, inside
+    assert within_tolerance(p, ref, _nav(p=r, v=ref.velocity_mps))
+    assert not within_tolerance(p, ref, _nav(p=r))  # at rest there: 2.5 cm/s off
+
+
+def test_a_chaser_flying_relative_to_a_spinning_target_synchronises_with_it():
+    """Two satellites in one ODS: the target spins at 3 deg/s about its major axis; the
+    chaser, from rest, ends on the point 0.5 m off the target's -x face that turns with
+    it, and with the target's attitude and rate."""
+    rate = math.radians(3.0)
+    p = _params(waypoints_m=np.array([[-0.5, 0.0, 0.0]]), relative=True,
+                position_omega_radps=0.3, attitude_omega_radps=0.5, period_s=0.2,
+                min_impulse_bit_Ns=0.0, torque_max_Nm=0.2)
+    y0 = np.vstack([_at_rest([-0.6, 0.1, 0.0]), _at_rest([0.0, 0.0, 0.0])])
+    y0[1, 10:] = omega_inertial_from_relative(y0[1:, 6:10], np.array([[0.0, 0.0, rate]]),
+                                              OMEGA)[0]
+    ods = OrbitalSimulator(OdsParams(OMEGA, np.array([100.0, 100.0]),
+                                     np.array([[10.0, 12.0, 16.0], [10.0, 10.0, 16.0]]),
+                                     True, 1.0, 1.0), y0)
+    unit, state, dt = Scaling("paper", 1, 1, 1, 1, 1), GncState(), 0.05
+    for _ in range(int(60.0 / dt)):
+        nav, tgt = (navigation(ods.y[i], ods.t_s, unit, OMEGA) for i in (0, 1))
+        state, f_R, tau_B = gnc_step(p, state, nav, dt, tgt)
+        ods.step(np.vstack([f_R, np.zeros(3)]), np.vstack([tau_B, np.zeros(3)]), dt)
+    ref = reference(p, 0, tgt)
+    assert np.linalg.norm(nav.position_m - ref.position_m) < 1e-3
+    assert np.linalg.norm(nav.velocity_mps - ref.velocity_mps) < 1e-4
+    q_e = quat_mul(ref.attitude_wxyz * [1, -1, -1, -1], nav.attitude_wxyz)
+    assert 2 * math.acos(min(1.0, abs(q_e[0]))) < math.radians(0.05)
+    np.testing.assert_allclose(nav.R_R_B @ nav.omega_rel_radps, [0.0, 0.0, rate], atol=1e-5)
+    # the point has turned with the target, nearly half a turn, from -x towards +x
+    turned = rate * tgt.t_s
+    np.testing.assert_allclose(ref.position_m, [-0.5 * math.cos(turned),
+                                                -0.5 * math.sin(turned), 0.0], atol=1e-6)
+
+
+@pytest.mark.parametrize(("gnc", "where", "message"), [
+    ({"relative_to": "ghost"}, "satellites.0.gnc.relative_to",
+     "'ghost' names no other satellite (have ['a', 'b'])"),
+    ({"relative_to": "a"}, "satellites.0.gnc.relative_to",
+     "'a' names no other satellite (have ['a', 'b'])"),
+    ({"relative_to": "b", "waypoints": [{"position_m": [1, 0, 0], "transfer_s": 600.0}]},
+     "satellites.0.gnc.waypoints.0.transfer_s",
+     "a CW transfer flies to a point of R; not with relative_to"),
+    ({"waypoints": [{"position_m": [1, 0, 0], "transfer_s": 6000.0}]},
+     "satellites.0.gnc.waypoints.0.transfer_s",
+     "6000 s is not below 0.9 of an orbit (5447 s of 6052 s)"),
+    ({"waypoints": [{"position_m": [1, 0, 0], "transfer_s": 600.0,
+                     "approach_speed_mps": 0.02}]},
+     "satellites.0.gnc.waypoints.0",
+     "transfer_s and approach_speed_mps: a leg is flown one way; give one of them"),
+])
+def test_gnc_legs_are_validated_naming_the_field(gnc, where, message):
+    sat = {"name": "a", "gnc": {"waypoints": [{"position_m": [0.0, 0.0, 0.0]}], **gnc}}
+    with pytest.raises(ConfigError) as err:
+        parse_config({"orbit": {"altitude_m": 800e3},
+                      "satellites": [sat, {"name": "b", "position_m": [1.0, 0.0, 0.0]}]})
+    assert where in str(err.value) and message in str(err.value), str(err.value)
+
+
+def test_synchronisation_criteria_need_a_gnc_relative_to_a_target():
+    with pytest.raises(ConfigError, match="the synchronisation errors judge a GNC flying "
+                       "relative to another satellite; 'a''s"):
+        parse_config({"success": {"synchronisation_attitude_error_max_rad": 0.01},
+                      "satellites": [{"name": "a", "gnc": {
+                          "waypoints": [{"position_m": [0.0, 0.0, 0.0]}]}}]})

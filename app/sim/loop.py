@@ -235,11 +235,13 @@ class Emulator:
                                                                         self.gate.margin_m)
         return self.gate.update(clearance, nearest, crowd), self.gate.partner
 
-    def _gnc_params(self) -> list[tuple[int, GncParams]]:
-        """(satellite, its GNC's parameters in orbit units) for each satellite with one."""
+    def _gnc_params(self) -> list[tuple[int, GncParams, int | None]]:
+        """(satellite, its GNC's parameters in orbit units, the satellite its waypoints are
+        relative to or None) for each satellite with one."""
         W = self.ods.params.orbit_rate_radps / self.scaling.time
-        p = self.ods.params
-        return [(i, GncParams.from_config(sat.gnc, p.mass_kg[i], p.inertia_kgm2[i], W))
+        p, names = self.ods.params, [s.name for s in self.config.satellites]
+        return [(i, GncParams.from_config(sat.gnc, p.mass_kg[i], p.inertia_kgm2[i], W),
+                 None if sat.gnc.relative_to is None else names.index(sat.gnc.relative_to))
                 for i, sat in enumerate(self.config.satellites) if sat.gnc is not None]
 
     def own_actuation(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -252,10 +254,11 @@ class Emulator:
             return None
         sc, W_lab = self.scaling, self.ods.params.orbit_rate_radps
         dt_orbit_s = sc.time * self.dt_s
-        for k, (i, params) in enumerate(self.gnc):
+        for k, (i, params, j) in enumerate(self.gnc):
             nav = navigation(self.ods.y[i], self.ods.t_s, sc, W_lab)
+            target = None if j is None else navigation(self.ods.y[j], self.ods.t_s, sc, W_lab)
             self.gnc_states[k], force_R, torque_B = gnc_step(params, self.gnc_states[k], nav,
-                                                             dt_orbit_s)
+                                                             dt_orbit_s, target)
             self.gnc_wrench[i, :3], self.gnc_wrench[i, 3:] = force_R, torque_B
         return sc.ods_force(self.gnc_wrench[:, :3]), sc.ods_torque(self.gnc_wrench[:, 3:])
 
