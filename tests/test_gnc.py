@@ -27,9 +27,9 @@ from app.sim.loop import Emulator
 from app.sim.orbital import (
     OdsParams,
     OrbitalSimulator,
+    cw_state_transition,
     derivative,
     omega_inertial_from_relative,
-    cw_state_transition,
     orbit_rate,
 )
 from app.sim.rotations import quat_mul, quat_to_matrix, rotvec_to_quat
