@@ -147,12 +147,22 @@ def test_docking_captures_on_the_arms_as_in_the_ideal_run_and_then_moves_as_one(
     assert hil["safety_stop"] is None and hil["success"]["passed"] and cap["captured"]
     assert "captured at" in proc.stdout and "success: passed" in proc.stdout
     assert cap["position_miss_m"] <= 0.005 and cap["relative_speed_mps"] <= 0.01
-    # momentum: two equal 100 kg bodies, one at 2 cm/s: the compound goes on at 1 cm/s
+    # momentum: two equal 100 kg bodies, one drifting at 2 cm/s: the compound goes on at
+    # 1 cm/s
     assert cap["residual_speed_mps"] == pytest.approx(0.01, rel=0.05)
     after = rows[:, 0] > cap["t_s"] + 0.01
     gap = np.linalg.norm(rows[after][:, [index[f"sat2_{a}_m"] for a in "xyz"]]
                          - rows[after][:, [index[f"sat1_{a}_m"] for a in "xyz"]], axis=1)
     assert np.ptp(gap) < 1e-9  # one rigid body in the ODS
+    # the chaser's own GNC flew the approach and went quiet before the contact: it
+    # drifted into the interface at 1-3 cm/s
+    col = lambda name: rows[:, index[name]]  # noqa: E731
+    fired = np.flatnonzero(np.abs(col("sat1_gnc_fx_N")) > 0.0)
+    touching = np.flatnonzero(np.abs(col("sat1_true_fx_N")) > 0.0)
+    assert len(fired) and len(touching) and rows[fired[-1], 0] < rows[touching[0], 0] - 1.0
+    closing = col("sat1_vx_mps")[touching[0]] - col("sat2_vx_mps")[touching[0]]
+    assert 0.01 <= closing <= 0.03
+    assert col("sat1_vx_mps")[0] == 0.0  # from rest: the GNC brought it to speed
     _, ideal, _, _ = _docking(tmp_path, "ideal", "--mode", "ideal")
     assert ideal["capture"]["captured"]
     assert cap["t_s"] == pytest.approx(ideal["capture"]["t_s"], abs=0.1)
