@@ -93,6 +93,32 @@ def test_free_flying_starts_over_rest_and_flies_on_its_own(live):
     assert fx.max() > 0.5 and fx[0] == pytest.approx(0.75)  # the first command, unsaturated
 
 
+def test_rendezvous_and_tumbling_target_run_from_the_web_app(live):
+    """Both start over REST on the arms, show their two satellites, and fly: the
+    rendezvous chaser holds S1 (100 m behind: 0.5 m in the lab) and then leaves it along
+    V-bar; the tumbling target turns at its 2 deg/s on its arm while the chaser follows."""
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/rendezvous/start", json={}).json()
+    assert s["status"] == "running" and s["mode"] == "hil", s
+    s = live.wait_for(lambda s: s["t_s"] >= 2.5)
+    assert s["status"] == "running" and len(s["satellites"]) == 2
+    assert s["satellites"][0]["position_m"][1] > -0.5 + 1e-3  # its first burn was fired
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/tumbling-target/start", json={}).json()
+    assert s["status"] == "running" and s["scenario"] == "tumbling-target", s
+    s0 = live.wait_for(lambda s: s["t_s"] >= 1.0)
+    s1 = live.wait_for(lambda s: s["t_s"] >= s0["t_s"] + 1.0)
+    assert s1["status"] == "running"
+    live.client.post("/api/stop")
+    lines = live.client.get("/api/telemetry", params={"format": "csv"}).text.splitlines()
+    header = lines[0].split(",")
+    wz = np.array([float(line.split(",")[header.index("sat2_wz_radps")]) for line in lines[1:]])
+    np.testing.assert_allclose(wz, np.radians(2.0), atol=1e-4)
+    rob_q = [float(v) for v in lines[-1].split(",")[header.index("rob2_qw"):][:4]]
+    sat_q = [float(v) for v in lines[-1].split(",")[header.index("sat2_qw"):][:4]]
+    assert abs(np.dot(rob_q, sat_q)) > np.cos(0.01 / 2)  # the arm turns the mockup with it
+
+
 BAD_PUSHES = [
     ('{"satellite": 1, "force_N": [NaN, 0, 0], "duration_s": 0.3}', "force_N"),
     ('{"satellite": 1, "force_N": [0, Infinity, 0], "duration_s": 0.3}', "force_N"),

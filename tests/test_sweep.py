@@ -23,6 +23,7 @@ from app.sweep import (
     Run,
     SpecError,
     cell,
+    execute_run,
     ideal_id,
     load_spec,
     metric_value,
@@ -411,3 +412,28 @@ def test_run_applies_its_set_options_together():
     cfg = resolve_run_config("docking", None, overrides=[
         assignment_override("scaling.length=2"), assignment_override("scaling.time=2")])
     assert (cfg.scaling.length, cfg.scaling.time) == (2.0, 2.0)
+
+
+@pytest.mark.parametrize(("scenario", "axis", "values", "metric"), [
+    ("rendezvous", "satellites.0.gnc.waypoints.2.transfer_s", [900.0, 1200.0],
+     "success.waypoints"),
+    ("tumbling-target", "satellites.1.omega_radps.2", [0.0349066, 0.0523599],
+     "success.synchronisation"),
+])
+def test_the_new_scenarios_sweep_over_their_gnc_and_report_their_success(
+        tmp_path, scenario, axis, values, metric):
+    """A grid over a GNC leg or the target's spin plans, and its runs (ideal, without
+    Ray: what each Ray task does) report their success block in the row."""
+    path = tmp_path / "spec.toml"
+    path.write_text(f'scenario = "{scenario}"\nmode = "ideal"\nseeds = [0]\n'
+                    f'metrics = ["success.passed", "{metric}"]\n'
+                    f'[grid]\n"{axis}" = {values}\n')
+    plan = plan_sweep(load_spec(path), tmp_path, "spec.toml")
+    runs = list(plan.runs())
+    assert len(runs) == 2
+    for run in runs:
+        outcome = execute_run(run.config, None, "none", None)
+        assert outcome["status"] == "finished", outcome["reason"]
+        row = row_of(plan, run, outcome)
+        assert row["success.passed"] == "true", row
+        assert metric in row and row[metric]
