@@ -93,10 +93,19 @@ def test_free_flying_starts_over_rest_and_flies_on_its_own(live):
     assert fx.max() > 0.5 and fx[0] == pytest.approx(0.75)  # the first command, unsaturated
 
 
-def test_rendezvous_and_tumbling_target_run_from_the_web_app(live):
-    """Both start over REST on the arms, show their two satellites, and fly: the
-    rendezvous chaser holds S1 (100 m behind: 0.5 m in the lab) and then leaves it along
-    V-bar; the tumbling target turns at its 2 deg/s on its arm while the chaser follows."""
+def test_gravity_stabilised_rendezvous_and_tumbling_target_run_from_the_web_app(live):
+    """Each starts over REST on the arms and moves as it should: the gravity-stabilised
+    satellite's pitch swings back from its 10 deg release; the rendezvous chaser holds S1
+    (100 m behind: 0.5 m in the lab) and then leaves it along V-bar; the tumbling target
+    turns at its 2 deg/s on its arm while the chaser follows."""
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/gravity-stabilised/start", json={}).json()
+    assert s["status"] == "running" and s["mode"] == "hil", s
+    s = live.wait_for(lambda s: s["t_s"] >= 1.0)
+    q0 = live.client.get("/api/telemetry", params={"format": "csv"}).text.splitlines()
+    header = q0[0].split(",")
+    qz = [float(line.split(",")[header.index("sat1_qz")]) for line in q0[1:]]
+    assert s["status"] == "running" and abs(qz[-1]) < abs(qz[0]) - 0.01  # swinging back
     live.client.post("/api/stop")
     s = live.client.post("/api/scenarios/rendezvous/start", json={}).json()
     assert s["status"] == "running" and s["mode"] == "hil", s

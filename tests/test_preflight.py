@@ -84,3 +84,31 @@ def test_a_sweep_run_the_pre_flight_refuses_is_a_row_refused_and_nothing_runs():
     single = finish_run_config(_drifting([0.0, 0.05, 0.0]), mode="hil", duration_s=30.0)
     outcome = execute_run(single, None, "none", None)
     assert outcome["status"] == "refused" and "leaves the arm's reach" in outcome["reason"]
+
+
+@pytest.mark.parametrize(("scenario", "setting", "robot"), [
+    # R's origin 0.6 m further from the ceiling arm: the satellite starts out of reach
+    ("gravity-stabilised", "lab.r_origin_m=[0.25, 0.0, 1.0]", "robot 1 (ceiling): satellite 'sat'"),
+    # a third waypoint 5 m (1 m in the lab) beyond the second
+    ("free-flying", "satellites.0.gnc.waypoints.2.position_m=[5.0, 0.25, 0.25]",
+     "robot 1 (ceiling): satellite 'freeflyer'"),
+    # a docking port 0.9 m below the target: the chaser dives for it, out of reach
+    ("docking", "satellites.0.gnc.waypoints.0.position_m=[-0.2, 0.0, -0.9]",
+     "robot 1 (ceiling): satellite 'chaser' leaves the arm's reach"),
+])
+def test_run_refuses_an_unreachable_variant_of_each_scenario_before_the_arms_move(
+        tmp_path, scenario, setting, robot):
+    """Through the CLI, as a user meets it: the pre-flight names the robot, the satellite
+    and the limit, exits non-zero, and writes nothing (rendezvous and tumbling-target:
+    their own test files)."""
+    import subprocess
+
+    from tests.test_cli import EXE
+
+    out = tmp_path / "out"
+    proc = subprocess.run([EXE, "run", scenario, "--out", str(out), "--quiet", "--set", setting],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0
+    assert "pre-flight: the ideal run predicts that" in proc.stderr, proc.stderr
+    assert robot in proc.stderr and "The arms have not moved" in proc.stderr, proc.stderr
+    assert not out.exists()

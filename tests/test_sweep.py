@@ -419,18 +419,23 @@ def test_run_applies_its_set_options_together():
      "success.waypoints"),
     ("tumbling-target", "satellites.1.omega_radps.2", [0.0349066, 0.0523599],
      "success.synchronisation"),
+    ("gravity-stabilised", "satellites.0.attitude_wxyz", [[0.9990482, 0, 0, 0.0436194]],
+     "success.libration"),
+    ("free-flying", "satellites.0.gnc.thrust_max_N", [1.5], "success.recovery"),
+    ("docking", "satellites.0.gnc.waypoints.0.approach_speed_mps", [0.015], "capture.t_s"),
 ])
-def test_the_new_scenarios_sweep_over_their_gnc_and_report_their_success(
+def test_the_scenario_library_sweeps_and_reports_its_success(
         tmp_path, scenario, axis, values, metric):
-    """A grid over a GNC leg or the target's spin plans, and its runs (ideal, without
-    Ray: what each Ray task does) report their success block in the row."""
+    """A grid over a GNC setting, the target's spin or the release angle plans, and its
+    runs (ideal, without Ray: what each Ray task does) pass and report their success
+    figures in the row."""
     path = tmp_path / "spec.toml"
     path.write_text(f'scenario = "{scenario}"\nmode = "ideal"\nseeds = [0]\n'
                     f'metrics = ["success.passed", "{metric}"]\n'
                     f'[grid]\n"{axis}" = {values}\n')
     plan = plan_sweep(load_spec(path), tmp_path, "spec.toml")
     runs = list(plan.runs())
-    assert len(runs) == 2
+    assert len(runs) == len(values)
     for run in runs:
         outcome = execute_run(run.config, None, "none", None)
         assert outcome["status"] == "finished", outcome["reason"]
