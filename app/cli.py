@@ -66,6 +66,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from app.headless import checked_reference
 
         ideal = checked_reference(headless_config(config, duration), duration)
+        from app.metrics import noise_spin_warnings
+
+        carried = [config.satellite_index(r.satellite) for r in config.robots]
+        for text in noise_spin_warnings(config, carried):
+            print(f"warning: {text}", file=sys.stderr)  # before the arms move
     out_dir = _output_dir(default_out(args))
     if args.bag:
         from app.bag import check_bag_dir

@@ -9,7 +9,7 @@ import numpy as np
 from app.config import EmulatorConfig
 from app.sim.loop import Emulator
 from app.sim.scaling import describe as describe_scaling
-from app.sim.scaling import scaling_of
+from app.sim.scaling import describe_body, scaling_of
 from app.success import success_metrics
 
 
@@ -419,7 +419,8 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                 w for w in metrics["collision"]["warnings"] if "restitution" not in w]
     metrics["success"] = success_metrics(config, rows, index, metrics.get("capture")) \
         if len(rows) else None
-    metrics["warnings"] = _run_warnings(metrics, ideal_collision)
+    metrics["warnings"] = _run_warnings(metrics, ideal_collision) + noise_spin_warnings(
+        config, [i for i in facts.arm_of])
     return metrics
 
 
@@ -444,6 +445,35 @@ def capture_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
                 for k, s in enumerate((c, t))) / m.sum()
         out["residual_rate_radps"] = float(np.linalg.norm(w))
         out["residual_speed_mps"] = float(np.linalg.norm(v))
+    return out
+
+
+NOISE_SPIN_MAX_RADPS = 0.1
+"""The largest rate (lab rad/s) one F/T sample at the torque deadband may give a carried
+satellite in one cycle before the run is warned about it."""
+
+
+def noise_spin_warnings(config: EmulatorConfig, carried: list[int]) -> list[str]:
+    """Carried satellites whose inertia in lab units (I / (k_M k_L²) under similarity,
+    I / torque_scale under the paper's law) is so small that a single F/T sample just
+    over the torque deadband, acting for one cycle, would turn them faster than
+    NOISE_SPIN_MAX_RADPS: the sensor's noise can spin them, which the ideal run never
+    shows (the rendezvous at k_M = 500 did so: a tracking stop after 1.8 s)."""
+    sc, out = scaling_of(config), []
+    dt_s = 1.0 / config.loop.rate_hz
+    for i in carried:
+        sat = config.satellites[i]
+        inertia = describe_body(sat, config, sc)["lab_equivalent_inertia_kgm2"]
+        if not inertia:
+            continue
+        kick = config.wrench.deadband_torque_Nm * dt_s / min(inertia)
+        if kick > NOISE_SPIN_MAX_RADPS:
+            out.append(
+                f"satellite {sat.name!r}: its inertia in lab units ({min(inertia):.3g} kg m2) "
+                f"is so small that one F/T sample at the torque deadband "
+                f"({config.wrench.deadband_torque_Nm:g} N m) for one cycle would turn it at "
+                f"{kick:.3g} rad/s: the sensor's noise can spin it (lower scaling.mass or "
+                f"scaling.length, or raise its inertia)")
     return out
 
 

@@ -322,3 +322,37 @@ def test_a_contact_beyond_the_sensor_range_stops_the_run_or_is_named():
     assert any(w.startswith(f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the "
                             f"F/T sensor's 100 N range: its readings clipped")
                for w in coll["warnings"])
+
+
+def test_a_satellite_the_sensor_noise_can_spin_is_warned_about(tmp_path):
+    """The rendezvous at k_M = 500: each 500 kg, 300 kg m2 satellite is 1.5e-5 kg m2 in lab
+    units, and one sample at the 0.25 N m deadband for a 2 ms cycle turns it at 33 rad/s;
+    at the scenario's k_M = 1 (0.0075 kg m2: 0.067 rad/s), and in every built-in scenario,
+    no warning."""
+    from app.config import merge_overrides
+    from app.metrics import noise_spin_warnings
+    from app.scenarios import load_scenario, scenario_names
+
+    heavy = merge_overrides(load_scenario("rendezvous"), {"scaling": {"mass": 500.0}})
+    warned = noise_spin_warnings(heavy, [0, 1])
+    assert len(warned) == 2 and warned[1] == (
+        "satellite 'target': its inertia in lab units (1.5e-05 kg m2) is so small that one "
+        "F/T sample at the torque deadband (0.25 N m) for one cycle would turn it at 33.3 "
+        "rad/s: the sensor's noise can spin it (lower scaling.mass or scaling.length, or "
+        "raise its inertia)")
+    assert noise_spin_warnings(heavy, []) == []  # nothing carried (an ideal run)
+    # the CLI says so on stderr before the arms move (here: then the stop it predicted)
+    import json
+    import subprocess
+
+    from tests.test_cli import EXE
+
+    proc = subprocess.run([EXE, "run", "rendezvous", "--out", str(tmp_path / "out"), "--quiet",
+                           "--duration", "0.5", "--set", "scaling.mass=500"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.stderr.startswith(f"warning: {warned[0]}\nwarning: {warned[1]}\n"), proc.stderr
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["warnings"] == warned
+    for name in scenario_names():
+        cfg = load_scenario(name)
+        assert noise_spin_warnings(cfg, list(range(len(cfg.satellites)))) == [], name
