@@ -159,3 +159,18 @@ def test_the_config_s_orbit_rate_is_the_simulator_s():
 
     for altitude_m in (400e3, 800e3, 35786e3):
         assert _orbit_rate(altitude_m) == orbit_rate(altitude_m)
+
+
+def test_the_summary_line_names_every_satellite_and_what_it_moves_as():
+    from app.config import merge_overrides
+    from app.scenarios import load_scenario
+
+    assert summary_line(load_scenario("collision")).endswith(
+        "; cubesat and sponge move as 1 kg with 2000x a uniform box's inertia")
+    assert summary_line(load_scenario("rendezvous")).endswith(
+        "; chaser and target: each a 500 kg satellite on a 1 kg mockup")
+    docking = merge_overrides(load_scenario("docking"),
+                              {"satellites": {"1": {"mass_kg": 400.0}}})
+    assert summary_line(docking).endswith(
+        "; chaser: a 100 kg satellite on a 1 kg mockup; target: a 400 kg satellite on a 1 kg "
+        "mockup")

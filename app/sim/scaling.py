@@ -192,17 +192,26 @@ def mockup_mass_kg(sat: SatelliteConfig, config: EmulatorConfig) -> float:
 
 
 def summary_line(config: EmulatorConfig) -> str:
-    """One line for plot titles and the summary: the law, its factors, and what the first
-    satellite moves as."""
+    """One line for plot titles and the summary: the law, its factors, and what each
+    satellite moves as (a body shared by several once: "chaser and target: each ...")."""
     sc = scaling_of(config)
-    sat = config.satellites[0]
     if sc.law == "similarity":
+        parts = {}
+        for sat in config.satellites:
+            text = f"a {sat.mass_kg:g} kg satellite on a {mockup_mass_kg(sat, config):g} kg mockup"
+            parts.setdefault(text, []).append(sat.name)
         return (f"scaling: similarity, orbit per lab: length x{sc.length:g}, time "
-                f"x{sc.time:g}, mass x{sc.mass:g}; {sat.name}: a {sat.mass_kg:g} kg "
-                f"satellite on a {mockup_mass_kg(sat, config):g} kg mockup")
-    body = describe_body(sat, config, sc)
-    ratio = body["inertia_vs_uniform_box"]
+                f"x{sc.time:g}, mass x{sc.mass:g}; "
+                + "; ".join(f"{' and '.join(names)}: {'each ' if len(names) > 1 else ''}{text}"
+                            for text, names in parts.items()))
+    parts = {}
+    for sat in config.satellites:
+        body = describe_body(sat, config, sc)
+        ratio = body["inertia_vs_uniform_box"]
+        text = (f"{body['lab_equivalent_mass_kg']:g} kg"
+                + ("" if ratio is None else f" with {ratio:.4g}x a uniform box's inertia"))
+        parts.setdefault(text, []).append(sat.name)
     return (f"scaling: the paper's knobs (force x{sc.force_scale:g}, torque "
-            f"x{sc.torque_scale:g}); {sat.name} moves as "
-            f"{body['lab_equivalent_mass_kg']:g} kg"
-            + ("" if ratio is None else f" with {ratio:.4g}x a uniform box's inertia"))
+            f"x{sc.torque_scale:g}); "
+            + "; ".join(f"{' and '.join(names)} move{'s' if len(names) == 1 else ''} as {text}"
+                        for text, names in parts.items()))
