@@ -175,3 +175,15 @@ def test_a_latch_that_needs_a_slower_contact_does_not_capture(tmp_path):
                                 "capture.velocity_tolerance_mps=0.001")
     assert metrics["capture"]["captured"] is False
     assert metrics["success"]["passed"] is False
+
+
+def test_the_docking_s_excess_residual_rate_on_the_arms_is_the_sensor_s_noise(tmp_path):
+    """With the F/T noise at zero, the hil compound's residual rate and capture time are
+    the ideal run's: what the arms add with noise (README: 0.71 against 0.05 mrad/s) comes
+    from the noise passing the lifted deadbands during the gated contact."""
+    quiet = ("--set", "sensor.noise_force_N=0", "--set", "sensor.noise_torque_Nm=0")
+    _, hil, _, _ = _docking(tmp_path, "quiet", *quiet)
+    _, ideal, _, _ = _docking(tmp_path, "ideal", "--mode", "ideal")
+    assert hil["capture"]["residual_rate_radps"] == pytest.approx(
+        ideal["capture"]["residual_rate_radps"], abs=2e-5)
+    assert hil["capture"]["t_s"] == pytest.approx(ideal["capture"]["t_s"], abs=0.004)
