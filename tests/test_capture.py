@@ -187,3 +187,19 @@ def test_the_docking_s_excess_residual_rate_on_the_arms_is_the_sensor_s_noise(tm
     assert hil["capture"]["residual_rate_radps"] == pytest.approx(
         ideal["capture"]["residual_rate_radps"], abs=2e-5)
     assert hil["capture"]["t_s"] == pytest.approx(ideal["capture"]["t_s"], abs=0.004)
+
+
+def test_a_chaser_still_firing_at_capture_stops_and_the_compound_coasts(tmp_path):
+    """Free drift only 0.1 mm before the port: the chaser's GNC is still flying when the
+    latch closes. From the capture on its thrusters are quiet (its reference, the port,
+    is part of its own body now) and the compound keeps its momentum."""
+    _, m, rows, index = _docking(tmp_path, "firing", "--mode", "ideal", "--set",
+                                 "satellites.0.gnc.waypoints.0.free_drift_m=0.0001")
+    t_cap = m["capture"]["t_s"]
+    col = lambda name: rows[:, index[name]]  # noqa: E731
+    before = (rows[:, 0] > t_cap - 0.2) & (rows[:, 0] < t_cap)
+    after = rows[:, 0] > t_cap + 0.01
+    assert np.any(col("sat1_gnc_fx_N")[before] != 0.0)  # it was firing
+    assert np.all(col("sat1_gnc_fx_N")[after] == 0.0)
+    # (only CW drift, under 1e-5 m/s: the thrust it was firing would add 2.5 mm/s)
+    assert np.ptp(col("sat1_vx_mps")[after]) < 1e-5

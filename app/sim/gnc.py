@@ -32,6 +32,8 @@ which measures only what touches the mockup (contact, the operator's hand).
     it); ``free_drift_m``: within that distance of the waypoint the thrusters and wheels
     stop for good, and it drifts in (a docking's last centimetres: the chaser does not
     fire into the interface).
+    A GNC flying relative to the satellite it is captured with ([capture]) goes into free
+    drift at the capture (app/sim/loop.py): its reference is part of its own body then.
 
   *Relative to another satellite* (``relative_to``, e.g. a tumbling target or a docking
   port): the waypoints and the held attitude are in that satellite's body frame, from its

@@ -22,6 +22,7 @@ through :meth:`Emulator.post` and is consumed at the start of the next cycle.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -324,9 +325,19 @@ class Emulator:
         spread(self.compound, row, p.orbit_rate_radps, self.ods.y)
         self._compound_y = (row, row)
         self.interaction.contact.exclude(c, t)
+        self._drift_after_capture({c, t})
         self.capture_event = {"t_s": float(self.ods.t_s), "position_miss_m": miss,
                               "relative_speed_mps": speed, "relative_angle_rad": angle,
                               "relative_rate_radps": rate}
+
+    def _drift_after_capture(self, pair: set[int]) -> None:
+        """A GNC flying relative to the satellite it has just been captured with has
+        nothing left to fly to (its reference is part of its own body now): it goes into
+        free drift, as a chaser's thrusters are inhibited at capture."""
+        for k, (i, _, j) in enumerate(self.gnc):
+            if j is not None and {i, j} == pair:
+                self.gnc_states[k] = replace(self.gnc_states[k], drifting=True,
+                                             force_B_N=np.zeros(3), torque_B_Nm=np.zeros(3))
 
     def _overlap(self, y: np.ndarray) -> bool:
         """Whether any two bodies overlap in the ODS state y."""
