@@ -501,3 +501,15 @@ def test_synchronisation_criteria_need_a_gnc_relative_to_a_target():
         parse_config({"success": {"synchronisation_attitude_error_max_rad": 0.01},
                       "satellites": [{"name": "a", "gnc": {
                           "waypoints": [{"position_m": [0.0, 0.0, 0.0]}]}}]})
+
+
+def test_a_transfer_too_short_for_the_thrusters_brakes_once_and_the_pd_flies_on():
+    """25 m in 1 s is far beyond 2 N on 500 kg: the transfer fires one saturated period,
+    brakes once it is due, and from then on the PD brings the satellite to the waypoint
+    at its own speed (braking does not hold it under tolerance_mps for good)."""
+    p = _leg_params(transfer_s=np.array([1.0]))
+    ods, states = _fly(p, _at_rest([0.0, -100.0, 0.0]), 4000.0, dt_s=0.5)
+    assert any(s.braked for s in states)
+    thrust = np.max([np.abs(s.force_B_N).max() for s in states])  # it flew, saturated
+    assert thrust == pytest.approx(p.thrust_max_N, rel=1e-9)
+    assert np.linalg.norm(ods.position_m[0] - [0.0, -75.0, 0.0]) < p.tolerance_m

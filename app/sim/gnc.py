@@ -26,7 +26,8 @@ which measures only what touches the mockup (contact, the operator's hand).
     corrections). In the last ``RETARGET_FRACTION`` of the transfer it coasts (the
     re-targeted impulse grows without bound as the time left goes to zero). At the
     arrival time, the second impulse: it brakes (m Δv / period_s with Δv = −v) until it
-    is slower than ``tolerance_mps``, and the PD holds the point.
+    is slower than ``tolerance_mps``; from then on (once per leg) the PD flies to the point
+    and holds it.
   - ``approach_speed_mps``: a straight closing at that speed, aimed at the waypoint every
     period (a velocity loop of gain 2 ζ ω_n, slowing as ω_n times the distance left near
     it); ``free_drift_m``: within that distance of the waypoint the thrusters and wheels
@@ -176,6 +177,8 @@ class GncState:
     """When (orbit s) the leg to the current waypoint began; NaN: not yet."""
     drifting: bool = False
     """In free drift (``free_drift_m``): no more firing."""
+    braked: bool = False
+    """The current leg's CW transfer has arrived and braked: the PD flies on."""
 
 
 @dataclass(frozen=True)
@@ -269,7 +272,8 @@ def guidance(params: GncParams, state: GncState, nav: Navigation,
         return replace(state, inside_since_s=math.nan)
     since = nav.t_s if math.isnan(state.inside_since_s) else state.inside_since_s
     if nav.t_s - since >= params.hold_s[k]:
-        return replace(state, waypoint=k + 1, inside_since_s=math.nan, leg_start_s=nav.t_s)
+        return replace(state, waypoint=k + 1, inside_since_s=math.nan, leg_start_s=nav.t_s,
+                       braked=False)
     return replace(state, inside_since_s=since)
 
 
@@ -301,7 +305,7 @@ def translation_force_R(params: GncParams, nav: Navigation, ref: Reference | np.
 def transfer_force_R(params: GncParams, state: GncState, nav: Navigation, ref: Reference,
                      transfer_s: float) -> np.ndarray | None:
     """The force (R, N) of a CW transfer leg this period (module doc), or None once it has
-    arrived and braked (the PD holds the point then)."""
+    arrived and braked (the PD flies on then)."""
     left_s = state.leg_start_s + transfer_s - nav.t_s
     if left_s > RETARGET_FRACTION * transfer_s:
         dv, _ = two_impulse_transfer(nav.position_m, nav.velocity_mps, ref.position_m,
@@ -360,19 +364,21 @@ def wheel_torque_B(params: GncParams, torque_B_Nm: np.ndarray) -> np.ndarray:
 
 
 def commanded_force_R(params: GncParams, state: GncState, nav: Navigation, ref: Reference,
-                      ) -> np.ndarray:
-    """The force (R, N) asked of the thrusters this period, by how the current leg is
-    flown (module doc)."""
+                      ) -> tuple[GncState, np.ndarray]:
+    """(the state, the force (R, N) asked of the thrusters this period) by how the current
+    leg is flown (module doc); a CW transfer that has arrived and braked is marked
+    ``braked`` (once: the PD flies on, a later push included)."""
     k = state.waypoint
     transfer_s = params.leg("transfer_s", k)
-    if not math.isnan(transfer_s):
+    if not math.isnan(transfer_s) and not state.braked:
         force = transfer_force_R(params, state, nav, ref, transfer_s)
         if force is not None:
-            return force
+            return state, force
+        state = replace(state, braked=True)
     speed = params.leg("approach_speed_mps", k)
     if not math.isnan(speed):
-        return approach_force_R(params, nav, ref, speed)
-    return translation_force_R(params, nav, ref)
+        return state, approach_force_R(params, nav, ref, speed)
+    return state, translation_force_R(params, nav, ref)
 
 
 def gnc_step(params: GncParams, state: GncState, nav: Navigation, dt_s: float,
@@ -392,7 +398,7 @@ def gnc_step(params: GncParams, state: GncState, nav: Navigation, dt_s: float,
         state = replace(state, drifting=True, force_B_N=np.zeros(3), torque_B_Nm=np.zeros(3))
         return state, np.zeros(3), np.zeros(3)
     if nav.t_s + 0.5 * dt_s >= state.next_update_s:
-        force_R = commanded_force_R(params, state, nav, ref)
+        state, force_R = commanded_force_R(params, state, nav, ref)
         state = replace(
             state, next_update_s=state.next_update_s + params.period_s,
             force_B_N=thruster_force_B(params, nav.R_R_B.T @ force_R),
