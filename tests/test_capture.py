@@ -141,7 +141,14 @@ def _docking(tmp_path, name, *args):
     return proc, json.loads((out / "metrics.json").read_text()), rows, index
 
 
-def test_docking_captures_on_the_arms_as_in_the_ideal_run_and_then_moves_as_one(tmp_path):
+@pytest.fixture(scope="module")
+def docking_ideal(tmp_path_factory):
+    """The docking's ideal run through the CLI, shared by the tests that compare with it."""
+    return _docking(tmp_path_factory.mktemp("docking"), "ideal", "--mode", "ideal")
+
+
+def test_docking_captures_on_the_arms_as_in_the_ideal_run_and_then_moves_as_one(
+        tmp_path, docking_ideal):
     proc, hil, rows, index = _docking(tmp_path, "hil")
     cap = hil["capture"]
     assert hil["safety_stop"] is None and hil["success"]["passed"] and cap["captured"]
@@ -163,7 +170,7 @@ def test_docking_captures_on_the_arms_as_in_the_ideal_run_and_then_moves_as_one(
     closing = col("sat1_vx_mps")[touching[0]] - col("sat2_vx_mps")[touching[0]]
     assert 0.01 <= closing <= 0.03
     assert col("sat1_vx_mps")[0] == 0.0  # from rest: the GNC brought it to speed
-    _, ideal, _, _ = _docking(tmp_path, "ideal", "--mode", "ideal")
+    _, ideal, _, _ = docking_ideal
     assert ideal["capture"]["captured"]
     assert cap["t_s"] == pytest.approx(ideal["capture"]["t_s"], abs=0.1)
     assert cap["peak_contact_force_N"] == pytest.approx(ideal["capture"]["peak_contact_force_N"],
@@ -177,13 +184,14 @@ def test_a_latch_that_needs_a_slower_contact_does_not_capture(tmp_path):
     assert metrics["success"]["passed"] is False
 
 
-def test_the_docking_s_excess_residual_rate_on_the_arms_is_the_sensor_s_noise(tmp_path):
+def test_the_docking_s_excess_residual_rate_on_the_arms_is_the_sensor_s_noise(tmp_path,
+                                                                              docking_ideal):
     """With the F/T noise at zero, the hil compound's residual rate and capture time are
     the ideal run's: what the arms add with noise (README: 0.71 against 0.05 mrad/s) comes
     from the noise passing the lifted deadbands during the gated contact."""
     quiet = ("--set", "sensor.noise_force_N=0", "--set", "sensor.noise_torque_Nm=0")
     _, hil, _, _ = _docking(tmp_path, "quiet", *quiet)
-    _, ideal, _, _ = _docking(tmp_path, "ideal", "--mode", "ideal")
+    _, ideal, _, _ = docking_ideal
     assert hil["capture"]["residual_rate_radps"] == pytest.approx(
         ideal["capture"]["residual_rate_radps"], abs=2e-5)
     assert hil["capture"]["t_s"] == pytest.approx(ideal["capture"]["t_s"], abs=0.004)

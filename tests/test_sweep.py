@@ -415,10 +415,8 @@ def test_run_applies_its_set_options_together():
 
 
 @pytest.mark.parametrize(("scenario", "axis", "values", "metric"), [
-    ("rendezvous", "satellites.0.gnc.waypoints.2.transfer_s", [900.0, 1200.0],
-     "success.waypoints"),
-    ("tumbling-target", "satellites.1.omega_radps.2", [0.0349066, 0.0523599],
-     "success.synchronisation"),
+    ("rendezvous", "satellites.0.gnc.waypoints.2.transfer_s", [900.0], "success.waypoints"),
+    ("tumbling-target", "satellites.1.omega_radps.2", [0.0523599], "success.synchronisation"),
     ("gravity-stabilised", "satellites.0.attitude_wxyz", [[0.9990482, 0, 0, 0.0436194]],
      "success.libration"),
     ("free-flying", "satellites.0.gnc.thrust_max_N", [1.5], "success.recovery"),

@@ -83,6 +83,7 @@ def test_a_capture_point_out_of_the_arm_s_reach_is_refused_before_the_arms_move(
     floor arm's side, beyond the ceiling arm's reach."""
     out = tmp_path / "far"
     proc = subprocess.run([EXE, "run", "tumbling-target", "--out", str(out), "--quiet",
+                           "--duration", "15",  # it leaves the reach at 11.7 s
                            "--set", "satellites.1.attitude_wxyz=[0.3420201, 0, 0, 0.9396926]"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode != 0
