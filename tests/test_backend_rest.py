@@ -112,6 +112,14 @@ def test_gravity_stabilised_rendezvous_and_tumbling_target_run_from_the_web_app(
     s = live.wait_for(lambda s: s["t_s"] >= 2.5)
     assert s["status"] == "running" and len(s["satellites"]) == 2
     assert s["satellites"][0]["position_m"][1] > -0.5 + 1e-3  # its first burn was fired
+    assert s["warnings"] == []
+    live.client.post("/api/stop")
+    # at k_M = 500 the F/T noise can spin the satellites: the state says so from the start
+    s = live.client.post("/api/scenarios/rendezvous/start",
+                         json={"scaling": {"mass": 500.0}, "loop": {"duration_s": 0.5}}).json()
+    assert [w.split(":")[0] for w in s["warnings"]] == ["satellite 'chaser'",
+                                                         "satellite 'target'"], s
+    assert "the sensor's noise can spin it" in s["warnings"][0]
     live.client.post("/api/stop")
     s = live.client.post("/api/scenarios/tumbling-target/start", json={}).json()
     assert s["status"] == "running" and s["scenario"] == "tumbling-target", s

@@ -87,6 +87,23 @@ def test_the_panel_warns_when_a_satellite_s_course_leaves_its_arm_s_safety_volum
     assert course_warning(snap([0.2, 0.0, 0.0], status="finished")) == ""
 
 
+def test_the_panel_shows_the_run_s_own_warnings_before_the_course_s():
+    """panel_warning: the snapshot's warnings (from the run's configuration) show whatever
+    the status, before Start too; a course warning follows them."""
+    from app.backend.scene import course_warning, panel_warning
+
+    snap = {"status": "idle", "warnings": ["satellite 'chaser': noise can spin it"],
+            "layout": {"T_W_R": np.eye(4).tolist(),
+                       "safety_boxes_W_m": [[[-1.5, -1.5, 0.05], [1.5, 1.5, 2.4]]]},
+            "robots": [{"name": "floor", "satellite": 1}],
+            "satellites": [{"position_W_m": [0.0, 1.0, 1.0], "velocity_mps": [0, 0.2, 0]}]}
+    assert panel_warning(snap) == "⚠ satellite 'chaser': noise can spin it"
+    snap["status"] = "running"
+    assert panel_warning(snap) == ("⚠ satellite 'chaser': noise can spin it  \n"
+                                   + course_warning(snap))
+    assert panel_warning({**snap, "warnings": []}) == course_warning(snap) != ""
+
+
 def test_the_panel_warns_before_a_satellite_s_course_leaves_its_arm_s_reach():
     """The reach (HOLD_RADIUS_M from the shoulder) is usually nearer than the box: the
     warning names it, with the time from |p + v t - shoulder| = r."""

@@ -35,7 +35,7 @@ from app.backend import snapshots
 from app.backend.ring import attach_ring
 from app.backend.snapshots import SnapshotWriter
 from app.config import EmulatorConfig
-from app.metrics import passivity_metrics
+from app.metrics import noise_spin_warnings, passivity_metrics
 from app.sim.loop import Emulator
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
 from app.sim.scaling import scaling_of, summary_line
@@ -58,6 +58,7 @@ class LoopCore:
         self.shm = shared_memory.SharedMemory(name=shm_name)
         self.writer = SnapshotWriter(self.shm)
         self._beats = 0
+        self._warned_em, self._warnings = None, []
         self.snapshot_every = max(1, int(settings.get("snapshot_every", 10)))
         self.spin_s = float(settings.get("spin_s", 0.0003))
         self.max_lag_s = float(settings.get("max_lag_s", 0.1))
@@ -280,6 +281,16 @@ class LoopCore:
     def publish(self) -> None:
         self.writer.write(self.build_snapshot())
 
+    def _config_warnings(self, em: Emulator) -> list[str]:
+        """What the operator must read before Start (computed once per emulator): a hil
+        run's satellites that the F/T noise can spin (app/metrics.py, as the CLI warns)."""
+        if self._warned_em is not em:
+            carried = [a.satellite for a in em.arms]
+            self._warnings = (noise_spin_warnings(em.config, carried)
+                              if em.mode == "hil" else [])
+            self._warned_em = em
+        return self._warnings
+
     def build_snapshot(self) -> dict[str, Any]:
         em = self.em
         ods = em.ods
@@ -347,6 +358,7 @@ class LoopCore:
             "contact_active": bool(em.contact_active),
             "capture": em.capture_event,
             "passivity": passivity_metrics(em),
+            "warnings": self._config_warnings(em),
             "layout": {
                 "T_W_R": T_W_R.tolist(),
                 "arms": [[cfg.robots[a.index].name, a.T_W_B.tolist()] for a in em.arms],

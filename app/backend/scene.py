@@ -652,9 +652,17 @@ class EmulatorScene:
         if text != getattr(self, "_last_status", None):
             self.gui_status.content = text
             self._last_status = text
-        warning = course_warning(snap)
+        warning = panel_warning(snap)
         if warning != self.gui_warning.content:
             self.gui_warning.content = warning
+
+
+def panel_warning(snap: dict) -> str:
+    """The panel's warnings: the run's own (from its configuration, shown before Start,
+    e.g. satellites the F/T noise can spin), then the course's (course_warning)."""
+    lines = [f"⚠ {text}" for text in snap.get("warnings", [])]
+    course = course_warning(snap)
+    return "  \n".join(lines + ([course] if course else []))
 
 
 def course_warning(snap: dict, horizon_s: float = WARN_HORIZON_S) -> str:
