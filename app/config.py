@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -755,9 +756,12 @@ class EmulatorConfig(_Model):
 def _format_error(err: ValidationError) -> str:
     lines = []
     for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        loc = ".".join(str(p) for p in e["loc"])
         msg = e["msg"].removeprefix("Value error, ")
-        lines.append(f"{loc}: {msg}")
+        if not loc and re.match(r"[\w.]+: ", msg):  # a whole-config check names its field
+            lines.append(msg)
+        else:
+            lines.append(f"{loc or '(top level)'}: {msg}")
     return "invalid configuration: " + "; ".join(lines)
 
 

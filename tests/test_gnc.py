@@ -492,7 +492,7 @@ def test_gnc_legs_are_validated_naming_the_field(gnc, where, message):
     with pytest.raises(ConfigError) as err:
         parse_config({"orbit": {"altitude_m": 800e3},
                       "satellites": [sat, {"name": "b", "position_m": [1.0, 0.0, 0.0]}]})
-    assert where in str(err.value) and message in str(err.value), str(err.value)
+    assert str(err.value) == f"invalid configuration: {where}: {message}"
 
 
 def test_synchronisation_criteria_need_a_gnc_relative_to_a_target():
