@@ -492,7 +492,8 @@ class HandConfig(_Model):
 class CaptureConfig(_Model):
     """Docking capture (app/sim/capture.py): when the target's COM, seen from the chaser's
     body frame, is within position_tolerance_m of mated_offset_m, and the relative speed,
-    attitude and rate are within theirs, the pair latches and moves as one body."""
+    attitude and rate are within theirs, while the mockups touch, the pair latches and
+    moves as one body."""
 
     chaser: str
     target: str
@@ -502,6 +503,9 @@ class CaptureConfig(_Model):
     velocity_tolerance_mps: Positive = 0.01
     attitude_tolerance_rad: Positive = 0.05
     rate_tolerance_radps: Positive = 0.05
+    require_contact: StrictBool = True
+    """The latch closes only while the two mockups touch (a mechanism grabs what it
+    touches); false: on the envelope alone, touching or not (a virtual capture)."""
 
 
 class SuccessConfig(_Model):

@@ -71,6 +71,8 @@ class PhysicalInteraction:
         self.hand = hand
         self.contact_active = False
         """Whether any pair of bodies pushed on each other in the last call."""
+        self.touching: frozenset[frozenset[int]] = frozenset()
+        """The pairs of bodies that overlapped in the last call (each a set of two)."""
         self.hand_acting = np.zeros(contact.n, dtype=bool)
         """Per body, whether the operator's hand pushed on it in the last call."""
 
@@ -79,6 +81,7 @@ class PhysicalInteraction:
         T_W_C = bodies.T_W_C
         contact = self.contact.compute(T_W_C, bodies.v_W, bodies.w_W)
         self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
+        self.touching = frozenset(frozenset((c.a, c.b)) for c in contact.contacts)
         hand_W = self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3])
         self.hand_acting = np.any(hand_W != 0.0, axis=1)
         return contact.wrench_W + hand_W

@@ -305,7 +305,9 @@ class Emulator:
 
     def _capture(self) -> None:
         """After a step: a docked pair becomes one body once inside its capture envelope
-        (``[capture]``); from the next step on the ODS moves it as one."""
+        (``[capture]``), touching in this cycle's contact (hil: the actual mockups; ideal:
+        the ODS bodies) unless ``require_contact`` is off; from the next step on the ODS
+        moves it as one."""
         cap = self.config.capture
         if self.compound is not None:
             self._compound_y = (self._compound_y[1], self._compound_y[1])
@@ -313,6 +315,8 @@ class Emulator:
         if cap is None:
             return
         c, t = self.config.satellite_index(cap.chaser), self.config.satellite_index(cap.target)
+        if cap.require_contact and frozenset((c, t)) not in self.interaction.touching:
+            return
         p = self.ods.params
         p_rel, v_rel, angle, rate = relative_state(self.ods.y, c, t, p.orbit_rate_radps)
         miss = float(np.linalg.norm(p_rel - np.asarray(cap.mated_offset_m)))
