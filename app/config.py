@@ -104,6 +104,8 @@ class OrbitConfig(_Model):
 
 ScaleFactor = Annotated[float, AfterValidator(_finite), Field(ge=1e-6, le=1e6)]
 """An orbit-per-lab scale factor: within a millionth and a million."""
+HALF_ORBIT_MARGIN = 0.01
+"""A CW transfer time this close to half an orbit (as a fraction of one) is refused."""
 MAX_ORBIT_TURN_PER_CYCLE_RAD = 0.01
 """The most the orbit frame may turn in one loop cycle under a time scale (k_T Omega / rate):
 beyond, the 2 ms step no longer resolves the orbit's own motions (a libration, CW)."""
@@ -140,7 +142,8 @@ class WaypointConfig(_Model):
     transfer_s: Positive | None = None
     """Fly the leg to this waypoint as a Clohessy-Wiltshire two-impulse transfer of this
     duration (orbit s), re-targeted every control period, then brake and hold (none: the
-    PD flies it). Less than 0.9 of an orbit; waypoints in R only."""
+    PD flies it). Less than 0.9 of an orbit, and not within 1 % of an orbit of half of
+    one; waypoints in R only."""
     approach_speed_mps: Positive | None = None
     """Fly the leg to this waypoint as a straight closing at this speed (orbit m/s)."""
     free_drift_m: Positive | None = None
@@ -528,6 +531,8 @@ class SuccessConfig(_Model):
     recovery_time_max_s: Positive | None = None
     """... and, after the last scripted pulse on it ends, is back within tolerance of the
     waypoint it was flying to within this time (orbit s)."""
+    no_contact: StrictBool = False
+    """The satellites never touch (a rendezvous that ends in a collision has failed)."""
     synchronisation_position_error_max_m: Positive | None = None
     """A GNC flying relative to another satellite (``relative_to``): at its last waypoint
     (the capture point), over the hold that reaches it, at most this far (orbit m) from
@@ -691,9 +696,43 @@ class EmulatorConfig(_Model):
                              f"[satellites.gnc] has no relative_to")
         return self
 
+    @model_validator(mode="after")
+    def _success_applies(self) -> EmulatorConfig:
+        """Each [success] criterion has something to judge."""
+        crit = self.success
+        for key in ("captured", "residual_rate_max_radps"):
+            if getattr(crit, key) is not None and self.capture is None:
+                raise ValueError(f"success.{key}: judges a docking's capture; this "
+                                 f"configuration has no [capture]")
+        if crit.no_contact and len(self.satellites) < 2:
+            raise ValueError("success.no_contact: judges contact between satellites; "
+                             "there is only one")
+        if crit.libration_period_error_max is not None:
+            if not self.orbit.gravity_gradient:
+                raise ValueError("success.libration_period_error_max: the libration is the "
+                                 "gravity gradient's, and orbit.gravity_gradient is off")
+            ix, iy, _ = self.satellites[0].principal_inertia()
+            if iy <= ix:
+                raise ValueError(f"success.libration_period_error_max: satellites.0 has "
+                                 f"I_y {iy:g} <= I_x {ix:g} kg m^2: the gravity gradient "
+                                 f"gives its pitch no restoring torque, nothing librates")
+        return self
+
+    @model_validator(mode="after")
+    def _capture_can_join(self) -> EmulatorConfig:
+        """A capture joins lab-equivalent bodies (mass / force_scale, inertia /
+        torque_scale): a zero knob makes them infinite."""
+        if self.capture is not None and self.scaling.law == "paper" \
+                and 0.0 in (self.orbit.force_scale, self.orbit.torque_scale):
+            raise ValueError("capture: a zero [orbit] force_scale or torque_scale makes a "
+                             "satellite's lab-equivalent mass or inertia infinite; no "
+                             "compound can be formed")
+        return self
+
     def _gnc_legs(self, i: int, gnc: GncConfig) -> None:
         """``relative_to`` names another satellite; CW transfers fly between points of R,
-        each shorter than 0.9 of an orbit (a whole orbit is CW's singular transfer time)."""
+        each shorter than 0.9 of an orbit and not near half of one (CW's singular transfer
+        times: in plane a whole orbit, out of plane every half)."""
         names = [s.name for s in self.satellites]
         if gnc.relative_to is not None and (gnc.relative_to not in names
                                             or gnc.relative_to == self.satellites[i].name):
@@ -710,6 +749,13 @@ class EmulatorConfig(_Model):
                 raise ValueError(f"satellites.{i}.gnc.waypoints.{k}.transfer_s: "
                                  f"{wp.transfer_s:g} s is not below 0.9 of an orbit "
                                  f"({0.9 * period_s:.0f} s of {period_s:.0f} s)")
+            if abs(wp.transfer_s / period_s - 0.5) < HALF_ORBIT_MARGIN:
+                raise ValueError(f"satellites.{i}.gnc.waypoints.{k}.transfer_s: "
+                                 f"{wp.transfer_s:g} s is within "
+                                 f"{HALF_ORBIT_MARGIN * period_s:.0f} s of half an orbit "
+                                 f"({period_s / 2:.0f} s), where "
+                                 f"the out-of-plane motion returns to its start whatever "
+                                 f"the first impulse: no CW transfer can aim it")
 
     @model_validator(mode="after")
     def _references(self) -> EmulatorConfig:

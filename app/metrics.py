@@ -417,8 +417,8 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
         if facts.capture and metrics.get("collision"):  # latched: no rebound to measure
             metrics["collision"]["warnings"] = [  # no rebound to measure: not a fault
                 w for w in metrics["collision"]["warnings"] if "restitution" not in w]
-    metrics["success"] = success_metrics(config, rows, index, metrics.get("capture")) \
-        if len(rows) else None
+    metrics["success"] = success_metrics(config, rows, index, metrics.get("capture"),
+                                         metrics.get("collision")) if len(rows) else None
     metrics["warnings"] = _run_warnings(metrics, ideal_collision) + noise_spin_warnings(
         config, [i for i in facts.arm_of])
     return metrics

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import ConfigError, EmulatorConfig, merge_overrides
+from app.metrics import contact_pair
 from app.sim.loop import Emulator
 from app.sim.rotations import make_transform, quat_to_matrix
 from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M, T_W_B_from_config
@@ -34,7 +35,8 @@ MAX_TCP_RATE_RADPS = 3.0
 MIN_TELEMETRY_ROWS = 100
 """The least telemetry capacity a configuration takes ([loop] telemetry_capacity)."""
 COARSE_RATE_HZ = 100.0
-"""The prediction's rate where no contact can happen (one satellite): 5x fewer cycles."""
+"""The prediction's rate where no contact can happen (one satellite) and every scripted
+pulse starts and ends on its grid (so that it applies the same impulse): 5x fewer cycles."""
 
 
 class PreflightRefused(ValueError):
@@ -59,8 +61,11 @@ class Violation:
 
 def predict(config: EmulatorConfig, duration_s: float) -> Emulator:
     """The ideal run of ``config`` over ``duration_s`` (its telemetry: the course). With
-    one satellite (no contact) at a coarser rate, for speed."""
-    coarse = len(config.satellites) == 1 and config.loop.rate_hz > COARSE_RATE_HZ
+    one satellite (no contact) and pulses on its grid at a coarser rate, for speed (a
+    pulse between its samples would be missed)."""
+    coarse = (len(config.satellites) == 1 and config.loop.rate_hz > COARSE_RATE_HZ
+              and all(_on_grid(t, COARSE_RATE_HZ) for p in config.pulses
+                      for t in (p.start_s, p.end_s)))
     predicted = None
     for rate in ([COARSE_RATE_HZ] if coarse else []) + [config.loop.rate_hz]:
         loop = {"rate_hz": rate,
@@ -75,6 +80,12 @@ def predict(config: EmulatorConfig, duration_s: float) -> Emulator:
     em = Emulator(predicted, mode="ideal")
     em.run(duration_s)
     return em
+
+
+def _on_grid(t_s: float, rate_hz: float) -> bool:
+    """Whether t_s is a whole number of cycles at rate_hz (to a millionth of a cycle)."""
+    cycles = t_s * rate_hz
+    return abs(cycles - round(cycles)) < 1e-6
 
 
 def check_course(config: EmulatorConfig, rows: np.ndarray, index: dict) -> list[Violation]:
@@ -131,10 +142,30 @@ def preflight(config: EmulatorConfig, duration_s: float) -> Emulator | None:
     if not config.robots:
         return None
     em = predict(config, duration_s)
-    violations = check_course(config, em.telemetry.rows(), em.telemetry.index)
+    rows, index = em.telemetry.rows(), em.telemetry.index
+    violations = check_course(config, rows, index)
     if violations:
         raise PreflightRefused(
             "pre-flight: the ideal run predicts that "
             + "; ".join(str(v) for v in violations)
+            + _contact_note(config, rows, index, violations[0].t_s)
             + ". The arms have not moved; change the scenario (or run it --mode ideal)")
     return em
+
+
+def _contact_note(config: EmulatorConfig, rows: np.ndarray, index: dict,
+                  first_violation_s: float) -> str:
+    """Where the predicted course has two satellites touch before its first violation,
+    which may be what threw them off: which, when and how hard ('' if none touch
+    before it)."""
+    pair = contact_pair(rows, index, len(config.satellites)) if len(rows) else None
+    if pair is None:
+        return ""
+    force = np.stack([np.linalg.norm(rows[:, [index[f"sat{s}_true_f{a}_N"] for a in "xyz"]],
+                                     axis=1) for s in pair], axis=1).min(axis=1)
+    first = int(np.argmax(force > 0.0))
+    if rows[first, 0] > first_violation_s:
+        return ""
+    a, b = (config.satellites[s - 1].name for s in pair)
+    return (f" (before that, at t = {rows[first, 0]:.2f} s, the mockups of {a!r} and "
+            f"{b!r} touch, up to {force.max():.3g} N)")

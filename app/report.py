@@ -87,6 +87,12 @@ def run_summary(metrics: dict) -> str:
     success = metrics.get("success")
     if success:
         lines += ["", "success: " + ("passed" if success["passed"] else "NOT MET")]
+        touch = success.get("no_contact")
+        if touch:
+            lines.append("  no contact between the satellites" if not touch["touched"] else
+                         f"  {' and '.join(touch['pair'])} touched at {touch['at_s']:.2f} s (lab) "
+                         f"(peak {touch['peak_force_N']:.1f} N): a contact this scenario "
+                         f"must not have")
         lib = success.get("libration")
         if lib:
             period = "-" if lib["period_s"] is None else f"{lib['period_s']:.1f} s"

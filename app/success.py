@@ -17,17 +17,21 @@ from app.sim.orbital import orbit_rate
 from app.sim.rotations import quat_mul, quat_to_matrix
 from app.sim.scaling import ods_inertia_kgm2, scaling_of
 
-__all__ = ["docking", "final_position", "gnc_satellite", "libration",
+__all__ = ["docking", "final_position", "no_contact", "gnc_satellite", "libration",
            "libration_period_theory_s", "pitch_rad", "recovery", "reference_track",
            "success_metrics", "synchronisation", "waypoints_flown"]
 
 
 def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
-                    capture: dict | None = None) -> dict | None:
+                    capture: dict | None = None, collision: dict | None = None,
+                    ) -> dict | None:
     """The ``success`` block of metrics.json (None when the scenario names no criterion);
-    ``capture``: the run's capture metrics, if it has a [capture]."""
+    ``capture``: the run's capture metrics, if it has a [capture]; ``collision``: its
+    first contact's metrics (app/metrics.py), None if the satellites never touched."""
     crit = config.success
     checks = {}
+    if crit.no_contact:
+        checks["no_contact"] = no_contact(config, collision)
     if crit.libration_period_error_max is not None:
         lib = libration(config, rows, index, satellite=0)
         lib["limit"] = crit.libration_period_error_max
@@ -41,6 +45,17 @@ def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
     if not checks:
         return None
     return {"passed": all(c["passed"] for c in checks.values()), **checks}
+
+
+def no_contact(config: EmulatorConfig, collision: dict | None) -> dict:
+    """The satellites never touched; if they did, which pair (by name), when (lab s) and
+    how hard (N, in the lab)."""
+    if collision is None:
+        return {"touched": False, "passed": True}
+    names = [config.satellites[int(label.removeprefix("sat")) - 1].name
+             for label in collision["pair"]]
+    return {"touched": True, "pair": names, "at_s": collision["contact_start_s"],
+            "peak_force_N": collision["peak_force_N"], "passed": False}
 
 
 def docking(config: EmulatorConfig, capture: dict | None, crit) -> dict:

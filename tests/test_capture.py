@@ -261,3 +261,19 @@ def test_the_latch_closes_only_on_a_touching_pair_unless_told_otherwise(tmp_path
     else:
         assert not len(touching) and cap["peak_contact_force_N"] == 0.0
         assert cap["position_miss_m"] == pytest.approx(0.03, abs=0.001)
+
+
+@pytest.mark.parametrize("knob", ["force_scale", "torque_scale"])
+def test_a_capture_under_a_zero_knob_is_refused(knob):
+    """The paper's law joins lab-equivalent bodies (m / force_scale, I / torque_scale):
+    a zero knob would make them infinite (it ended a run in NaNs)."""
+    from app.config import ConfigError, parse_config
+
+    with pytest.raises(ConfigError) as err:
+        parse_config({"orbit": {knob: 0.0},
+                      "satellites": [{"name": "a"}, {"name": "b", "position_m": [1, 0, 0]}],
+                      "capture": {"chaser": "a", "target": "b",
+                                  "mated_offset_m": [0.2, 0.0, 0.0]}})
+    assert str(err.value) == (
+        "invalid configuration: capture: a zero [orbit] force_scale or torque_scale makes a "
+        "satellite's lab-equivalent mass or inertia infinite; no compound can be formed")

@@ -482,6 +482,10 @@ def test_a_chaser_flying_relative_to_a_spinning_target_synchronises_with_it():
     ({"waypoints": [{"position_m": [1, 0, 0], "transfer_s": 6000.0}]},
      "satellites.0.gnc.waypoints.0.transfer_s",
      "6000 s is not below 0.9 of an orbit (5447 s of 6052 s)"),
+    ({"waypoints": [{"position_m": [1, 0, 0], "transfer_s": 3000.0}]},
+     "satellites.0.gnc.waypoints.0.transfer_s",
+     "3000 s is within 61 s of half an orbit (3026 s), where the out-of-plane motion "
+     "returns to its start whatever the first impulse: no CW transfer can aim it"),
     ({"waypoints": [{"position_m": [1, 0, 0], "transfer_s": 600.0,
                      "approach_speed_mps": 0.02}]},
      "satellites.0.gnc.waypoints.0",

@@ -32,10 +32,12 @@ def test_a_two_impulse_transfer_lands_on_the_next_hold_point_at_rest(transfer_s)
     assert dv1[2] == dv2[2] == 0.0  # in-plane
 
 
-def test_a_transfer_of_a_whole_orbit_is_refused():
-    with pytest.raises(ValueError, match="a whole number of orbits"):
+@pytest.mark.parametrize("orbits", [1.0, 0.5])
+def test_a_transfer_of_a_whole_or_half_orbit_is_refused(orbits):
+    """Φrv is singular in plane at a whole orbit and out of plane (sin ΩT / Ω) at half."""
+    with pytest.raises(ValueError, match="a whole number of half orbits"):
         two_impulse_transfer([0, -100, 0], [0, 0, 0], [0, -50, 0], [0, 0, 0],
-                             2 * np.pi / W, W)
+                             orbits * 2 * np.pi / W, W)
 
 
 def test_hold_points_on_vbar():

@@ -59,6 +59,34 @@ def test_a_spin_faster_than_the_wrist_is_refused():
         preflight(cfg, 1.0)
 
 
+def test_a_pulse_shorter_than_the_coarse_prediction_s_step_is_not_missed():
+    """A 4 ms, 90 N push off the 100 Hz grid (force scale 1: 0.36 m/s on 1 kg) throws the
+    satellite out of reach in about 3 s: the prediction runs at the loop's rate then (at
+    100 Hz it fell between two samples and predicted no motion at all)."""
+    cfg = merge_overrides(load_scenario("free-floating"), {
+        "orbit": {"force_scale": 1.0},
+        "pulses": [{"satellite": "cubesat", "start_s": 1.001, "end_s": 1.005,
+                    "force_N": [0.0, 90.0, 0.0]}]})
+    with pytest.raises(PreflightRefused, match="leaves the arm's reach"):
+        preflight(cfg, 6.0)
+
+
+def test_a_refusal_names_the_contact_that_came_before_it():
+    """A rendezvous whose last transfer runs the chaser through the target: the spin it
+    is refused for follows a predicted contact, which the message names."""
+    cfg = merge_overrides(load_scenario("rendezvous"), {"satellites": {"0": {"gnc": {
+        "waypoints": {"2": {"position_m": [150.0, -50.0, 0.0]}}}}}})
+    with pytest.raises(PreflightRefused) as err:
+        preflight(cfg, cfg.loop.duration_s)
+    text = str(err.value)
+    assert "turns faster than the arm's wrist" in text
+    note = text.split("(before that, at t = ")[1]
+    t_touch = float(note.split(" s,")[0])
+    t_first = float(text.split(" at t = ")[1].split(" s")[0])
+    assert t_touch <= t_first
+    assert "the mockups of 'chaser' and 'target' touch, up to " in note
+
+
 def test_an_ideal_only_layout_has_nothing_to_check():
     cfg = merge_overrides(_drifting([1.5, 0.0, 0.0]), {"robots": []})
     assert preflight(cfg, 5.0) is None

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.special import ellipk
 
+from app.config import ConfigError, parse_config
 from app.sim.rotations import rotvec_to_quat
 from app.success import libration_period_theory_s, pitch_rad
 from tests.test_cli import EXE
@@ -63,3 +64,44 @@ def test_a_run_too_short_to_see_a_period_does_not_pass(tmp_path):
     assert metrics["success"]["passed"] is False
     assert metrics["success"]["libration"]["period_s"] is None
     assert "success: NOT MET" in proc.stdout
+
+
+@pytest.mark.parametrize(("patch", "message"), [
+    ({"success": {"captured": False}},
+     "success.captured: judges a docking's capture; this configuration has no [capture]"),
+    ({"success": {"residual_rate_max_radps": 0.01}},
+     "success.residual_rate_max_radps: judges a docking's capture; this configuration has "
+     "no [capture]"),
+    ({"success": {"libration_period_error_max": 0.02}, "orbit": {"gravity_gradient": False}},
+     "success.libration_period_error_max: the libration is the gravity gradient's, and "
+     "orbit.gravity_gradient is off"),
+    ({"success": {"libration_period_error_max": 0.02},
+      "satellites": {"0": {"inertia_kgm2": [300.0, 100.0, 350.0]}}},
+     "success.libration_period_error_max: satellites.0 has I_y 100 <= I_x 300 kg m^2: the "
+     "gravity gradient gives its pitch no restoring torque, nothing librates"),
+    ({"success": {"no_contact": True}},
+     "success.no_contact: judges contact between satellites; there is only one"),
+])
+def test_a_criterion_with_nothing_to_judge_is_refused_naming_it(patch, message):
+    data = {"orbit": {"altitude_m": 800e3, **patch.get("orbit", {})},
+            "satellites": [{"name": "sat", **patch.get("satellites", {}).get("0", {})}],
+            "success": patch["success"]}
+    with pytest.raises(ConfigError) as err:
+        parse_config(data)
+    assert str(err.value) == f"invalid configuration: {message}"
+
+
+def test_a_rendezvous_that_touches_its_target_has_failed(tmp_path):
+    """Its last hold point on the target itself: the chaser's mockup meets the target's,
+    and no_contact names the pair, the time and the force."""
+    out = tmp_path / "touch"
+    proc = subprocess.run(
+        [EXE, "run", "rendezvous", "--mode", "ideal", "--out", str(out), "--quiet",
+         "--set", "satellites.0.gnc.waypoints.2.position_m=[0, -39, 0]"],
+        capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    success = json.loads((out / "metrics.json").read_text())["success"]
+    touch = success["no_contact"]
+    assert touch["touched"] and touch["pair"] == ["chaser", "target"]
+    assert touch["peak_force_N"] > 0.0 and not touch["passed"] and not success["passed"]
+    assert "chaser and target touched at" in proc.stdout and "must not have" in proc.stdout

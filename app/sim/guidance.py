@@ -4,8 +4,9 @@ Clohessy–Wiltshire (DESIGN.md, Eqs. 1-3) in closed form, [r; v](t) = Φ(t) [r;
 (:func:`app.sim.orbital.cw_state_transition`), with Φ split into 3x3 blocks
 [[Φrr, Φrv], [Φvr, Φvv]]. A transfer from r0 to rf in time T needs, right after the
 first impulse, v0⁺ = Φrv⁻¹ (rf − Φrr r0), and arrives with vf⁻ = Φvr r0 + Φvv v0⁺; the
-two impulses are Δv1 = v0⁺ − v0 and Δv2 = vf − vf⁻. Φrv is singular at T = k·2π/Ω
-(a whole orbit): such a transfer time is refused.
+two impulses are Δv1 = v0⁺ − v0 and Δv2 = vf − vf⁻. Φrv is singular at T = k·2π/Ω in
+plane (a whole orbit) and at T = k·π/Ω out of plane (its block is sin ΩT / Ω): such a
+transfer time is refused.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ def two_impulse_transfer(r0_m, v0_mps, rf_m, vf_mps, transfer_s: float,
     phi = cw_state_transition(orbit_rate_radps, transfer_s)
     rr, rv, vr, vv = phi[:3, :3], phi[:3, 3:], phi[3:, :3], phi[3:, 3:]
     if abs(np.linalg.det(rv)) < 1e-9 * (transfer_s ** 3):
-        raise ValueError(f"transfer_s: {transfer_s:g} s is a whole number of orbits "
-                         f"(2 pi / Omega = {2 * np.pi / orbit_rate_radps:.0f} s): no CW "
+        raise ValueError(f"transfer_s: {transfer_s:g} s is a whole number of half orbits "
+                         f"(pi / Omega = {np.pi / orbit_rate_radps:.0f} s): no CW "
                          f"transfer takes exactly that long")
     r0, rf = np.asarray(r0_m, float), np.asarray(rf_m, float)
     v0_plus = np.linalg.solve(rv, rf - rr @ r0)
