@@ -70,12 +70,15 @@ def run_summary(metrics: dict) -> str:
         err, ratio = coll.get("restitution_error"), coll.get("true_impulse_ratio")
         true_j = ", ".join(f"{name} {np.linalg.norm(j):.4f}"
                            for name, j in coll["true_impulse_Ns"].items())
+        latched = (metrics.get("capture") or {}).get("captured")
+        rebound = "latched: no rebound, no restitution" if latched and e is None else (
+            f"restitution {'-' if e is None else f'{e:.3f}'} (ideal "
+            f"{'-' if ei is None else f'{ei:.3f}'}, error "
+            f"{'-' if err is None else f'{100 * err:+.1f} %'})")
         lines += [
             "",
-            f"collision at {coll['contact_start_s']:.3f} s: restitution "
-            f"{'-' if e is None else f'{e:.3f}'} (ideal {'-' if ei is None else f'{ei:.3f}'}, "
-            f"error {'-' if err is None else f'{100 * err:+.1f} %'}); the ODS's impulse "
-            f"balance {num(coll['impulse_balance'], '.3f')}",
+            f"{'contact' if latched else 'collision'} at {coll['contact_start_s']:.3f} s: "
+            f"{rebound}; the ODS's impulse balance {num(coll['impulse_balance'], '.3f')}",
             f"what the mockups went through: impulse {true_j} N s"
             + ("" if not ratio else " (x ideal: " + ", ".join(
                 f"{name} {r:.2f}" for name, r in ratio.items()) + ")")
