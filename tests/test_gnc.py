@@ -517,3 +517,26 @@ def test_a_transfer_too_short_for_the_thrusters_brakes_once_and_the_pd_flies_on(
     thrust = np.max([np.abs(s.force_B_N).max() for s in states])  # it flew, saturated
     assert thrust == pytest.approx(p.thrust_max_N, rel=1e-9)
     assert np.linalg.norm(ods.position_m[0] - [0.0, -75.0, 0.0]) < p.tolerance_m
+
+
+def test_a_retargeted_transfer_coasts_the_period_whose_time_left_is_half_an_orbit():
+    """A transfer longer than half an orbit passes a time left of exactly π/Ω, where Φrv
+    is singular out of plane (it ended such a run with an error): that period coasts, and
+    the next aims again."""
+    from app.sim.gnc import Reference, transfer_force_R
+    from app.sim.orbital import orbit_rate
+
+    w = orbit_rate(800e3)
+    half_s = math.pi / w
+    p = _leg_params(orbit_rate_radps=w, transfer_s=np.array([half_s + 10.0]))
+    zero = np.zeros(3)
+    ref = Reference(np.array([0.0, -75.0, 0.0]), zero, zero, np.array([1.0, 0, 0, 0]), zero)
+    state = GncState(leg_start_s=0.0)
+    with pytest.raises(ValueError, match="a whole number of half orbits"):
+        two_impulse_transfer([0, -100, 0], zero, ref.position_m, zero, half_s, w)
+    coast = transfer_force_R(p, state, _nav(t_s=10.0, p=(0.0, -100.0, 0.0)), ref,
+                             half_s + 10.0)
+    np.testing.assert_array_equal(coast, 0.0)
+    aim = transfer_force_R(p, state, _nav(t_s=12.0, p=(0.0, -100.0, 0.0)), ref,
+                           half_s + 10.0)
+    assert np.all(np.isfinite(aim)) and np.linalg.norm(aim) > 0.0

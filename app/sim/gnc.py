@@ -72,7 +72,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from app.sim.guidance import two_impulse_transfer
+from app.sim.guidance import SingularTransfer, two_impulse_transfer
 from app.sim.rotations import quat_mul, quat_to_matrix
 
 __all__ = ["GncParams", "GncState", "Navigation", "Reference", "attitude_torque_B",
@@ -308,8 +308,11 @@ def transfer_force_R(params: GncParams, state: GncState, nav: Navigation, ref: R
     arrived and braked (the PD flies on then)."""
     left_s = state.leg_start_s + transfer_s - nav.t_s
     if left_s > RETARGET_FRACTION * transfer_s:
-        dv, _ = two_impulse_transfer(nav.position_m, nav.velocity_mps, ref.position_m,
-                                     ref.velocity_mps, left_s, params.orbit_rate_radps)
+        try:
+            dv, _ = two_impulse_transfer(nav.position_m, nav.velocity_mps, ref.position_m,
+                                         ref.velocity_mps, left_s, params.orbit_rate_radps)
+        except SingularTransfer:  # the time left is a half orbit: aim again next period
+            return np.zeros(3)
         return params.mass_kg * dv / params.period_s
     if left_s > 0.0:
         return np.zeros(3)  # the coast

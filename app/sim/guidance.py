@@ -15,7 +15,11 @@ import numpy as np
 
 from app.sim.orbital import cw_state_transition
 
-__all__ = ["two_impulse_transfer", "vbar_hold_points"]
+__all__ = ["SingularTransfer", "two_impulse_transfer", "vbar_hold_points"]
+
+
+class SingularTransfer(ValueError):
+    """No CW transfer takes exactly this long (Φrv is singular)."""
 
 
 def two_impulse_transfer(r0_m, v0_mps, rf_m, vf_mps, transfer_s: float,
@@ -24,7 +28,7 @@ def two_impulse_transfer(r0_m, v0_mps, rf_m, vf_mps, transfer_s: float,
     phi = cw_state_transition(orbit_rate_radps, transfer_s)
     rr, rv, vr, vv = phi[:3, :3], phi[:3, 3:], phi[3:, :3], phi[3:, 3:]
     if abs(np.linalg.det(rv)) < 1e-9 * (transfer_s ** 3):
-        raise ValueError(f"transfer_s: {transfer_s:g} s is a whole number of half orbits "
+        raise SingularTransfer(f"transfer_s: {transfer_s:g} s is a whole number of half orbits "
                          f"(pi / Omega = {np.pi / orbit_rate_radps:.0f} s): no CW "
                          f"transfer takes exactly that long")
     r0, rf = np.asarray(r0_m, float), np.asarray(rf_m, float)
