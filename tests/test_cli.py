@@ -89,3 +89,40 @@ def test_a_safety_stop_exits_3_and_names_the_collision_it_never_reached(tmp_path
                             f"{stop['t_s']:.3f} s")
     assert f"WARNING: {warning}" in proc.stdout
     assert (out / "telemetry.csv").exists()
+
+
+def _strict_json(path) -> dict:
+    """A JSON file read strictly: NaN and Infinity (not JSON) are refused."""
+    def refuse(name):
+        raise ValueError(f"{path}: {name} is not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+INFINITE_METRICS = {
+    # an axisymmetric satellite (I_x = I_y): no restoring torque, an infinite period
+    "libration theory": (["free-flying", "--set", "success.libration_period_error_max=0.5"],
+                         ("success", "libration", "period_theory_s")),
+    # a velocity past float range: the satellite's delta-v overflows
+    "delta-v": (["collision", "--set", "satellites.0.velocity_mps=[1e300,0,0]"],
+                ("satellites", 0, "delta_v_mps")),
+}
+
+
+@pytest.mark.parametrize("case", list(INFINITE_METRICS))
+def test_an_infinite_metric_is_written_as_null(case, tmp_path):
+    """metrics.json is written whatever its figures: a non-finite one is null (JSON has no
+    Infinity), and the plots are written after it."""
+    argv, path = INFINITE_METRICS[case]
+    out = tmp_path / "out"
+    proc = subprocess.run([EXE, "run", *argv, "--mode", "ideal", "--duration", "1",
+                           "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    metrics = _strict_json(out / "metrics.json")
+    value = metrics
+    for key in path:
+        value = value[key]
+    assert value is None
+    assert metrics["status"] == "finished"
+    assert sorted(p.suffix for p in out.iterdir()).count(".png") >= 1

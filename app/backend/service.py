@@ -18,6 +18,7 @@ import numpy as np
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.preflight import PreflightRefused, preflight
+from app.report import json_safe
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.telemetry import loop_columns
@@ -260,7 +261,7 @@ class EmulatorService:
         with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf, \
                 tempfile.TemporaryDirectory() as tmp:
             zf.writestr("telemetry.csv", "".join(self._telemetry_csv(read)))
-            zf.writestr("metrics.json", json.dumps(json_safe(_plain(metrics)), indent=2))
+            zf.writestr("metrics.json", json.dumps(json_safe(metrics), indent=2))
             zf.writestr("summary.txt", run_summary(metrics) + "\n")
             zf.writestr("config.json", json.dumps(
                 {"scenario": snap["scenario"], "mode": snap["mode"],
@@ -303,26 +304,6 @@ class EmulatorService:
             for path in sorted(bag.iterdir()):
                 zf.write(path, f"bag/{path.name}")
         return buffer.getvalue(), rate_hz
-
-
-def _plain(value):
-    """NumPy scalars and arrays in a nested value as Python numbers and lists."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value.tolist() if isinstance(value, (np.ndarray, np.generic)) else value
-
-
-def json_safe(value):
-    """Replace non-finite floats with None (JSON has no NaN / Infinity)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
 
 
 class CsvLines:
