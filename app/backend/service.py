@@ -81,6 +81,13 @@ class EmulatorService:
             snap = {**snap, "status": "fault", "reason": fault}
         return snap
 
+    def _refuse_if_busy(self) -> None:
+        """RunnerBusy while a healthy loop is starting or running a run (what
+        request_start refuses too; a faulted loop is replaced, not busy)."""
+        status = self.runner.status
+        if status in ("running", "starting") and self.runner.fault() is None:
+            raise RunnerBusy(f"a scenario is already {status}; stop it first")
+
     def _revive(self, config: EmulatorConfig, name: str, mode: str | None) -> None:
         """A dead or stalled loop process is replaced before a start or a reset."""
         if self.runner.fault() is not None:
@@ -131,11 +138,13 @@ class EmulatorService:
         self, name: str, overrides: dict | None = None, mode: str | None = None,
         wait_s: float = 60.0,
     ) -> dict[str, Any]:
-        """Start scenario `name`; returns the state once running (or failed to start)."""
+        """Start scenario `name`; returns the state once running (or failed to start). A
+        hil start is pre-flighted whatever the loop's state: a faulted loop still shows
+        its last status (say "running"), and the start replaces it."""
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
-            if self.runner.status not in ("running", "starting"):  # (else 409 below)
-                self.preflight(config, mode)
+            self._refuse_if_busy()  # 409 before a pre-flight's seconds
+            self.preflight(config, mode)
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
             self.last_config, self._last_run = config, (name, config, mode)
