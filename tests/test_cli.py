@@ -12,6 +12,11 @@ import pytest
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 
+CROSSES_HALF_ORBIT_S = 3036.206774746056
+"""A CW transfer leg 10 s longer than half an orbit: re-targeted every 2 s, its time left
+meets the singular half orbit (3026.2 s) exactly at t = 10 s of orbit time, and the
+guidance raises there (app/sim/guidance.py)."""
+
 MISTAKES = {
     "config is a directory": (["run", "collision", "--config", "/tmp"],
                               "/tmp: is a directory, not a TOML file"),
@@ -31,6 +36,10 @@ MISTAKES = {
                      "'cubesat' leaves the safety volume (at (3.000, 0.000, 1.000) m in W"),
     "bad value": (["run", "collision", "--set", "compensation.lead_s=-1"],
                   "compensation.lead_s: Input should be greater than 0"),
+    "prediction fails": (["run", "rendezvous", "--duration", "1", "--out", "OUT", "--set",
+                          f"satellites.0.gnc.waypoints.0.transfer_s={CROSSES_HALF_ORBIT_S}"],
+                         "error: pre-flight: the ideal run failed: transfer_s: 3026.21 s is "
+                         "a whole number of orbits"),
 }
 
 
@@ -44,6 +53,7 @@ def test_a_mistake_is_named_with_exit_2_and_no_traceback(case, tmp_path):
     assert "Traceback" not in proc.stderr
     assert message in proc.stderr, proc.stderr
     assert not (tmp_path / "runs").exists()  # nothing ran to completion, nothing written
+    assert not (tmp_path / "out").exists()
 
 
 def test_scenarios_lists_every_scenario_with_its_description_in_one_column():
