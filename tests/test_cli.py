@@ -136,3 +136,25 @@ def test_an_infinite_metric_is_written_as_null(case, tmp_path):
     assert value is None
     assert metrics["status"] == "finished"
     assert sorted(p.suffix for p in out.iterdir()).count(".png") >= 1
+
+
+def test_a_run_that_raises_once_started_exits_4_with_status_error(tmp_path):
+    """What it recorded up to then is written, metrics.json says status "error" and why;
+    the summary is printed and stderr names the failure, with no traceback."""
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [EXE, "run", "rendezvous", "--mode", "ideal", "--duration", "1", "--out", str(out),
+         "--quiet", "--set", f"satellites.0.gnc.waypoints.0.transfer_s={CROSSES_HALF_ORBIT_S}"],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 4, proc.stderr
+    assert "Traceback" not in proc.stderr
+    metrics = _strict_json(out / "metrics.json")
+    reason = ("ValueError: transfer_s: 3026.21 s is a whole number of orbits (2 pi / Omega "
+              "= 6052 s): no CW transfer takes exactly that long")
+    assert (metrics["status"], metrics["error"]) == ("error", reason)
+    assert metrics["cycles"] == 25 and metrics["duration_s"] == pytest.approx(0.048)
+    rows = (out / "telemetry.csv").read_text().splitlines()
+    assert len(rows) == 1 + 25
+    assert proc.stderr.splitlines()[-1] == (
+        f"error: the run failed at t = 0.048 s: {reason}; everything up to it is written")
+    assert "status error" in proc.stdout

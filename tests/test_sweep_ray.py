@@ -340,3 +340,36 @@ def test_sweep_plot_of_a_sweep(swept, tmp_path):
                           timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_an_infinite_metric_and_a_run_that_raises_midway_leave_the_sweep_going(tmp_path):
+    """An infinite metric (the libration theory of an axisymmetric satellite) is null in
+    the run's metrics.json and inf in the table; a run whose guidance raises once started
+    is an error row with what it recorded: the sweep ends with both rows and its
+    summary."""
+    (tmp_path / "spec.toml").write_text("""
+scenario = "rendezvous"
+mode = "ideal"
+duration_s = 1.0
+seeds = [0]
+metrics = ["success.libration.period_theory_s", "cycles"]
+[set]
+"success.libration_period_error_max" = 0.5
+[grid]
+"satellites.0.gnc.waypoints.0.transfer_s" = [1000.0, 3036.206774746056]
+""")
+    sweep(tmp_path, "spec.toml", "--out", "out")
+    out = tmp_path / "out"
+    rows = {r["satellites.0.gnc.waypoints.0.transfer_s"]: r for r in read_rows(out)}
+    ok, failed = rows["1000.0"], rows["3036.206774746056"]
+    assert (ok["status"], ok["reason"], ok["cycles"]) == ("finished", "", "500")
+    assert ok["success.libration.period_theory_s"] == "inf"
+    assert (failed["status"], failed["cycles"]) == ("error", "25")
+    assert failed["reason"].startswith("ValueError: transfer_s: 3026.21 s is a whole number")
+    for row in (ok, failed):
+        metrics = json.loads((out / "runs" / row["run_id"] / "metrics.json").read_text(),
+                             parse_constant=lambda name: pytest.fail(f"{name} in JSON"))
+        assert metrics["success"]["libration"]["period_theory_s"] is None
+        assert metrics["status"] == row["status"]
+    assert json.loads((out / "summary.json").read_text())["counts"] == {
+        "finished": 1, "safety_stop": 0, "error": 1, "lost": 0}

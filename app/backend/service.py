@@ -242,7 +242,8 @@ class EmulatorService:
                            "p99": loop["cycle_time_us"]["p99"] if loop["cycles"] else None},
             safety_stop=snap["safety_stop"], passivity=snap.get("passivity"),
             arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])},
-            capture=snap.get("capture"))
+            capture=snap.get("capture"),
+            error=snap.get("reason") if snap["status"] == "error" else None)
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
 
