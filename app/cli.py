@@ -52,8 +52,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from app.headless import headless_config, run_scenario
-    from app.report import run_summary
+    from app.headless import RunFailed, headless_config, run_scenario
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
@@ -82,19 +81,35 @@ def _cmd_run(args: argparse.Namespace) -> int:
     def progress(k, n):
         bar.update(k - bar.n)
 
-    result = run_scenario(config, mode=config.loop.mode, duration_s=duration, out_dir=out_dir,
-                          progress=progress, bag=args.bag, bag_rate_hz=args.bag_rate,
-                          ideal=ideal, preflight_done=True)
-    bar.update(bar.total - bar.n)
-    bar.close()
-    print(run_summary(result.metrics))
+    try:
+        result = run_scenario(config, mode=config.loop.mode, duration_s=duration,
+                              out_dir=out_dir, progress=progress, bag=args.bag,
+                              bag_rate_hz=args.bag_rate, ideal=ideal, preflight_done=True)
+        bar.update(bar.total - bar.n)
+    except RunFailed as failed:
+        result = failed.result
+    finally:
+        bar.close()
+    return _report_run(result)
+
+
+def _report_run(result) -> int:
+    """Print a headless run's summary, what it wrote and how it ended; its exit status."""
+    from app.report import run_summary
+
+    metrics = result.metrics
+    print(run_summary(metrics))
     print(f"\nwrote {', '.join(str(p) for p in result.files)}")
-    stop = result.metrics["safety_stop"]
+    stop = metrics["safety_stop"]
     if stop:
         print(f"error: the run ended in a safety stop at t = {stop['t_s']:.3f} s (robot "
               f"{stop['robot']}: {stop['reason']}); everything up to it is written",
               file=sys.stderr)
         return EXIT_SAFETY_STOP
+    if metrics["status"] == "error":
+        print(f"error: the run failed at t = {metrics['duration_s']:.3f} s: "
+              f"{metrics['error']}; everything up to it is written", file=sys.stderr)
+        return EXIT_RUN_FAILED
     return 0
 
 
@@ -137,6 +152,8 @@ def _positive_int(text: str) -> int:
 
 EXIT_SAFETY_STOP = 3
 """`run`'s exit status when the run ended in a safety stop (2: the user's mistake)."""
+EXIT_RUN_FAILED = 4
+"""`run`'s exit status when the run raised once started (metrics.json: status "error")."""
 
 
 MAX_PROPAGATE_STEPS = 10_000_000

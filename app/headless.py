@@ -22,6 +22,15 @@ class RunResult:
     files: list[Path]
 
 
+class RunFailed(RuntimeError):
+    """A headless run raised after its start-up: what it recorded up to then is written,
+    its metrics.json with status "error" and the reason (``result``)."""
+
+    def __init__(self, reason: str, result: RunResult) -> None:
+        super().__init__(reason)
+        self.result = result
+
+
 def ideal_collision(config: EmulatorConfig, duration_s: float) -> dict:
     """The collision metrics of the same scenario run in ideal mode (the reference); {}
     when the ideal run has no contact."""
@@ -72,7 +81,9 @@ def run_scenario(
     False; ``ideal``: that run's :func:`ideal_collision`, if already computed (it does not
     depend on the seed), else it is computed here. A hil run is refused before it starts
     when its pre-flight fails (PreflightRefused), unless ``preflight_done`` (the caller
-    ran :func:`checked_reference`).
+    ran :func:`checked_reference`). A run that raises once started ends there: RunFailed,
+    after its files are written (status "error"); one its start-up refuses (e.g. a start
+    pose not found) raises as it is.
     """
     duration_s = duration_s or config.loop.duration_s
     config = headless_config(config, duration_s)
@@ -82,8 +93,9 @@ def run_scenario(
         ideal = reference if ideal is None else ideal
     em = Emulator(config, mode=mode)
     t0 = time.perf_counter()
+    failure = None
     try:
-        em.run(duration_s, progress=progress)
+        failure = _run(em, duration_s, progress)
     finally:
         wall_s = time.perf_counter() - t0
         if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
@@ -91,11 +103,27 @@ def run_scenario(
                 ideal = ideal_collision(config, duration_s)
         else:
             ideal = None
-        metrics = compute_metrics(em, wall_s, ideal_collision=ideal)
+        error = None if failure is None else f"{type(failure).__name__}: {failure}"
+        metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
         files = []
         if out_dir is not None:
             files = write_run_files(em, metrics, out_dir, bag=bag, bag_rate_hz=bag_rate_hz)
+    if failure is not None:
+        raise RunFailed(error, RunResult(em, metrics, files)) from failure
     return RunResult(em, metrics, files)
+
+
+def _run(em: Emulator, duration_s: float, progress) -> Exception | None:
+    """Run ``em``: what it raised once started (its status then "error"), else None. What
+    its start-up raises (nothing ran) is raised as it is."""
+    try:
+        em.run(duration_s, progress=progress)
+    except Exception as err:
+        if em.status != "running":
+            raise
+        em.status = "error"
+        return err
+    return None
 
 
 def headless_config(config: EmulatorConfig, duration_s: float) -> EmulatorConfig:

@@ -315,17 +315,21 @@ class RunFacts:
     """Satellite (0-based) → the arm (0-based) that carries it."""
     capture: dict | None = None
     """The docking capture (Emulator.capture_event), if one happened."""
+    error: str | None = None
+    """Why the run failed (status "error"); None otherwise."""
 
 
-def run_facts(em: Emulator, wall_s: float) -> RunFacts:
-    """The facts of an Emulator that ran (its cycle times over the whole run)."""
+def run_facts(em: Emulator, wall_s: float, error: str | None = None) -> RunFacts:
+    """The facts of an Emulator that ran (its cycle times over the whole run); error: why
+    it failed, if it did."""
     ct = np.array(em.cycle_time_ns, dtype=float) / 1e3
     return RunFacts(
         mode=em.mode, status=em.status, cycles=em.cycles, wall_s=wall_s,
         cycle_time_us={"p50": float(np.percentile(ct, 50)) if len(ct) else None,
                        "p99": float(np.percentile(ct, 99)) if len(ct) else None},
         safety_stop=em.safety_stop, passivity=passivity_metrics(em),
-        arm_of={arm.satellite: arm.index for arm in em.arms}, capture=em.capture_event)
+        arm_of={arm.satellite: arm.index for arm in em.arms}, capture=em.capture_event,
+        error=error)
 
 
 def sensing_limits(em: Emulator, pair: tuple[int, int] = (1, 2),
@@ -346,10 +350,12 @@ def _sensing_limits(cfg: EmulatorConfig, with_arms: bool, pair: tuple[int, int],
     return deadband, (cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz, gain)
 
 
-def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None) -> dict:
-    """The metrics.json of a run (the emulator after it ran; wall_s its wall-clock time)."""
+def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None,
+                    error: str | None = None) -> dict:
+    """The metrics.json of a run (the emulator after it ran; wall_s its wall-clock time;
+    error: why it failed, if it did)."""
     return metrics_of(em.config, em.telemetry.rows(), em.telemetry.index,
-                      run_facts(em, wall_s), ideal_collision)
+                      run_facts(em, wall_s, error), ideal_collision)
 
 
 def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: RunFacts,
@@ -376,6 +382,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
         "scenario": config.name,
         "mode": facts.mode,
         "status": facts.status,
+        "error": facts.error,
         "duration_s": sim_s,
         "cycles": facts.cycles,
         "rate_hz": config.loop.rate_hz,

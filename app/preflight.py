@@ -25,8 +25,8 @@ from app.sim.loop import Emulator
 from app.sim.rotations import make_transform, quat_to_matrix
 from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M, T_W_B_from_config
 
-__all__ = ["MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS", "PreflightRefused", "Violation",
-           "check_course", "predict", "preflight"]
+__all__ = ["MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS", "PredictionFailed", "PreflightRefused",
+           "Violation", "check_course", "predict", "preflight"]
 
 MAX_TCP_SPEED_MPS = 1.0
 """The UR10e's TCP speed limit (data sheet: 1 m/s)."""
@@ -42,6 +42,11 @@ pulse starts and ends on its grid (so that it applies the same impulse): 5x fewe
 class PreflightRefused(ValueError):
     """The predicted course leaves what an arm can do; the message names each robot, the
     time and the limit."""
+
+
+class PredictionFailed(PreflightRefused):
+    """The prediction itself (the ideal run) raised: with no course to check, the run is
+    refused all the same; the message gives the reason."""
 
 
 @dataclass(frozen=True)
@@ -138,10 +143,15 @@ def _fmt(v) -> str:
 
 def preflight(config: EmulatorConfig, duration_s: float) -> Emulator | None:
     """Refuse (PreflightRefused) a hil run of ``config`` whose predicted course breaks a
-    limit; else the prediction (its ideal run; None with no robots: nothing to check)."""
+    limit, or whose prediction raises (PredictionFailed); else the prediction (its ideal
+    run; None with no robots: nothing to check)."""
     if not config.robots:
         return None
-    em = predict(config, duration_s)
+    try:
+        em = predict(config, duration_s)
+    except Exception as err:  # noqa: BLE001 - whatever it is, the arms must not move
+        reason = str(err) if isinstance(err, ValueError) else f"{type(err).__name__}: {err}"
+        raise PredictionFailed(f"pre-flight: the ideal run failed: {reason}") from err
     rows, index = em.telemetry.rows(), em.telemetry.index
     violations = check_course(config, rows, index)
     if violations:

@@ -28,9 +28,24 @@ def csv_row_format(n_columns: int) -> str:
 
 
 def write_json(path: str | Path, data: dict) -> None:
+    """``data`` as JSON (:func:`json_safe`: a non-finite number is null)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+    path.write_text(json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n")
+
+
+def json_safe(value):
+    """A nested value as JSON can hold it: NumPy scalars and arrays as Python numbers and
+    lists, and non-finite floats (NaN, ±Infinity: JSON has none) as None."""
+    if isinstance(value, (np.ndarray, np.generic)):
+        value = value.tolist()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
 
 
 def run_summary(metrics: dict) -> str:

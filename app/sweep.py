@@ -62,10 +62,10 @@ TIMING_METRICS = ("realtime_factor", "cycle_time_us")
 next; everything else in it is determined by the configuration and seed."""
 
 METRIC_FIELDS: dict[str, tuple[str, ...]] = {
-    "": ("scenario", "mode", "status", "duration_s", "cycles", "rate_hz", "realtime_factor",
-         "cycle_time_us", "force_scale", "torque_scale", "scaling", "vfdm_iterations", "seed",
-         "satellites", "collision", "safety_stop", "passivity", "capture", "success",
-         "warnings"),
+    "": ("scenario", "mode", "status", "error", "duration_s", "cycles", "rate_hz",
+         "realtime_factor", "cycle_time_us", "force_scale", "torque_scale", "scaling",
+         "vfdm_iterations", "seed", "satellites", "collision", "safety_stop", "passivity",
+         "capture", "success", "warnings"),
     "satellites": ("id", "name", "position_error_max_m", "position_error_rms_m",
                    "velocity_error_rms_mps", "attitude_error_max_rad", "delta_v_mps"),
     "collision": ("pair", "impulse_Ns", "impulse_balance", "true_impulse_Ns", "peak_force_N",
@@ -572,9 +572,10 @@ def execute_run(config: EmulatorConfig, ideal: tuple[str, dict | str] | None, ke
     needs one, after the pre-flight that came with it): the outcome {status, reason,
     metrics, wall_s, worker, worker_rss_peak_MiB}. A configuration the pre-flight refused
     is the outcome "refused" and nothing runs; whatever the run raises is caught: an
-    outcome with status "error". With ``keep`` telemetry or all, it writes telemetry.csv
-    (and the plots) into run_dir; metrics.json is the caller's to write."""
-    from app.headless import run_scenario, write_run_files
+    outcome with status "error" (with the metrics of what it recorded, if it had started).
+    With ``keep`` telemetry or all, it writes telemetry.csv (and the plots) into run_dir;
+    metrics.json is the caller's to write."""
+    from app.headless import RunFailed, run_scenario, write_run_files
     from app.preflight import PreflightRefused
 
     t0 = time.perf_counter()
@@ -596,6 +597,8 @@ def execute_run(config: EmulatorConfig, ideal: tuple[str, dict | str] | None, ke
                     write_run_files(result.emulator, metrics, run_dir, plots=keep == "all")
         except PreflightRefused as err:  # a run with no shared reference checks itself
             status, reason = "refused", str(err)
+        except RunFailed as err:  # it raised once started: what it recorded is kept
+            reason, metrics = str(err), err.result.metrics
         except Exception as err:  # noqa: BLE001 - a run's failure is a row, not a crash
             reason = f"{type(err).__name__}: {err}"
     return {"status": status, "reason": reason, "metrics": metrics,

@@ -529,6 +529,21 @@ def test_a_start_whose_course_leaves_the_arm_s_reach_is_refused_before_the_arms_
     live.client.post("/api/stop")
 
 
+def test_a_start_whose_prediction_fails_is_refused_with_the_reason(live):
+    """The pre-flight's ideal run raising is a refusal too (422 naming why), not a 500: here
+    a run too long for the prediction to hold (1e8 rows at 100 Hz)."""
+    live.client.post("/api/stop")
+    before = live.client.post("/api/reset").json()
+    r = live.client.post("/api/scenarios/gravity-stabilised/start",
+                         json={"mode": "hil", "loop": {"duration_s": 1e6}})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"] == (
+        "pre-flight: the ideal run failed: invalid configuration: loop.telemetry_capacity: "
+        "Input should be less than or equal to 10000000")
+    after = live.state()
+    assert after["status"] == "idle" and after["generation"] == before["generation"]
+
+
 def test_the_web_app_runs_a_docking_to_capture_and_its_metrics_say_so(live):
     live.client.post("/api/stop")
     s = live.client.post("/api/scenarios/docking/start", json={}).json()

@@ -91,6 +91,36 @@ def test_a_stalled_loop_is_noticed_and_a_start_replaces_it(live):
     live.client.post("/api/stop")
 
 
+@pytest.mark.parametrize("sig", [signal.SIGSTOP, signal.SIGKILL], ids=["stalled", "killed"])
+def test_a_hil_start_that_replaces_a_faulted_loop_is_pre_flighted(live, sig):
+    """A stalled or dead loop still shows its last status ("running"): a hil start in its
+    place is pre-flighted all the same, refused as on an idle server (422, the same
+    reason), and the faulted loop is left as it was (nothing replaced, nothing moved)."""
+    spin = {"mode": "hil", "satellites": {"0": {"omega_radps": [0, 0, 0.004]}}}
+    live.client.post("/api/reset")
+    idle = live.client.post("/api/scenarios/gravity-stabilised/start", json=spin)
+    assert idle.status_code == 422, idle.text
+    assert idle.json()["detail"].startswith("pre-flight: the ideal run predicts that robot 1")
+    assert "turns faster than the arm's wrist" in idle.json()["detail"]
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 600}}).json()
+    assert s["status"] == "running"
+    pid = _loop_pid(live)
+    os.kill(pid, sig)
+    try:
+        _wait_fault(live)
+        r = live.client.post("/api/scenarios/gravity-stabilised/start", json=spin)
+        assert (r.status_code, r.json()) == (422, idle.json())
+        assert _loop_pid(live) == pid
+        assert live.client.get("/api/health").status_code == 503
+    finally:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert live.client.post("/api/reset").json()["status"] == "idle"
+
+
 def test_health_turns_degraded_when_the_loop_misses_its_deadlines(live):
     live.client.post("/api/stop")
     s = live.client.post("/api/scenarios/free-floating/start", json={"pulses": []}).json()

@@ -44,6 +44,7 @@ def test_a_mistake_is_named_with_exit_2_and_no_traceback(case, tmp_path):
     assert "Traceback" not in proc.stderr
     assert message in proc.stderr, proc.stderr
     assert not (tmp_path / "runs").exists()  # nothing ran to completion, nothing written
+    assert not (tmp_path / "out").exists()
 
 
 def test_scenarios_lists_every_scenario_with_its_description_in_one_column():
@@ -89,3 +90,61 @@ def test_a_safety_stop_exits_3_and_names_the_collision_it_never_reached(tmp_path
                             f"{stop['t_s']:.3f} s")
     assert f"WARNING: {warning}" in proc.stdout
     assert (out / "telemetry.csv").exists()
+
+
+def _strict_json(path) -> dict:
+    """A JSON file read strictly: NaN and Infinity (not JSON) are refused."""
+    def refuse(name):
+        raise ValueError(f"{path}: {name} is not JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+INFINITE_METRICS = {
+    # a velocity past float range: the satellite's delta-v overflows
+    "delta-v": (["collision", "--set", "satellites.0.velocity_mps=[1e300,0,0]"],
+                ("satellites", 0, "delta_v_mps")),
+}
+
+
+@pytest.mark.parametrize("case", list(INFINITE_METRICS))
+def test_an_infinite_metric_is_written_as_null(case, tmp_path):
+    """metrics.json is written whatever its figures: a non-finite one is null (JSON has no
+    Infinity), and the plots are written after it."""
+    argv, path = INFINITE_METRICS[case]
+    out = tmp_path / "out"
+    proc = subprocess.run([EXE, "run", *argv, "--mode", "ideal", "--duration", "1",
+                           "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    metrics = _strict_json(out / "metrics.json")
+    value = metrics
+    for key in path:
+        value = value[key]
+    assert value is None
+    assert metrics["status"] == "finished"
+    assert sorted(p.suffix for p in out.iterdir()).count(".png") >= 1
+
+
+def test_a_run_that_raises_once_started_keeps_what_it_recorded_with_status_error(tmp_path):
+    """No valid configuration is known to make a run raise once started (the last one, a
+    CW transfer crossing half an orbit, is fixed), so the fault comes through the run's
+    own progress callback, as an interrupted display's would: what it recorded up to then
+    is written, and metrics.json says status "error" and why (the CLI then exits 4)."""
+    from app.headless import RunFailed, run_scenario
+    from app.scenarios import load_scenario
+
+    def fail_at_1000(k, n):
+        if k >= 1000:
+            raise OSError("the display went away")
+
+    out = tmp_path / "out"
+    with pytest.raises(RunFailed) as err:
+        run_scenario(load_scenario("collision"), mode="ideal", duration_s=4.0, out_dir=out,
+                     progress=fail_at_1000)
+    reason = "OSError: the display went away"
+    assert str(err.value) == reason
+    metrics = _strict_json(out / "metrics.json")
+    assert (metrics["status"], metrics["error"]) == ("error", reason)
+    rows = (out / "telemetry.csv").read_text().splitlines()
+    assert len(rows) - 1 == metrics["cycles"] >= 1000

@@ -239,10 +239,12 @@ def _wait_for(predicate, timeout_s: float, what: str):
 
 def test_a_failing_run_and_a_killed_worker_are_rows_not_a_crashed_sweep(tmp_path):
     """A run that raises (its start pose is not found within 0.01 s) is a row with its
-    reason, as `run` reports it; a worker killed in the middle of a run is retried."""
+    reason, as `run` reports it; a worker killed in the middle of a run is retried. The
+    runs last 10 s of emulation, about a second of a quiet machine's time (at 3 s, with
+    the kernels compiled, a run could end before it had been under way 0.3 s)."""
     (tmp_path / "spec.toml").write_text("""
 scenario = "collision"
-duration_s = 3.0
+duration_s = 10.0
 seeds = [0, 1]
 metrics = ["satellites.0.position_error_max_m"]
 [grid]
@@ -340,3 +342,29 @@ def test_sweep_plot_of_a_sweep(swept, tmp_path):
                           timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_an_infinite_metric_leaves_the_sweep_going(tmp_path):
+    """An infinite metric (a satellite's delta-v past float range) is null in the run's
+    metrics.json and inf in the table; the sweep ends with both rows and its summary."""
+    (tmp_path / "spec.toml").write_text("""
+scenario = "collision"
+mode = "ideal"
+duration_s = 0.5
+seeds = [0]
+metrics = ["satellites.0.delta_v_mps", "cycles"]
+[grid]
+"satellites.0.velocity_mps" = [[0.05, 0.0, 0.0], [1e300, 0.0, 0.0]]
+""")
+    sweep(tmp_path, "spec.toml", "--out", "out")
+    out = tmp_path / "out"
+    rows = read_rows(out)
+    assert [r["status"] for r in rows] == ["finished", "finished"]
+    values = sorted(r["satellites.0.delta_v_mps"] for r in rows)
+    assert values[1] == "inf" and float(values[0]) < 1.0
+    for row in rows:
+        metrics = json.loads((out / "runs" / row["run_id"] / "metrics.json").read_text(),
+                             parse_constant=lambda name: pytest.fail(f"{name} in JSON"))
+        assert metrics["status"] == "finished"
+    assert json.loads((out / "summary.json").read_text())["counts"] == {
+        "finished": 2, "safety_stop": 0, "error": 0, "lost": 0}

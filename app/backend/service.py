@@ -18,6 +18,7 @@ import numpy as np
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.preflight import PreflightRefused, preflight
+from app.report import json_safe
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.telemetry import loop_columns
@@ -80,6 +81,13 @@ class EmulatorService:
             snap = {**snap, "status": "fault", "reason": fault}
         return snap
 
+    def _refuse_if_busy(self) -> None:
+        """RunnerBusy while a healthy loop is starting or running a run (what
+        request_start refuses too; a faulted loop is replaced, not busy)."""
+        status = self.runner.status
+        if status in ("running", "starting") and self.runner.fault() is None:
+            raise RunnerBusy(f"a scenario is already {status}; stop it first")
+
     def _revive(self, config: EmulatorConfig, name: str, mode: str | None) -> None:
         """A dead or stalled loop process is replaced before a start or a reset."""
         if self.runner.fault() is not None:
@@ -130,11 +138,13 @@ class EmulatorService:
         self, name: str, overrides: dict | None = None, mode: str | None = None,
         wait_s: float = 60.0,
     ) -> dict[str, Any]:
-        """Start scenario `name`; returns the state once running (or failed to start)."""
+        """Start scenario `name`; returns the state once running (or failed to start). A
+        hil start is pre-flighted whatever the loop's state: a faulted loop still shows
+        its last status (say "running"), and the start replaces it."""
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
-            if self.runner.status not in ("running", "starting"):  # (else 409 below)
-                self.preflight(config, mode)
+            self._refuse_if_busy()  # 409 before a pre-flight's seconds
+            self.preflight(config, mode)
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
             self.last_config, self._last_run = config, (name, config, mode)
@@ -232,7 +242,8 @@ class EmulatorService:
                            "p99": loop["cycle_time_us"]["p99"] if loop["cycles"] else None},
             safety_stop=snap["safety_stop"], passivity=snap.get("passivity"),
             arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])},
-            capture=snap.get("capture"))
+            capture=snap.get("capture"),
+            error=snap.get("reason") if snap["status"] == "error" else None)
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
 
@@ -260,7 +271,7 @@ class EmulatorService:
         with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf, \
                 tempfile.TemporaryDirectory() as tmp:
             zf.writestr("telemetry.csv", "".join(self._telemetry_csv(read)))
-            zf.writestr("metrics.json", json.dumps(json_safe(_plain(metrics)), indent=2))
+            zf.writestr("metrics.json", json.dumps(json_safe(metrics), indent=2))
             zf.writestr("summary.txt", run_summary(metrics) + "\n")
             zf.writestr("config.json", json.dumps(
                 {"scenario": snap["scenario"], "mode": snap["mode"],
@@ -303,26 +314,6 @@ class EmulatorService:
             for path in sorted(bag.iterdir()):
                 zf.write(path, f"bag/{path.name}")
         return buffer.getvalue(), rate_hz
-
-
-def _plain(value):
-    """NumPy scalars and arrays in a nested value as Python numbers and lists."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value.tolist() if isinstance(value, (np.ndarray, np.generic)) else value
-
-
-def json_safe(value):
-    """Replace non-finite floats with None (JSON has no NaN / Infinity)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
 
 
 class CsvLines:
