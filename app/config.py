@@ -104,6 +104,8 @@ class OrbitConfig(_Model):
 
 ScaleFactor = Annotated[float, AfterValidator(_finite), Field(ge=1e-6, le=1e6)]
 """An orbit-per-lab scale factor: within a millionth and a million."""
+MAX_LAB_EQUIVALENT = 1e30
+"""The largest lab-equivalent mass (kg) or inertia (kg m^2) a capture may join."""
 HALF_ORBIT_MARGIN = 0.01
 """A CW transfer time this close to half an orbit (as a fraction of one) is refused."""
 MAX_ORBIT_TURN_PER_CYCLE_RAD = 0.01
@@ -721,12 +723,16 @@ class EmulatorConfig(_Model):
     @model_validator(mode="after")
     def _capture_can_join(self) -> EmulatorConfig:
         """A capture joins lab-equivalent bodies (mass / force_scale, inertia /
-        torque_scale): a zero knob makes them infinite."""
-        if self.capture is not None and self.scaling.law == "paper" \
-                and 0.0 in (self.orbit.force_scale, self.orbit.torque_scale):
-            raise ValueError("capture: a zero [orbit] force_scale or torque_scale makes a "
-                             "satellite's lab-equivalent mass or inertia infinite; no "
-                             "compound can be formed")
+        torque_scale): a zero or tiny knob makes them infinite, or their sums overflow."""
+        if self.capture is None or self.scaling.law != "paper":
+            return self
+        fs, ts = self.orbit.force_scale, self.orbit.torque_scale
+        heaviest = max(max(s.mass_kg, *s.principal_inertia()) for s in self.satellites)
+        if min(fs, ts) <= 0.0 or heaviest / min(fs, ts) > MAX_LAB_EQUIVALENT:
+            raise ValueError(f"capture: [orbit] force_scale {fs:g} and torque_scale {ts:g} "
+                             f"make a satellite's lab-equivalent mass or inertia (mass / "
+                             f"force_scale, inertia / torque_scale) infinite or over "
+                             f"{MAX_LAB_EQUIVALENT:g}; no compound can be formed")
         return self
 
     def _gnc_legs(self, i: int, gnc: GncConfig) -> None:

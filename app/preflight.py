@@ -177,5 +177,5 @@ def _contact_note(config: EmulatorConfig, rows: np.ndarray, index: dict,
     if rows[first, 0] > first_violation_s:
         return ""
     a, b = (config.satellites[s - 1].name for s in pair)
-    return (f" (before that, at t = {rows[first, 0]:.2f} s, the mockups of {a!r} and "
-            f"{b!r} touch, up to {force.max():.3g} N)")
+    return (f"; and before any of that, at t = {rows[first, 0]:.2f} s, the mockups of "
+            f"{a!r} and {b!r} touch (up to {force.max():.3g} N)")

@@ -264,17 +264,22 @@ def test_the_latch_closes_only_on_a_touching_pair_unless_told_otherwise(tmp_path
         assert cap["position_miss_m"] == pytest.approx(0.03, abs=0.001)
 
 
-@pytest.mark.parametrize("knob", ["force_scale", "torque_scale"])
-def test_a_capture_under_a_zero_knob_is_refused(knob):
+@pytest.mark.parametrize(("knob", "value"), [("force_scale", 0.0), ("torque_scale", 0.0),
+                                             ("force_scale", 1e-308)])
+def test_a_capture_under_a_zero_or_tiny_knob_is_refused(knob, value):
     """The paper's law joins lab-equivalent bodies (m / force_scale, I / torque_scale):
-    a zero knob would make them infinite (it ended a run in NaNs)."""
+    a zero knob makes them infinite (it ended a run in NaNs), a tiny one overflows their
+    sum (1e-308: the pair's momentum was lost without an error)."""
     from app.config import ConfigError, parse_config
 
     with pytest.raises(ConfigError) as err:
-        parse_config({"orbit": {knob: 0.0},
+        parse_config({"orbit": {"force_scale": 1.0, "torque_scale": 1.0, knob: value},
                       "satellites": [{"name": "a"}, {"name": "b", "position_m": [1, 0, 0]}],
                       "capture": {"chaser": "a", "target": "b",
                                   "mated_offset_m": [0.2, 0.0, 0.0]}})
+    knobs = {"force_scale": 1.0, "torque_scale": 1.0, knob: value}
     assert str(err.value) == (
-        "invalid configuration: capture: a zero [orbit] force_scale or torque_scale makes a "
-        "satellite's lab-equivalent mass or inertia infinite; no compound can be formed")
+        f"invalid configuration: capture: [orbit] force_scale {knobs['force_scale']:g} and "
+        f"torque_scale {knobs['torque_scale']:g} make a satellite's lab-equivalent mass or "
+        f"inertia (mass / force_scale, inertia / torque_scale) infinite or over 1e+30; no "
+        f"compound can be formed")

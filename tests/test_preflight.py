@@ -80,11 +80,11 @@ def test_a_refusal_names_the_contact_that_came_before_it():
         preflight(cfg, cfg.loop.duration_s)
     text = str(err.value)
     assert "turns faster than the arm's wrist" in text
-    note = text.split("(before that, at t = ")[1]
+    note = text.split("; and before any of that, at t = ")[1]
     t_touch = float(note.split(" s,")[0])
     t_first = float(text.split(" at t = ")[1].split(" s")[0])
     assert t_touch <= t_first
-    assert "the mockups of 'chaser' and 'target' touch, up to " in note
+    assert "the mockups of 'chaser' and 'target' touch (up to " in note
 
 
 def test_an_ideal_only_layout_has_nothing_to_check():
