@@ -672,7 +672,7 @@ class EmulatorConfig(_Model):
     @model_validator(mode="after")
     def _gnc(self) -> EmulatorConfig:
         """A GNC's period spans at least one loop cycle, its wrench can enter the ODS, and
-        the GNC success criteria have a GNC to judge."""
+        its legs can be flown."""
         cycle_orbit_s = (self.scaling.time if self.scaling.law == "similarity" else 1.0) \
             / self.loop.rate_hz
         for i, sat in enumerate(self.satellites):
@@ -687,21 +687,21 @@ class EmulatorConfig(_Model):
                 raise ValueError(f"satellites.{i}.gnc: a zero [orbit] force_scale or "
                                  f"torque_scale lets no thrust into the ODS")
             self._gnc_legs(i, sat.gnc)
-        if self.success.needs_gnc and all(s.gnc is None for s in self.satellites):
-            raise ValueError("success: waypoints_reached, final_position_error_max_m, "
-                             "recovery_time_max_s and the synchronisation errors judge a "
-                             "satellite's GNC; no satellite has a [satellites.gnc]")
-        first = next((s for s in self.satellites if s.gnc is not None), None)
-        if self.success.needs_sync and first is not None and first.gnc.relative_to is None:
-            raise ValueError(f"success: the synchronisation errors judge a GNC flying "
-                             f"relative to another satellite; {first.name!r}'s "
-                             f"[satellites.gnc] has no relative_to")
         return self
 
     @model_validator(mode="after")
     def _success_applies(self) -> EmulatorConfig:
         """Each [success] criterion has something to judge."""
         crit = self.success
+        if crit.needs_gnc and all(s.gnc is None for s in self.satellites):
+            raise ValueError("success: waypoints_reached, final_position_error_max_m, "
+                             "recovery_time_max_s and the synchronisation errors judge a "
+                             "satellite's GNC; no satellite has a [satellites.gnc]")
+        first = next((s for s in self.satellites if s.gnc is not None), None)
+        if crit.needs_sync and first is not None and first.gnc.relative_to is None:
+            raise ValueError(f"success: the synchronisation errors judge a GNC flying "
+                             f"relative to another satellite; {first.name!r}'s "
+                             f"[satellites.gnc] has no relative_to")
         for key in ("captured", "residual_rate_max_radps"):
             if getattr(crit, key) is not None and self.capture is None:
                 raise ValueError(f"success.{key}: judges a docking's capture; this "
