@@ -30,6 +30,14 @@ def _loop_pid(live) -> int:
     return live.app.state.service.runner._proc.pid
 
 
+def _reap(pid: int) -> None:
+    """Kill a loop process the test stalled or killed, if it is still there."""
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
 def _wait_fault(live, timeout_s: float = 1.0) -> tuple[float, dict]:
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout_s:
@@ -83,10 +91,7 @@ def test_a_stalled_loop_is_noticed_and_a_start_replaces_it(live):
                              json={"pulses": []}).json()
         assert s["status"] == "running" and _loop_pid(live) != pid
     finally:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        _reap(pid)
     assert live.client.get("/api/health").json()["status"] == "ok"
     live.client.post("/api/stop")
 
@@ -114,10 +119,7 @@ def test_a_hil_start_that_replaces_a_faulted_loop_is_pre_flighted(live, sig):
         assert _loop_pid(live) == pid
         assert live.client.get("/api/health").status_code == 503
     finally:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+        _reap(pid)
     assert live.client.post("/api/reset").json()["status"] == "idle"
 
 

@@ -28,9 +28,9 @@ def two_impulse_transfer(r0_m, v0_mps, rf_m, vf_mps, transfer_s: float,
     phi = cw_state_transition(orbit_rate_radps, transfer_s)
     rr, rv, vr, vv = phi[:3, :3], phi[:3, 3:], phi[3:, :3], phi[3:, 3:]
     if abs(np.linalg.det(rv)) < 1e-9 * (transfer_s ** 3):
-        raise SingularTransfer(f"transfer_s: {transfer_s:g} s is a whole number of half orbits "
-                         f"(pi / Omega = {np.pi / orbit_rate_radps:.0f} s): no CW "
-                         f"transfer takes exactly that long")
+        raise SingularTransfer(
+            f"transfer_s: {transfer_s:g} s is a whole number of half orbits (pi / Omega = "
+            f"{np.pi / orbit_rate_radps:.0f} s): no CW transfer takes exactly that long")
     r0, rf = np.asarray(r0_m, float), np.asarray(rf_m, float)
     v0_plus = np.linalg.solve(rv, rf - rr @ r0)
     vf_minus = vr @ r0 + vv @ v0_plus
