@@ -564,7 +564,10 @@ class LoopConfig(_Model):
     duration_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1e6)] = 30.0
     mode: Literal["hil", "ideal"] = "hil"
     seed: Annotated[int, Field(ge=0)] = 0
-    telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 200_000
+    telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 140_000
+    """Rows the web app's telemetry ring keeps (the last ones: 280 s at 500 Hz); a headless
+    run keeps every cycle instead. The web app takes at most 128 MiB of them per run
+    (two arms: 113 values a row, 120 MiB by default; app/backend/service.py)."""
     approach_timeout_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=120.0)] = 20.0
     """How long the start-up may search for each arm's start posture (VFDM iterations on
     its virtual model), at most 2 minutes."""
