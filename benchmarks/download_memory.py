@@ -98,36 +98,42 @@ def fill(serve: Serve, seconds: float, capacity: int) -> dict:
     return serve.client.post("/api/stop").json()
 
 
-def measure_downloads(serve: Serve) -> dict:
-    """Each download's size, the peak VmRSS over it, the slowest /api/health meanwhile."""
-    out = {"idle_MiB": rss_mib(serve.pid)}
-    for path in ("/api/telemetry", "/api/run.zip", "/api/bag?rate_hz=1000"):
-        peak, slowest, done = [rss_mib(serve.pid)], [0.0], threading.Event()
+def _sample(serve: Serve, done: threading.Event, peak: list, slowest: list) -> None:
+    """VmRSS and the time /api/health takes, every 10 ms until done."""
+    with httpx.Client(base_url=serve.url, timeout=30.0) as health:
+        while not done.is_set():
+            peak.append(rss_mib(serve.pid))
+            t0 = time.perf_counter()
+            health.get("/api/health")
+            slowest.append(time.perf_counter() - t0)
+            time.sleep(0.01)
 
-        def sample():
-            with httpx.Client(base_url=serve.url, timeout=30.0) as health:
-                while not done.is_set():
-                    peak.append(rss_mib(serve.pid))
-                    t0 = time.perf_counter()
-                    health.get("/api/health")
-                    slowest.append(time.perf_counter() - t0)
-                    time.sleep(0.01)
 
-        sampler = threading.Thread(target=sample)
-        sampler.start()
-        t0 = time.perf_counter()
-        size = 0
+def _download(serve: Serve, path: str) -> dict:
+    """One download, streamed and counted, with the memory and health sampled meanwhile."""
+    peak, slowest, done = [rss_mib(serve.pid)], [0.0], threading.Event()
+    sampler = threading.Thread(target=_sample, args=(serve, done, peak, slowest))
+    sampler.start()
+    t0 = time.perf_counter()
+    size = 0
+    try:
         with serve.client.stream("GET", path) as r:
             r.raise_for_status()
             for chunk in r.iter_bytes():
                 size += len(chunk)
-        wall = time.perf_counter() - t0
+    finally:
         done.set()
         sampler.join()
-        out[path] = {"bytes": size, "wall_s": round(wall, 2),
-                     "peak_MiB": round(max(peak), 1),
-                     "after_MiB": round(rss_mib(serve.pid), 1),
-                     "health_max_s": round(max(slowest), 3)}
+    return {"bytes": size, "wall_s": round(time.perf_counter() - t0, 2),
+            "peak_MiB": round(max(peak), 1), "after_MiB": round(rss_mib(serve.pid), 1),
+            "health_max_s": round(max(slowest), 3)}
+
+
+def measure_downloads(serve: Serve) -> dict:
+    """Each download's size, the peak VmRSS over it, the slowest /api/health meanwhile."""
+    out = {"idle_MiB": rss_mib(serve.pid)}
+    for path in ("/api/telemetry", "/api/run.zip", "/api/bag?rate_hz=1000"):
+        out[path] = _download(serve, path)
     out["after_MiB"] = rss_mib(serve.pid)
     serve.client.post("/api/reset").raise_for_status()
     time.sleep(1.0)
