@@ -36,3 +36,20 @@ def test_downloads_of_a_big_run_stream_in_bounded_memory():
         assert f["peak_MiB"] - idle < MiB_ABOVE_IDLE_PEAK, (path, figures)
         assert f["health_max_s"] < 1.0, (path, figures)
     assert figures["after_reset_MiB"] - idle < MiB_ABOVE_IDLE_AFTER, figures
+
+
+def test_a_download_worker_that_dies_is_an_error_and_the_next_download_gets_a_new_one():
+    import os
+
+    import pytest
+
+    from app.backend.downloads import DownloadWorker
+
+    worker = DownloadWorker()
+    try:
+        with pytest.raises(RuntimeError, match="the download's worker process died before "
+                                               "it finished; try again"):
+            worker.run(os._exit, 9)  # as a worker killed for its memory would
+        assert worker.run(len, [1, 2, 3]) == 3
+    finally:
+        worker.shutdown()

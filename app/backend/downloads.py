@@ -17,6 +17,7 @@ import tempfile
 import threading
 import zipfile
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -124,7 +125,14 @@ class DownloadWorker:
                 self._pool = ProcessPoolExecutor(
                     max_workers=1, mp_context=mp.get_context("spawn"), max_tasks_per_child=1)
             pool = self._pool
-        return pool.submit(fn, *args).result()
+        try:
+            return pool.submit(fn, *args).result()
+        except BrokenProcessPool:  # the worker died (e.g. killed for memory): a new one next
+            with self._lock:
+                if self._pool is pool:
+                    self._pool = None
+            raise RuntimeError("the download's worker process died before it finished; "
+                               "try again") from None
 
     def shutdown(self) -> None:
         with self._lock:
