@@ -42,7 +42,8 @@ def test_the_ring_reads_by_file_what_the_loop_wrote_whole_or_in_chunks(n_rows):
         first, rows = ring.numbered_rows()
         assert first == max(0, n_rows - 100) and np.array_equal(rows, expected)
         chunks = list(ring.chunks(chunk_rows=7))
-        assert [f for f, _ in chunks] == list(range(first, n_rows, 7))
+        starts = sorted({first, *range((first // 7 + 1) * 7, n_rows, 7)}) if n_rows else []
+        assert [f for f, _ in chunks] == starts  # whole chunks begin at multiples of 7
         assert all(len(c) <= 7 for _, c in chunks)
         joined = np.concatenate([c for _, c in chunks]) if chunks else rows[:0]
         assert np.array_equal(joined, expected)
@@ -147,3 +148,20 @@ def test_the_panel_warns_before_a_satellite_s_course_leaves_its_arm_s_reach():
     assert seconds_until_beyond([0, 0, 2.0], [0, 0, 0], [0, 0, 0], 1.0) == 0.0  # beyond
     assert seconds_until_beyond([0, 0, 0.5], [0, 0, 0], [0, 0, 0], 1.0) == np.inf
     assert seconds_until_beyond([0, 0, 0.5], [0, 0, -1.0], [0, 0, 0], 1.0) == 1.5  # through
+
+
+def test_the_csv_cache_keeps_the_newest_whole_chunks_of_one_ring_within_its_budget():
+    from app.backend.service import CsvChunks
+
+    cache = CsvChunks(budget=10)
+    for number in (0, 4, 8):
+        cache.put("ring-a", number, b"abcd")
+    assert cache.get("ring-a", 0) is None  # 12 bytes > 10: the oldest went
+    assert cache.get("ring-a", 4) == cache.get("ring-a", 8) == b"abcd"
+    assert cache.get("ring-b", 8) is None  # another ring's rows are not these
+    cache.put("ring-b", 0, b"xy")
+    assert cache.get("ring-a", 8) is None and cache.get("ring-b", 0) == b"xy"
+    cache.put("ring-b", 4, b"x" * 11)  # over the whole budget: not kept
+    assert cache.get("ring-b", 4) is None and cache.get("ring-b", 0) == b"xy"
+    cache.clear()
+    assert cache.get("ring-b", 0) is None

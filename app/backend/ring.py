@@ -172,7 +172,9 @@ class RingFile:
 
     def chunks(self, chunk_rows: int = CHUNK_ROWS):
         """(number of the first row, rows) of the rows committed when called, oldest first,
-        chunk_rows at a time: memory for one chunk, whatever the ring's size. A row the
+        chunk_rows at a time, each chunk but the first beginning at a multiple of
+        chunk_rows (so that a whole chunk is the same rows at every read, for a cache):
+        memory for one chunk, whatever the ring's size. A row the
         loop overwrote before it was read is left out (the stream then begins later: a
         ring that wraps keeps only its last capacity rows). Yields nothing for a ring
         released before the call."""
@@ -183,7 +185,7 @@ class RingFile:
         try:
             first, end = self._span(fd)
             while first < end:
-                stop = min(first + chunk_rows, end)
+                stop = min((first // chunk_rows + 1) * chunk_rows, end)
                 rows = self._read(fd, first, stop)
                 lost = self._span(fd)[0] - first  # rows overwritten while read
                 if lost > 0:

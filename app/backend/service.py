@@ -29,6 +29,8 @@ MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's range
 MAX_PUSH_DURATION_S = 5.0
 CSV_CHUNK_ROWS = 2048
 """Rows read and formatted at a time for a CSV download."""
+CSV_CACHE_BYTES = 16 << 20
+"""The formatted CSV kept for the next reader (:class:`CsvChunks`): a 30 s one-arm run's."""
 MAX_BAG_MESSAGES = 60_000
 """A bag from the web app holds at most about this many messages (~10 s to write here):
 a long run's bag is thinned below the rate asked for. `run --bag` has no such bound."""
@@ -77,6 +79,7 @@ class EmulatorService:
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
         self._reads = SharedReads(self.runner.snapshot)
         self._worker = DownloadWorker()  # the zip and the bag are built in a process
+        self._csv_chunks = CsvChunks(CSV_CACHE_BYTES)
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -173,6 +176,7 @@ class EmulatorService:
             self.preflight(config, mode)
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
+            self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
         # error / safety_stop
@@ -196,6 +200,7 @@ class EmulatorService:
                 config, mode = self.build(name, mode=mode)
             self._revive(config, name, mode)
             gen = self.runner.request_reset(name, config, mode)
+            self._csv_chunks.clear()
             self.last_config, self._last_run = config, (name, config, mode)
         self.runner.wait_until(lambda s: s["generation"] >= gen, 10.0)
         return self.state()
@@ -245,9 +250,16 @@ class EmulatorService:
         if ring is None:
             return
         fmt = csv_row_format(len(columns))
+        cache = self._csv_chunks
         try:
-            for _, rows in ring.chunks(CSV_CHUNK_ROWS):
-                yield "".join(fmt % row for row in map(tuple, rows.tolist())).encode()
+            for number, rows in ring.chunks(CSV_CHUNK_ROWS):
+                whole = len(rows) == CSV_CHUNK_ROWS  # (aligned: the same rows every read)
+                data = cache.get(ring.path, number) if whole else None
+                if data is None:
+                    data = "".join(fmt % row for row in map(tuple, rows.tolist())).encode()
+                    if whole:
+                        cache.put(ring.path, number, data)
+                yield data
         finally:
             give_back_memory()
 
@@ -344,6 +356,39 @@ def give_back_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc: nothing to do
         pass
+
+
+class CsvChunks:
+    """The formatted CSV of the newest whole chunks of one ring, up to ``budget`` bytes:
+    eight clients polling the CSV of a 30 s run format only the rows new since the last
+    read, not the whole ring each, and the memory it costs stays bounded (the oldest
+    chunks go first; a read of another ring, or clear(), empties it)."""
+
+    def __init__(self, budget: int) -> None:
+        self.budget = budget
+        self._lock = threading.Lock()
+        self._ring: str | None = None
+        self._chunks: dict[int, bytes] = {}
+        self._bytes = 0
+
+    def clear(self) -> None:
+        with self._lock:
+            self._ring, self._chunks, self._bytes = None, {}, 0
+
+    def get(self, ring: str, number: int) -> bytes | None:
+        with self._lock:
+            return self._chunks.get(number) if ring == self._ring else None
+
+    def put(self, ring: str, number: int, data: bytes) -> None:
+        with self._lock:
+            if ring != self._ring:
+                self._ring, self._chunks, self._bytes = ring, {}, 0
+            if number in self._chunks or len(data) > self.budget:
+                return
+            self._chunks[number] = data
+            self._bytes += len(data)
+            while self._bytes > self.budget:  # the oldest rows go first
+                self._bytes -= len(self._chunks.pop(min(self._chunks)))
 
 
 class SharedReads:
