@@ -3,8 +3,12 @@
 # one generated at start and printed in the log (the link that carries it).
 #
 #   docker build -t orbit-emulator .
-#   docker run --rm -p 8000:8000 -e ORBIT_EMULATOR_TOKEN=<16+ characters> --ulimit rtprio=20 orbit-emulator
+#   docker run --rm -p 8000:8000 -e ORBIT_EMULATOR_TOKEN=<16+ characters> --shm-size=1g \
+#       --ulimit rtprio=20 orbit-emulator
 #
+# --shm-size=1g: the telemetry rings live in /dev/shm (up to 128 MiB a run, the last two
+# runs kept); Docker's default 64 MiB holds no two-arm run, and a start that does not fit
+# is refused (422 naming loop.telemetry_capacity).
 # --ulimit rtprio=20 lets the emulator loop process (non-root) run SCHED_FIFO, which keeps
 # its 2 ms deadlines on a loaded host; without it the loop runs with default scheduling.
 FROM python:3.11-slim

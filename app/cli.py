@@ -71,10 +71,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         for text in noise_spin_warnings(config, carried):
             print(f"warning: {text}", file=sys.stderr)  # before the arms move
     out_dir = _output_dir(default_out(args))
-    if args.bag:
-        from app.bag import check_bag_dir
+    from app.headless import check_run_files
 
-        check_bag_dir(out_dir / "bag")  # before the run, not after it
+    check_run_files(out_dir, bag=args.bag)  # before the run, not after it
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
                disable=args.quiet, file=sys.stderr)
 
@@ -100,6 +99,10 @@ def _report_run(result) -> int:
     metrics = result.metrics
     print(run_summary(metrics))
     print(f"\nwrote {', '.join(str(p) for p in result.files)}")
+    if result.unwritten is not None:
+        for problem in result.unwritten.problems:
+            print(f"error: {problem}", file=sys.stderr)
+        return EXIT_NOT_WRITTEN
     stop = metrics["safety_stop"]
     if stop:
         print(f"error: the run ended in a safety stop at t = {stop['t_s']:.3f} s (robot "
@@ -129,6 +132,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
               f"(--resume continues the sweep)", file=sys.stderr)
         return 130
     print(describe(summary, out))
+    failed = {s: summary["counts"].get(s, 0) for s in ("error", "lost")}
+    if any(failed.values()):
+        print(f"error: {failed['error']} run(s) ended in error and {failed['lost']} were lost "
+              f"(of {summary['rows']}): their reasons are in {out / 'results.csv'}",
+              file=sys.stderr)
+        return EXIT_RUN_FAILED
     return 0
 
 
@@ -153,7 +162,11 @@ def _positive_int(text: str) -> int:
 EXIT_SAFETY_STOP = 3
 """`run`'s exit status when the run ended in a safety stop (2: the user's mistake)."""
 EXIT_RUN_FAILED = 4
-"""`run`'s exit status when the run raised once started (metrics.json: status "error")."""
+"""`run`'s exit status when the run raised once started (metrics.json: status "error");
+`sweep`'s when any run of the table ended in error or was lost."""
+EXIT_NOT_WRITTEN = 5
+"""`run`'s exit status when some of its files could not be written where asked (each was
+then written to a fresh folder of the temporary directory, named on stderr)."""
 
 
 MAX_PROPAGATE_STEPS = 10_000_000
@@ -192,7 +205,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out", help="output directory")
     p.set_defaults(func=_cmd_propagate)
 
-    p = sub.add_parser("run", help="run a scenario headless: telemetry, metrics and plots")
+    p = sub.add_parser(
+        "run", help="run a scenario headless: telemetry, metrics and plots",
+        description="Run a scenario headless: telemetry, metrics and plots. Exit status: 0 "
+                    "done, 2 a mistake in the command (nothing ran), 3 a safety stop, 4 the "
+                    "run raised once started, 5 a file could not be written in --out "
+                    "(written to a temporary folder instead, named on stderr); what was "
+                    "recorded is written in every case.")
     p.add_argument("scenario", choices=scenario_names(), metavar="SCENARIO",
                    help=f"one of: {', '.join(scenario_names())}")
     p.add_argument("--mode", choices=("hil", "ideal"), default=None,
@@ -215,7 +234,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("sweep", help="run a campaign (parameter sweep, Monte Carlo) on Ray")
+    p = sub.add_parser(
+        "sweep", help="run a campaign (parameter sweep, Monte Carlo) on Ray",
+        description="Run a campaign (parameter sweep, Monte Carlo) on Ray. Exit status: 0 "
+                    "every run of the table ran (ok, safety_stop or refused), 2 a mistake "
+                    "in the spec or the command (nothing ran), 4 some runs ended in error "
+                    "or were lost (counted on stderr; results.csv has their reasons), "
+                    "130 interrupted.")
     p.add_argument("spec", metavar="SPEC.toml",
                    help="sweep spec: scenario, mode, [grid] and [random] settings, seeds or "
                         "draws, metrics (README: Campaigns)")

@@ -25,6 +25,8 @@ from pydantic import (
     model_validator,
 )
 
+from app.inputs import InputFileError, read_bounded_text
+
 __all__ = [
     "CaptureConfig",
     "ConfigError",
@@ -562,7 +564,10 @@ class LoopConfig(_Model):
     duration_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1e6)] = 30.0
     mode: Literal["hil", "ideal"] = "hil"
     seed: Annotated[int, Field(ge=0)] = 0
-    telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 200_000
+    telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 140_000
+    """Rows the web app's telemetry ring keeps (the last ones: 280 s at 500 Hz); a headless
+    run keeps every cycle instead. The web app takes at most 128 MiB of them per run
+    (two arms: 113 values a row, 120 MiB by default; app/backend/service.py)."""
     approach_timeout_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=120.0)] = 20.0
     """How long the start-up may search for each arm's start posture (VFDM iterations on
     its virtual model), at most 2 minutes."""
@@ -875,11 +880,13 @@ def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
     given replaces the base's list)."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(read_bounded_text(path))
     except FileNotFoundError:
         raise ConfigError(f"config file not found: {path}") from None
     except IsADirectoryError:
         raise ConfigError(f"{path}: is a directory, not a TOML file") from None
+    except InputFileError as err:
+        raise ConfigError(str(err)) from None
     except (OSError, UnicodeDecodeError) as err:
         reason = getattr(err, "strerror", None) or err
         raise ConfigError(f"{path}: cannot be read: {reason}") from None
@@ -892,9 +899,9 @@ def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
         raise ConfigError(f"{path}: extends: must name a scenario, got {base!r}")
     file_name = base if base.endswith(".toml") else f"{base}.toml"
     base_path = path.parent / file_name
-    if not base_path.is_file():
+    if not base_path.exists():  # (a FIFO or a device there is refused when read)
         base_path = SCENARIO_DIR / file_name
-    if not base_path.is_file():
+    if not base_path.exists():
         raise ConfigError(f"{path}: extends: no scenario {base!r} beside it or built in")
     chain = (*_chain, path.resolve())
     if base_path.resolve() in chain:
@@ -986,15 +993,39 @@ def _merge_patch(target, patch, path: str = ""):
     return out
 
 
+MAX_INDEX_DIGITS = 6
+"""A list item's index is written in at most this many ASCII digits (no list has a
+million items)."""
+_INDEX = re.compile(f"[0-9]{{1,{MAX_INDEX_DIGITS}}}")
+
+
+def item_index(part) -> int | None:
+    """The list index a key part names (``"2"`` → 2): ASCII digits only, at most
+    :data:`MAX_INDEX_DIGITS` of them; None for anything else (``"١"``, a 4,301-digit
+    number, ``"x"``)."""
+    if isinstance(part, str) and _INDEX.fullmatch(part):
+        return int(part)
+    return None
+
+
+def _shown_key(key: str) -> str:
+    """A key for a message: whole if short, else its start and its length."""
+    return repr(key) if len(key) <= 20 else f"{key[:12]!r}... ({len(key)} characters)"
+
+
 def _patch_items(items: list, patch: dict, path: str) -> list:
     """Patch the items of a list named by the (string) indices of ``patch``."""
     where = path.rstrip(".") or "(top level)"
     out = list(items)
     for key, value in patch.items():
-        if not (isinstance(key, str) and key.isdigit()):
+        i = item_index(key)
+        if i is None and isinstance(key, str) and key and all(c.isdigit() for c in key):
+            raise ConfigError(f"{where}: a list item's index is written in 1 to "
+                              f"{MAX_INDEX_DIGITS} ASCII digits (0-9), got "
+                              f"{_shown_key(key)}")
+        if i is None:
             raise ConfigError(f"{where}: a list is replaced by a list or patched by an object "
-                              f"of item indices, got the key {key!r}")
-        i = int(key)
+                              f"of item indices, got the key {_shown_key(str(key))}")
         if i >= len(items):
             raise ConfigError(f"{where}.{i}: index out of range: the list has "
                               f"{len(items)} item(s), indices 0..{len(items) - 1}")

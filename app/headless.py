@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import os
+import stat
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.bag import replace_bag_dir, write_bag
+from app.bag import check_bag_dir, replace_bag_dir, write_bag
 from app.config import EmulatorConfig, merge_overrides
 from app.metrics import collision_metrics, compute_metrics, contact_pair
-from app.plots import plot_run
+from app.plots import PLOT_FILES, plot_run
 from app.preflight import preflight
 from app.report import write_json, write_telemetry_csv
 from app.sim.loop import Emulator
@@ -20,6 +23,8 @@ class RunResult:
     emulator: Emulator
     metrics: dict
     files: list[Path]
+    unwritten: RunFilesNotWritten | None = None
+    """What could not be written where asked (and where it went instead)."""
 
 
 class RunFailed(RuntimeError):
@@ -105,12 +110,16 @@ def run_scenario(
             ideal = None
         error = None if failure is None else f"{type(failure).__name__}: {failure}"
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
-        files = []
+        files, unwritten = [], None
         if out_dir is not None:
-            files = write_run_files(em, metrics, out_dir, bag=bag, bag_rate_hz=bag_rate_hz)
+            try:
+                files = write_run_files(em, metrics, out_dir, bag=bag,
+                                        bag_rate_hz=bag_rate_hz)
+            except RunFilesNotWritten as err:
+                files, unwritten = err.files, err
     if failure is not None:
-        raise RunFailed(error, RunResult(em, metrics, files)) from failure
-    return RunResult(em, metrics, files)
+        raise RunFailed(error, RunResult(em, metrics, files, unwritten)) from failure
+    return RunResult(em, metrics, files, unwritten)
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:
@@ -142,23 +151,92 @@ TELEMETRY_MIN_ROWS = 100
 """The least telemetry capacity a configuration takes ([loop] telemetry_capacity)."""
 
 
+RUN_FILES = ("telemetry.csv", "metrics.json", *PLOT_FILES)
+"""The files a headless run may write in its output folder (and ``bag/`` with --bag)."""
+
+
+class RunFilesNotWritten(OSError):
+    """Some of a run's files could not be written where asked; each was written in
+    ``fallback`` instead where it could be (``files``: every path written)."""
+
+    def __init__(self, problems: list[str], files: list[Path], fallback: Path | None) -> None:
+        super().__init__("; ".join(problems))
+        self.problems, self.files, self.fallback = problems, files, fallback
+
+
+def check_run_files(out_dir: str | Path, bag: bool = False) -> None:
+    """Before a run: each file it will write in ``out_dir`` is absent or a regular file
+    that may be replaced (ValueError naming the path otherwise), so that no run is wasted
+    on an output it cannot write."""
+    out = Path(out_dir)
+    for name in RUN_FILES:
+        path = out / name
+        try:
+            info = os.stat(path)
+        except FileNotFoundError:
+            continue
+        except OSError as err:
+            raise ValueError(f"{path}: cannot be written: {err.strerror or err}") from None
+        if not stat.S_ISREG(info.st_mode):
+            kind = "a directory" if stat.S_ISDIR(info.st_mode) else "not a regular file"
+            raise ValueError(f"{path}: exists and is {kind}; the run writes a file there: "
+                             f"move it away or choose another --out")
+        if not os.access(path, os.W_OK):
+            raise ValueError(f"{path}: exists and is not writable; the run replaces it")
+    if bag:
+        check_bag_dir(out / "bag")
+
+
 def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry: bool = True,
                     plots: bool = True, bag: bool = False,
                     bag_rate_hz: float | None = None) -> list[Path]:
     """Write what a headless run leaves in ``out_dir``: metrics.json, and as asked
-    telemetry.csv, the plots and the ROS 2 bag; the paths written."""
+    telemetry.csv, the plots and the ROS 2 bag; the paths written.
+
+    Each is written on its own: one that fails does not keep the others from being
+    written, and is written into a fresh folder of the system's temporary directory
+    instead; RunFilesNotWritten then says where (nothing recorded is lost silently)."""
     out = Path(out_dir)
     rows = em.telemetry.rows()
-    files = []
+    writers = [("metrics.json", lambda d: [_write_json(d / "metrics.json", metrics)])]
     if telemetry:
-        write_telemetry_csv(out / "telemetry.csv", em.columns, rows)
-        files.append(out / "telemetry.csv")
-    write_json(out / "metrics.json", metrics)
-    files.append(out / "metrics.json")
+        writers.append(("telemetry.csv", lambda d: [
+            _write_csv(d / "telemetry.csv", em.columns, rows)]))
     if plots:
-        files += plot_run(rows, em.telemetry.index, out, em.n_sat, len(em.arms),
-                          metrics.get("collision"), note=metrics["scaling"]["text"])
+        writers.append(("plots", lambda d: plot_run(
+            rows, em.telemetry.index, d, em.n_sat, len(em.arms), metrics.get("collision"),
+            note=metrics["scaling"]["text"])))
     if bag:
-        files.append(write_bag(replace_bag_dir(out / "bag"), em.config, rows,
-                               em.telemetry.index, bag_rate_hz))
+        writers.append(("bag", lambda d: [write_bag(
+            replace_bag_dir(d / "bag"), em.config, rows, em.telemetry.index, bag_rate_hz)]))
+    files, problems, fallback = [], [], None
+    for what, write in writers:
+        try:
+            files += write(out)
+            continue
+        except (OSError, ValueError) as err:
+            problem = f"{out / what}: could not be written ({_reason(err)})"
+        try:
+            if fallback is None:
+                fallback = Path(tempfile.mkdtemp(prefix="orbit-emulator-run-"))
+            files += write(fallback)
+            problems.append(f"{problem}; written to {fallback / what} instead")
+        except (OSError, ValueError) as err:
+            problems.append(f"{problem}, nor in {fallback}: {_reason(err)}")
+    if problems:
+        raise RunFilesNotWritten(problems, files, fallback)
     return files
+
+
+def _reason(err: Exception) -> str:
+    return (getattr(err, "strerror", None) or str(err)) if isinstance(err, OSError) else str(err)
+
+
+def _write_json(path: Path, data: dict) -> Path:
+    write_json(path, data)
+    return path
+
+
+def _write_csv(path: Path, columns, rows) -> Path:
+    write_telemetry_csv(path, columns, rows)
+    return path

@@ -13,6 +13,11 @@ import numpy as np  # noqa: E402
 AXES = ("x", "y", "z")
 
 
+PLOT_FILES = ("fig6_free_floating.png", "fig8b_contact_closeup.png", "fig8_forces.png",
+              "fig9_velocity.png", "fig10_position.png", "fig11_position_error.png")
+"""The figures :func:`plot_run` may write (those a run has data for)."""
+
+
 def _save(fig, path: Path, note: str) -> None:
     """Save a figure with the run's note (the scaling in force) above its titles."""
     if note:

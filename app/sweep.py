@@ -33,12 +33,15 @@ import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from app.config import (
+    MAX_INDEX_DIGITS,
     ConfigError,
     EmulatorConfig,
     dotted_override,
+    item_index,
     merge_overrides,
     merge_overrides_all,
 )
+from app.inputs import InputFileError, read_bounded_text
 from app.run_config import base_config, finish_run_config
 from app.scenarios import scenario_names
 
@@ -216,9 +219,13 @@ def load_spec(path: str | Path) -> SweepSpec:
     """Read and validate a spec file's shape (its settings are checked by plan_sweep)."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(read_bounded_text(path, what="a sweep spec"))
     except FileNotFoundError:
         raise SpecError(f"sweep spec not found: {path}") from None
+    except IsADirectoryError:
+        raise SpecError(f"{path}: is a directory, not a sweep spec") from None
+    except InputFileError as err:
+        raise SpecError(str(err)) from None
     except (OSError, UnicodeDecodeError) as err:
         raise SpecError(f"{path}: cannot be read: {getattr(err, 'strerror', None) or err}"
                         ) from None
@@ -511,9 +518,12 @@ def _missing_part(tree, key: str) -> str | None:
                 return f"{here} has no {part!r}{hint}"
             node = node[part]
         elif isinstance(node, list):
-            if not part.isdigit() or int(part) >= len(node):
-                return f"{here} is a list of {len(node)}: {part!r} is not an index of it"
-            node = node[int(part)]
+            i = item_index(part)
+            if i is None or i >= len(node):
+                shown = part if len(part) <= 20 else f"{part[:12]}... ({len(part)} characters)"
+                rule = "" if i is not None else f" (1 to {MAX_INDEX_DIGITS} ASCII digits)"
+                return f"{here} is a list of {len(node)}: {shown!r} is not an index of it{rule}"
+            node = node[i]
         else:
             return f"{here} is a value, not a table"
         done.append(part)
@@ -537,7 +547,8 @@ def _check_metrics(metrics: list[str], base: EmulatorConfig, param_keys: list[st
                             f"{', '.join(METRIC_FIELDS[''])})")
         if parts[0] == "satellites":
             n = len(base.satellites)
-            if len(parts) < 2 or not parts[1].isdigit() or int(parts[1]) >= n:
+            index = item_index(parts[1]) if len(parts) >= 2 else None
+            if index is None or index >= n:
                 raise SpecError(f"{where}: satellites.N with N in 0..{n - 1} (the scenario "
                                 f"has {n})")
             parts = [parts[0], *parts[2:]]
@@ -637,8 +648,9 @@ def metric_value(metrics: dict | None, path: str):
     for part in path.split("."):
         if isinstance(node, dict):
             node = node.get(part)
-        elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
-            node = node[int(part)]
+        elif isinstance(node, list) and item_index(part) is not None \
+                and item_index(part) < len(node):
+            node = node[item_index(part)]
         else:
             return None
     return node

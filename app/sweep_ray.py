@@ -12,6 +12,7 @@ cancels what is under way and keeps them.
 from __future__ import annotations
 
 import os
+import re
 import socket
 import sys
 import threading
@@ -227,7 +228,7 @@ def _auth_token_available() -> bool:
 def parse_address(address: str) -> tuple[str, int]:
     """HOST:PORT of a Ray head."""
     host, sep, port = address.strip().rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+    if not sep or not host or not re.fullmatch(r"[0-9]{1,5}", port) or not 0 < int(port) < 65536:
         raise ValueError(f"--address: expected HOST:PORT of a Ray head (e.g. "
                          f"10.0.0.5:6379), got {address!r}")
     return host, int(port)

@@ -561,3 +561,34 @@ def test_the_web_app_runs_a_docking_to_capture_and_its_metrics_say_so(live):
     metrics = live.client.get("/api/metrics").json()
     assert metrics["capture"]["captured"] and metrics["success"]["passed"]
     assert "similarity" in metrics["scaling"]["text"]
+
+
+INDEX_RULE = "a list item's index is written in 1 to 6 ASCII digits (0-9), got"
+
+
+def test_a_list_index_in_a_start_body_is_a_short_ascii_number(live):
+    """A 4,301-digit index once gave a 500 (int()'s digit limit) and "١" (an Arabic-Indic
+    one) was taken for 1: both are a 422 naming the setting, and nothing starts."""
+    gen = live.state()["generation"]
+    for index, shown in [("1" * 4301, "'111111111111'... (4301 characters)"),
+                         ("\u0661", "'\u0661'")]:
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={"satellites": {index: {"mass_kg": 2}}})
+        assert r.status_code == 422, r.text
+        assert r.json() == {"detail": f"satellites: {INDEX_RULE} {shown}"}
+    assert live.state()["generation"] == gen
+
+
+def test_a_ring_over_the_web_app_s_128_mib_is_refused_naming_the_setting(live):
+    """The ring is read whole by /api/metrics and the zip's metrics: its size bounds the
+    web process's memory (tests/test_backend_downloads.py), so a start may not ask for
+    more than 128 MiB of it (1 GiB before)."""
+    gen = live.state()["generation"]
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"loop": {"telemetry_capacity": 1_000_000}})
+    assert r.status_code == 422
+    assert r.json()["detail"] == (
+        "loop.telemetry_capacity: 1000000 rows of 113 values are 862.1 MiB; the web app "
+        "keeps at most 128 MiB of a run's telemetry, 148470 rows of this run (a headless "
+        "orbit-emulator run keeps every cycle, up to 1 GiB)")
+    assert live.state()["generation"] == gen

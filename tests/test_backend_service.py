@@ -1,35 +1,57 @@
-"""The web process's heavy reads (app/backend/service.py): the incremental telemetry CSV
-and the shared, one-at-a-time computation of metrics and telemetry."""
+"""The web process's heavy reads (app/backend/service.py, app/backend/ring.py): the
+telemetry ring read by file, whole or in chunks, and the shared, one-at-a-time
+computation of metrics."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from app.backend.service import CsvLines, SharedReads
-from app.report import telemetry_csv_text
-
-COLUMNS = ["t_s", "a", "b"]
+from app.backend.service import SharedReads
 
 
-def _rows(first: int, last: int) -> np.ndarray:
-    """Rows numbered first..last-1 of a run, with awkward floats."""
-    k = np.arange(first, last, dtype=float)[:, None]
-    return np.hstack([0.002 * k, np.sqrt(k + 1e-3), -k / 7.0])
+def _ring_with_rows(n_rows: int, capacity: int = 100):
+    """A run's ring (app/backend/ring.py) into which n_rows rows were written as the loop
+    writes them (TelemetryBuffer over the shared storage), and the rows it must hold."""
+    from app.backend.ring import RunTelemetry, attach_ring
+    from app.scenarios import load_scenario
+    from app.sim.telemetry import TelemetryBuffer
+
+    config = load_scenario("collision")
+    config = config.model_copy(update={"loop": config.loop.model_copy(
+        update={"telemetry_capacity": capacity})})
+    ring = RunTelemetry(config, "ideal")
+    shm, data, counters = attach_ring(ring.name, capacity, len(ring.columns))
+    buffer = TelemetryBuffer(ring.columns, capacity)
+    buffer.use_storage(data, counters)
+    k = np.arange(n_rows, dtype=float)[:, None]
+    written = 0.002 * k + np.arange(len(ring.columns)) / 7.0
+    for row in written:
+        buffer.append(row)
+    del data, counters, buffer
+    shm.close()
+    return ring, written[max(0, n_rows - capacity):]
 
 
-def test_the_csv_grows_row_by_row_and_equals_the_whole_formatting():
-    csv = CsvLines(COLUMNS)
-    for first, last in [(0, 0), (0, 5), (0, 9), (3, 20), (12, 40), (12, 40), (39, 41)]:
-        text = csv.text(first, _rows(first, last))
-        assert text == telemetry_csv_text(COLUMNS, _rows(first, last))
-    assert len(csv.lines) == 2 and csv.first == 39  # the dropped rows are let go
-
-
-def test_a_gap_in_the_rows_begins_again():
-    csv = CsvLines(COLUMNS)
-    csv.text(0, _rows(0, 10))
-    assert csv.text(50, _rows(50, 60)) == telemetry_csv_text(COLUMNS, _rows(50, 60))
+@pytest.mark.parametrize("n_rows", [0, 1, 99, 100, 101, 250])
+def test_the_ring_reads_by_file_what_the_loop_wrote_whole_or_in_chunks(n_rows):
+    """The web process reads the ring with pread (never through the mapping): all of it
+    (metrics), or a few rows at a time (a CSV download), oldest first, wrapped or not."""
+    ring, expected = _ring_with_rows(n_rows)
+    try:
+        first, rows = ring.numbered_rows()
+        assert first == max(0, n_rows - 100) and np.array_equal(rows, expected)
+        chunks = list(ring.chunks(chunk_rows=7))
+        starts = sorted({first, *range((first // 7 + 1) * 7, n_rows, 7)}) if n_rows else []
+        assert [f for f, _ in chunks] == starts  # whole chunks begin at multiples of 7
+        assert all(len(c) <= 7 for _, c in chunks)
+        joined = np.concatenate([c for _, c in chunks]) if chunks else rows[:0]
+        assert np.array_equal(joined, expected)
+    finally:
+        ring.release()
+    assert list(ring.chunks()) == []  # released: nothing to read, no error
+    with pytest.raises(FileNotFoundError):
+        ring.numbered_rows()
 
 
 class _Loop:
@@ -126,3 +148,20 @@ def test_the_panel_warns_before_a_satellite_s_course_leaves_its_arm_s_reach():
     assert seconds_until_beyond([0, 0, 2.0], [0, 0, 0], [0, 0, 0], 1.0) == 0.0  # beyond
     assert seconds_until_beyond([0, 0, 0.5], [0, 0, 0], [0, 0, 0], 1.0) == np.inf
     assert seconds_until_beyond([0, 0, 0.5], [0, 0, -1.0], [0, 0, 0], 1.0) == 1.5  # through
+
+
+def test_the_csv_cache_keeps_the_newest_whole_chunks_of_one_ring_within_its_budget():
+    from app.backend.service import CsvChunks
+
+    cache = CsvChunks(budget=10)
+    for number in (0, 4, 8):
+        cache.put("ring-a", number, b"abcd")
+    assert cache.get("ring-a", 0) is None  # 12 bytes > 10: the oldest went
+    assert cache.get("ring-a", 4) == cache.get("ring-a", 8) == b"abcd"
+    assert cache.get("ring-b", 8) is None  # another ring's rows are not these
+    cache.put("ring-b", 0, b"xy")
+    assert cache.get("ring-a", 8) is None and cache.get("ring-b", 0) == b"xy"
+    cache.put("ring-b", 4, b"x" * 11)  # over the whole budget: not kept
+    assert cache.get("ring-b", 4) is None and cache.get("ring-b", 0) == b"xy"
+    cache.clear()
+    assert cache.get("ring-b", 0) is None

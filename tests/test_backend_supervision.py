@@ -295,3 +295,20 @@ def test_the_miss_ratio_counts_only_the_latest_run_in_its_window():
     assert miss_ratio_of(samples, 0.5) is None  # one sample in the window: no cycles seen
     assert miss_ratio_of([(0.0, 1, 10, 5), (0.1, 1, 20, 10)], 10.0) == 0.5
     assert miss_ratio_of([], 10.0) is None
+
+
+def test_a_loop_killed_by_sigbus_is_reported_with_the_likely_cause(live):
+    """SIGBUS is how a loop dies when /dev/shm cannot give its telemetry ring a page (a
+    start is refused when its ring does not fit: tests/test_backend_ring.py); should it
+    still happen, health names it and what to do."""
+    s = live.client.post("/api/scenarios/free-floating/start", json={"pulses": []}).json()
+    assert s["status"] == "running"
+    pid = _loop_pid(live)
+    os.kill(pid, signal.SIGBUS)
+    _, health = _wait_fault(live)
+    assert health["reason"] == (
+        "the loop process exited (code -7), killed by SIGBUS: a bus error, which here means "
+        "the shared memory in /dev/shm (where the telemetry ring lives) ran out; give it "
+        "more room (docker run --shm-size=1g) or lower loop.telemetry_capacity")
+    assert live.client.post("/api/reset").json()["status"] == "idle"
+    assert live.client.get("/api/health").json()["status"] == "ok"

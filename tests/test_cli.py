@@ -4,9 +4,13 @@ no traceback (and nothing run or written)."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
+import tempfile
+import time
+from pathlib import Path
 
 import pytest
 
@@ -148,3 +152,113 @@ def test_a_run_that_raises_once_started_keeps_what_it_recorded_with_status_error
     assert (metrics["status"], metrics["error"]) == ("error", reason)
     rows = (out / "telemetry.csv").read_text().splitlines()
     assert len(rows) - 1 == metrics["cycles"] >= 1000
+
+
+# --- file inputs: a regular file under a cap, never a device or a FIFO --------------------
+
+TOML_RULE = "a TOML file must be a regular file of at most 1 MiB"
+
+
+def _inputs(tmp_path):
+    """A FIFO, a directory, a file one byte over the cap and a link to /dev/zero, all
+    named *.toml beside each other."""
+    os.mkfifo(tmp_path / "fifo.toml")
+    (tmp_path / "dir.toml").mkdir()
+    with open(tmp_path / "big.toml", "wb") as f:
+        f.truncate((1 << 20) + 1)
+    (tmp_path / "zero.toml").symlink_to("/dev/zero")
+
+
+FILE_INPUTS = {
+    "/dev/zero": ("/dev/zero", f"error: /dev/zero: is a character device; {TOML_RULE}"),
+    "link to /dev/zero": ("zero.toml", f"error: zero.toml: is a character device; {TOML_RULE}"),
+    "FIFO": ("fifo.toml", f"error: fifo.toml: is a FIFO (named pipe); {TOML_RULE}"),
+    "directory": ("dir.toml", "error: dir.toml: is a directory, not a TOML file"),
+    "oversize": ("big.toml", f"error: big.toml: is 1,048,577 bytes; {TOML_RULE}"),
+}
+
+
+@pytest.mark.parametrize("case", list(FILE_INPUTS))
+def test_run_config_must_be_a_regular_file_under_1_mib(case, tmp_path):
+    """`--config /dev/zero` once grew to 23.5 GB; a FIFO hung: both are refused by their
+    type before being opened (the timeout fails the test should one hang)."""
+    _inputs(tmp_path)
+    path, message = FILE_INPUTS[case]
+    proc = subprocess.run([EXE, "run", "collision", "--config", path, "--quiet"],
+                          capture_output=True, text=True, timeout=30, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == message + "\n"
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("case", ["link to /dev/zero", "FIFO", "directory", "oversize"])
+def test_a_scenario_file_extends_only_a_regular_file_under_1_mib(case, tmp_path):
+    _inputs(tmp_path)
+    path, message = FILE_INPUTS[case]
+    (tmp_path / "mine.toml").write_text(f'extends = "{path}"\n')
+    proc = subprocess.run([EXE, "run", "collision", "--config", "mine.toml", "--quiet"],
+                          capture_output=True, text=True, timeout=30, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == message + "\n"
+
+
+# --- list indices: ASCII digits, at most 6 --------------------------------------------------
+
+INDEX_RULE = "a list item's index is written in 1 to 6 ASCII digits (0-9), got"
+
+
+@pytest.mark.parametrize("index, shown", [
+    ("1" * 4301, "'111111111111'... (4301 characters)"),  # past int()'s digit limit
+    ("\u0661", "'\u0661'"),  # ARABIC-INDIC DIGIT ONE: str.isdigit() says yes
+    ("0000001", "'0000001'"),
+])
+def test_a_list_index_is_a_short_ascii_number_named_with_its_setting(index, shown):
+    proc = subprocess.run([EXE, "run", "collision", "--set", f"satellites.{index}.mass_kg=2",
+                           "--quiet"], capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == f"error: satellites: {INDEX_RULE} {shown}\n"
+
+
+# --- output files: checked before the run, never lost after it ------------------------------
+
+def test_an_output_file_that_is_a_directory_is_refused_before_the_run(tmp_path):
+    out = tmp_path / "out"
+    (out / "telemetry.csv").mkdir(parents=True)
+    t0 = time.perf_counter()
+    proc = subprocess.run([EXE, "run", "collision", "--mode", "ideal", "--out", str(out),
+                           "--quiet"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == (f"error: {out}/telemetry.csv: exists and is a directory; the run "
+                           f"writes a file there: move it away or choose another --out\n")
+    assert sorted(p.name for p in out.iterdir()) == ["telemetry.csv"]  # nothing written
+    assert time.perf_counter() - t0 < 15  # the 12 s scenario did not run
+
+
+def test_a_file_that_cannot_be_written_after_the_run_goes_elsewhere_and_exits_5(
+        tmp_path, capsys):
+    """The output becomes unwritable while the run goes on (a directory appears where
+    telemetry.csv goes): the other files are written, telemetry.csv is written to a fresh
+    temporary folder, and `run` says so on stderr and exits 5."""
+    from app.cli import EXIT_NOT_WRITTEN, _report_run
+    from app.headless import run_scenario
+    from app.scenarios import load_scenario
+
+    out = tmp_path / "out"
+
+    def block_at_500(k, n):  # (called every 500 cycles)
+        if k >= 500 and not (out / "telemetry.csv").exists():
+            (out / "telemetry.csv").mkdir(parents=True)
+
+    result = run_scenario(load_scenario("collision"), mode="ideal", duration_s=1.5,
+                          out_dir=out, progress=block_at_500)
+    assert (out / "metrics.json").is_file() and (out / "telemetry.csv").is_dir()
+    fallback = result.unwritten.fallback
+    assert fallback.parent == Path(tempfile.gettempdir())
+    written = (fallback / "telemetry.csv").read_text().splitlines()
+    assert len(written) - 1 == len(result.emulator.telemetry.rows()) > 750  # every row
+    assert fallback / "telemetry.csv" in result.files
+    assert _report_run(result) == EXIT_NOT_WRITTEN
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {out}/telemetry.csv: could not be written (Is a directory); "
+                          f"written to {fallback}/telemetry.csv instead\n")
+    shutil.rmtree(fallback)

@@ -5,6 +5,8 @@ No Ray here: tests/test_sweep_ray.py runs sweeps end to end."""
 from __future__ import annotations
 
 import csv
+import json
+import os
 import shutil
 import socket
 import subprocess
@@ -440,3 +442,60 @@ def test_the_scenario_library_sweeps_and_reports_its_success(
         row = row_of(plan, run, outcome)
         assert row["success.passed"] == "true", row
         assert metric in row and row[metric]
+
+
+SPEC_RULE = "a sweep spec must be a regular file of at most 1 MiB"
+TOML_RULE = "a TOML file must be a regular file of at most 1 MiB"
+
+
+def _odd_files(tmp_path):
+    os.mkfifo(tmp_path / "fifo.toml")
+    (tmp_path / "dir.toml").mkdir()
+    with open(tmp_path / "big.toml", "wb") as f:
+        f.truncate((1 << 20) + 1)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("/dev/zero", f"error: /dev/zero: is a character device; {SPEC_RULE}"),
+    ("fifo.toml", f"error: fifo.toml: is a FIFO (named pipe); {SPEC_RULE}"),
+    ("dir.toml", "error: dir.toml: is a directory, not a sweep spec"),
+    ("big.toml", f"error: big.toml: is 1,048,577 bytes; {SPEC_RULE}"),
+], ids=["dev-zero", "fifo", "directory", "oversize"])
+def test_a_sweep_spec_must_be_a_regular_file_under_1_mib(spec, message, tmp_path):
+    _odd_files(tmp_path)
+    proc = subprocess.run([EXE, "sweep", spec, "--out", "out"], capture_output=True,
+                          text=True, timeout=30, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == message + "\n"
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("config, message", [
+    ("/dev/zero", f"/dev/zero: is a character device; {TOML_RULE}"),
+    ("fifo.toml", f"fifo.toml: is a FIFO (named pipe); {TOML_RULE}"),
+    ("dir.toml", "dir.toml: is a directory, not a TOML file"),
+    ("big.toml", f"big.toml: is 1,048,577 bytes; {TOML_RULE}"),
+], ids=["dev-zero", "fifo", "directory", "oversize"])
+def test_a_sweep_specs_config_must_be_a_regular_file_under_1_mib(config, message, tmp_path):
+    _odd_files(tmp_path)
+    (tmp_path / "spec.toml").write_text(
+        f'config = "{config}"\nseeds = [0]\nmetrics = ["cycles"]\n')
+    proc = subprocess.run([EXE, "sweep", "spec.toml", "--out", "out"], capture_output=True,
+                          text=True, timeout=30, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == f"error: spec.toml: config: {message}\n"
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("key, shown", [
+    ("satellites." + "1" * 4301 + ".mass_kg", "'111111111111... (4301 characters)'"),
+    ("satellites.\u0661.mass_kg", "'\u0661'"),
+])
+def test_a_swept_list_index_is_a_short_ascii_number(key, shown, tmp_path):
+    path = tmp_path / "spec.toml"
+    path.write_text(HEAD + f'[grid]\n"{key}" = [1, 2]\n')
+    with pytest.raises(SpecError) as err:
+        plan_sweep(load_spec(path), tmp_path, "spec.toml")
+    quoted = json.dumps(key)  # (the spec's key as the message quotes it)
+    assert str(err.value) == (f'spec.toml: grid.{quoted}: unknown key (satellites is a list of '
+                              f"2: {shown} is not an index of it (1 to 6 ASCII digits))")

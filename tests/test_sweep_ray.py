@@ -275,7 +275,9 @@ metrics = ["satellites.0.position_error_max_m"]
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 0, err
+    assert proc.returncode == 4, err  # runs ended in error: the sweep says so
+    assert err.splitlines()[-1] == ("error: 2 run(s) ended in error and 0 were lost (of 4): "
+                                    "their reasons are in out/results.csv")
     rows = {(r["loop.approach_timeout_s"], r["seed"]): r for r in read_rows(tmp_path / "out")}
     assert len(rows) == 4
     for seed in ("0", "1"):
@@ -368,3 +370,27 @@ metrics = ["satellites.0.delta_v_mps", "cycles"]
         assert metrics["status"] == "finished"
     assert json.loads((out / "summary.json").read_text())["counts"] == {
         "finished": 2, "safety_stop": 0, "error": 0, "lost": 0}
+
+
+def test_a_sweep_whose_runs_end_in_error_exits_4_and_counts_them(tmp_path):
+    """Draws outside a setting's range (a negative noise) are runs that end in error: the
+    sweep goes on, then exits 4 and says how many (exit 0 only when none did)."""
+    (tmp_path / "spec.toml").write_text("""
+scenario = "collision"
+mode = "ideal"
+duration_s = 0.2
+draws = 4
+metrics = ["cycles"]
+[random]
+"sensor.noise_force_N" = { normal = [0, 1] }
+""")
+    proc = sweep(tmp_path, "spec.toml", "--out", "out", check=False)
+    rows = read_rows(tmp_path / "out")
+    bad = [r for r in rows if r["status"] == "error"]
+    assert len(rows) == 4 and 0 < len(bad) < 4, rows  # seeds 0..3: some draws negative
+    assert all("sensor.noise_force_N" in r["reason"] for r in bad)
+    assert proc.returncode == 4, proc.stderr
+    assert proc.stderr.splitlines()[-1] == (
+        f"error: {len(bad)} run(s) ended in error and 0 were lost (of 4): their reasons are "
+        f"in out/results.csv")
+    assert "Traceback" not in proc.stderr

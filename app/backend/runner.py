@@ -28,6 +28,7 @@ from __future__ import annotations
 import collections
 import multiprocessing as mp
 import queue
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -63,6 +64,24 @@ STALL_S = 0.5
 SEND_TIMEOUT_S = 1.0
 """A loop process that takes no command for this long is at fault (see Runner._send)."""
 """A loop process whose heartbeat has not moved for this long is stalled."""
+
+
+def exit_reason(exitcode: int | None) -> str:
+    """Why the loop process is gone, from its exit code (negative: the signal that killed
+    it; SIGBUS explained: the telemetry ring in /dev/shm could not get a page)."""
+    text = f"the loop process exited (code {exitcode})"
+    if exitcode is None or exitcode >= 0:
+        return text
+    try:
+        name = signal.Signals(-exitcode).name
+    except ValueError:
+        name = f"signal {-exitcode}"
+    text += f", killed by {name}"
+    if -exitcode == signal.SIGBUS:
+        text += (": a bus error, which here means the shared memory in /dev/shm (where the "
+                 "telemetry ring lives) ran out; give it more room (docker run "
+                 "--shm-size=1g) or lower loop.telemetry_capacity")
+    return text
 
 
 def miss_ratio_of(samples: list[tuple[float, int, int, int]], window_s: float) -> float | None:
@@ -132,7 +151,7 @@ class Runner:
         deadline = time.monotonic() + timeout_s
         while self._read_snapshot()[1] is None:
             if not self._proc.is_alive():
-                raise RunnerError(f"the loop process exited (code {self._proc.exitcode})")
+                raise RunnerError(exit_reason(self._proc.exitcode))
             if time.monotonic() > deadline:
                 raise RunnerError("the loop process did not start in time")
             time.sleep(0.02)
@@ -174,7 +193,7 @@ class Runner:
             if self._fault is not None or self._proc is None or self._shm is None:
                 return self._fault
             if not self._proc.is_alive():
-                self._fault = f"the loop process exited (code {self._proc.exitcode})"
+                self._fault = exit_reason(self._proc.exitcode)
                 return self._fault
             count, since = self._beat
             now = time.monotonic()
@@ -370,11 +389,15 @@ class Runner:
         copied, a copy of the ring's committed rows or None): read here, in the web
         process; the loop is not asked."""
         snap = self.snapshot()
+        ring = self.ring_of(snap)
+        if ring is None:
+            return snap, None, 0, None
+        return snap, ring, *ring.numbered_rows()
+
+    def ring_of(self, snap: dict) -> RunTelemetry | None:
+        """The telemetry ring of the run of state ``snap`` (None before any start)."""
         with self._ring_lock:
-            ring = self._rings.get(snap.get("generation", -1))
-            if ring is None:
-                return snap, None, 0, None
-            return snap, ring, *ring.numbered_rows()
+            return self._rings.get(snap.get("generation", -1))
 
     def request_stop(self) -> None:
         self._send(("stop",))

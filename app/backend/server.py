@@ -27,6 +27,7 @@ from fastapi.responses import (
 )
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
+from starlette.background import BackgroundTask
 
 from app.backend import openapi
 from app.backend.access import (
@@ -39,6 +40,7 @@ from app.backend.access import (
     is_loopback,
 )
 from app.backend.replay import replay_html
+from app.backend.ring import RingSpaceError
 from app.backend.runner import RunnerError
 from app.backend.service import (
     MAX_PUSH_DURATION_S,
@@ -164,10 +166,11 @@ class ZipResponse(Response):
     media_type = "application/zip"
 
 
-def _csv_chunks(lines: list[str], lines_per_chunk: int = 2000):
-    """A CSV's lines as encoded chunks of a streamed response (never the whole text)."""
-    for i in range(0, len(lines), lines_per_chunk):
-        yield "".join(lines[i:i + lines_per_chunk]).encode()
+def _temporary_file(path: Path, filename: str, headers: dict | None = None) -> FileResponse:
+    """A download built into a temporary file: streamed from disk in chunks, then deleted."""
+    return FileResponse(path, media_type=ZipResponse.media_type, headers={
+        "Content-Disposition": f"attachment; filename={filename}", **(headers or {})},
+        background=BackgroundTask(path.unlink, missing_ok=True))
 
 
 # --- the app ----------------------------------------------------------------------------
@@ -288,6 +291,12 @@ def create_app(
         return JSONResponse(status_code=503, content={
             "detail": f"{exc}; POST /api/reset or a start restarts the loop"})
 
+    @app.exception_handler(RingSpaceError)
+    async def _no_room(_request: Request, exc: RingSpaceError):
+        # a start or reset whose telemetry ring does not fit in /dev/shm (checked again
+        # as the ring is made): refused, nothing changed
+        return JSONResponse(status_code=422, content={"detail": str(exc)})
+
     @app.get("/api/health", response_model=Health, tags=["status"],
              responses={503: {"model": Fault}})
     async def health(request: Request):
@@ -390,9 +399,8 @@ def create_app(
     def telemetry(request: Request, format: Literal["csv"] = "csv"):
         """Telemetry of the current (or last) run as CSV (one row per cycle); 404 before
         its first cycle."""
-        lines = the_run(request).telemetry_csv()
         return StreamingResponse(
-            _csv_chunks(lines), media_type=CsvResponse.media_type,
+            the_run(request).telemetry_csv(), media_type=CsvResponse.media_type,
             headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
 
     @app.get("/api/run.zip", tags=["status"], response_class=ZipResponse,
@@ -401,8 +409,7 @@ def create_app(
         """The current (or last) run to take home: telemetry.csv, metrics.json,
         summary.txt, config.json and plots/*.png (the headless run's figures), zipped;
         404 before its first cycle."""
-        return ZipResponse(the_run(request).run_archive(),
-                           headers={"Content-Disposition": "attachment; filename=run.zip"})
+        return _temporary_file(the_run(request).run_archive(), "run.zip")
 
     @app.get("/api/replay.html", tags=["status"], response_class=HTMLResponse,
              responses=no_run_404)
@@ -431,8 +438,7 @@ def create_app(
         true contact force and the satellites' twists, in standard messages (Foxglove,
         PlotJuggler, ros2 bag play). A long run's bag is thinned to about 60,000 messages;
         the X-Bag-Rate-Hz header says the rate it was written at."""
-        data, written_hz = the_run(request).run_bag(rate_hz)
-        return ZipResponse(data, headers={"Content-Disposition": "attachment; filename=bag.zip",
-                                          "X-Bag-Rate-Hz": f"{written_hz:.6g}"})
+        path, written_hz = the_run(request).run_bag(rate_hz)
+        return _temporary_file(path, "bag.zip", {"X-Bag-Rate-Hz": f"{written_hz:.6g}"})
 
     return app

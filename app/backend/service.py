@@ -6,19 +6,19 @@ request changes nothing.
 
 from __future__ import annotations
 
-import collections
-import io
 import math
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.backend.downloads import DownloadWorker
+from app.backend.ring import COUNTER_BYTES, RingSpaceError, check_ring_space, ring_bytes
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.preflight import PreflightRefused, preflight
-from app.report import json_safe
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.telemetry import loop_columns
@@ -27,9 +27,31 @@ __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
 
 MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's range
 MAX_PUSH_DURATION_S = 5.0
+CSV_CHUNK_ROWS = 2048
+"""Rows read and formatted at a time for a CSV download."""
+CSV_CACHE_BYTES = 16 << 20
+"""The formatted CSV kept for the next reader (:class:`CsvChunks`): a 30 s one-arm run's."""
 MAX_BAG_MESSAGES = 60_000
 """A bag from the web app holds at most about this many messages (~10 s to write here):
 a long run's bag is thinned below the rate asked for. `run --bag` has no such bound."""
+
+
+MAX_WEB_RING_BYTES = 128 << 20
+"""The most telemetry a run of the web app keeps (its ring): /api/metrics and the zip's
+metrics read it whole into the web process, whose memory it thus bounds."""
+
+
+def check_web_ring(config: EmulatorConfig, mode: str | None) -> None:
+    """InvalidRequest, naming loop.telemetry_capacity, for a ring over MAX_WEB_RING_BYTES."""
+    size = ring_bytes(config, mode)
+    if size > MAX_WEB_RING_BYTES:
+        row_bytes = (size - COUNTER_BYTES) // config.loop.telemetry_capacity
+        raise InvalidRequest(
+            f"loop.telemetry_capacity: {config.loop.telemetry_capacity} rows of "
+            f"{row_bytes // 8} values are {size / 2**20:.1f} MiB; the web app keeps at most "
+            f"{MAX_WEB_RING_BYTES >> 20} MiB of a run's telemetry, "
+            f"{(MAX_WEB_RING_BYTES - COUNTER_BYTES) // row_bytes} rows of this run "
+            f"(a headless orbit-emulator run keeps every cycle, up to 1 GiB)")
 
 
 class UnknownScenario(LookupError):
@@ -56,7 +78,8 @@ class EmulatorService:
         """(scenario, config, mode) of the last start or reset: what a reset restarts."""
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
         self._reads = SharedReads(self.runner.snapshot)
-        self._csv: tuple[Any, CsvLines] | None = None  # (the run's ring, its CSV lines)
+        self._worker = DownloadWorker()  # the zip and the bag are built in a process
+        self._csv_chunks = CsvChunks(CSV_CACHE_BYTES)
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -64,6 +87,7 @@ class EmulatorService:
         self.runner.start_thread()
 
     def shutdown(self) -> None:
+        self._worker.shutdown()
         self.runner.shutdown()
 
     # --- queries --------------------------------------------------------------------------
@@ -119,6 +143,11 @@ class EmulatorService:
             raise InvalidRequest(f"mode: must be 'hil' or 'ideal', got {mode!r}")
         if (mode or config.loop.mode) == "hil" and not config.robots:
             raise InvalidRequest("robots: hil mode needs at least one [[robots]] entry")
+        check_web_ring(config, mode)
+        try:
+            check_ring_space(config, mode)
+        except RingSpaceError as err:
+            raise InvalidRequest(str(err)) from None
         return config, mode
 
     @staticmethod
@@ -147,6 +176,7 @@ class EmulatorService:
             self.preflight(config, mode)
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode)
+            self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
         # error / safety_stop
@@ -170,6 +200,7 @@ class EmulatorService:
                 config, mode = self.build(name, mode=mode)
             self._revive(config, name, mode)
             gen = self.runner.request_reset(name, config, mode)
+            self._csv_chunks.clear()
             self.last_config, self._last_run = config, (name, config, mode)
         self.runner.wait_until(lambda s: s["generation"] >= gen, 10.0)
         return self.state()
@@ -204,17 +235,33 @@ class EmulatorService:
         for big files cost one core at most (the other stays the loop's)."""
         return self._reads.exclusive(compute)
 
-    def telemetry_csv(self) -> list[str]:
-        """The current run's telemetry as CSV lines, header first (computed here, from the
-        shared ring; see CsvLines.document)."""
-        return self._reads.get("telemetry", self._telemetry_csv)
+    def telemetry_csv(self):
+        """The current run's telemetry CSV, as encoded chunks (the header first) for a
+        streamed response: read from the shared ring CHUNK_ROWS rows at a time and
+        formatted as they go, so that a download holds one chunk, never the whole text
+        (a 1 GiB ring is gigabytes of text). Rows committed after the call are not in it."""
+        from app.report import csv_row_format
 
-    def _telemetry_csv(self, read=None) -> list[str]:
-        snap, ring, first, rows = read or self.runner.run_telemetry()
-        columns, rows = self._rows_of(snap, ring, rows)
-        if self._csv is None or self._csv[0] is not ring:
-            self._csv = (ring, CsvLines(columns))
-        return self._csv[1].document(first, rows)
+        snap = self.runner.snapshot()
+        ring = self.runner.ring_of(snap)
+        columns = ring.columns if ring is not None else loop_columns(
+            len(snap["satellites"]), len(snap["robots"]))
+        yield (",".join(columns) + "\n").encode()
+        if ring is None:
+            return
+        fmt = csv_row_format(len(columns))
+        cache = self._csv_chunks
+        try:
+            for number, rows in ring.chunks(CSV_CHUNK_ROWS):
+                whole = len(rows) == CSV_CHUNK_ROWS  # (aligned: the same rows every read)
+                data = cache.get(ring.path, number) if whole else None
+                if data is None:
+                    data = "".join(fmt % row for row in map(tuple, rows.tolist())).encode()
+                    if whole:
+                        cache.put(ring.path, number, data)
+                yield data
+        finally:
+            give_back_memory()
 
     def _rows_of(self, snap: dict, ring, rows) -> tuple[list[str], np.ndarray]:
         """(columns, rows) of the current run; none yet before the first start."""
@@ -247,109 +294,101 @@ class EmulatorService:
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
 
-    def run_archive(self) -> bytes:
-        """The current (or last) run to take home, as a zip: telemetry.csv, metrics.json,
-        summary.txt, config.json (the run's whole configuration, with its mode) and the
-        plots of a headless run (computed here, from one read of the shared ring)."""
-        return self._reads.get("archive", self._run_archive)
+    def run_archive(self) -> Path:
+        """The current (or last) run to take home, as a zip file (the caller deletes it):
+        telemetry.csv, metrics.json, summary.txt, config.json (the run's whole
+        configuration, with its mode) and the plots of a headless run. Built one at a time
+        (the heavy reads' turn) by a worker process of its own that reads the shared ring
+        (app/backend/downloads.py): the web process holds neither the rows nor the zip."""
+        metrics = self.metrics()  # (shared with /api/metrics; takes the turn itself)
+        return self._reads.exclusive(lambda: self._run_archive(metrics))
 
-    def _run_archive(self) -> bytes:
-        import json
-        import tempfile
-        import zipfile
-        from pathlib import Path
+    def _run_archive(self, metrics: dict) -> Path:
+        from app.backend.downloads import build_archive, temporary_zip
 
-        from app.plots import plot_run
-        from app.report import run_summary
+        snap, config, columns, ring = self._download_source()
+        path = temporary_zip("orbit-emulator-run-")
+        try:
+            self._worker.run(build_archive, str(path), snap, config, columns, ring, metrics)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+        return path
 
-        read = self.runner.run_telemetry()
-        snap, ring, _, rows = read
-        columns, rows = self._rows_of(snap, ring, rows)
-        config = ring.config if ring is not None else self.last_config
-        metrics = self._metrics(read)
-        buffer = io.BytesIO()
-        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf, \
-                tempfile.TemporaryDirectory() as tmp:
-            zf.writestr("telemetry.csv", "".join(self._telemetry_csv(read)))
-            zf.writestr("metrics.json", json.dumps(json_safe(metrics), indent=2))
-            zf.writestr("summary.txt", run_summary(metrics) + "\n")
-            zf.writestr("config.json", json.dumps(
-                {"scenario": snap["scenario"], "mode": snap["mode"],
-                 "config": config.model_dump(mode="json")}, indent=2))
-            index = {name: k for k, name in enumerate(columns)}
-            for path in plot_run(rows, index, Path(tmp), len(snap["satellites"]),
-                                 len(snap["robots"]), metrics.get("collision"),
-                                 note=metrics["scaling"]["text"]):
-                zf.write(path, f"plots/{path.name}")
-        return buffer.getvalue()
-
-    def run_bag(self, rate_hz: float) -> tuple[bytes, float]:
-        """The current (or last) run as a ROS 2 bag (MCAP; app/bag.py), zipped, and the
-        rate it was written at: at most rate_hz messages per topic and second of scenario
-        time, and fewer where the run is long (:data:`MAX_BAG_MESSAGES`). Written one at a
-        time (the heavy reads' turn) and not kept: a bag costs ~0.15 ms a message."""
+    def run_bag(self, rate_hz: float) -> tuple[Path, float]:
+        """The current (or last) run as a ROS 2 bag (MCAP; app/bag.py), zipped into a
+        temporary file (the caller deletes it), and the rate it was written at: at most
+        rate_hz messages per topic and second of scenario time, and fewer where the run is
+        long (:data:`MAX_BAG_MESSAGES`). Built one at a time (the heavy reads' turn) by a
+        worker process, as the zip: a bag costs ~0.15 ms a message."""
         return self._reads.exclusive(lambda: self._run_bag(rate_hz))
 
-    def _run_bag(self, rate_hz: float) -> tuple[bytes, float]:
-        import tempfile
-        import zipfile
-        from pathlib import Path
+    def _run_bag(self, rate_hz: float) -> tuple[Path, float]:
+        from app.backend.downloads import build_bag, temporary_zip
 
-        from app.bag import thinning_step, write_bag
+        snap, config, columns, ring = self._download_source()
+        path = temporary_zip("orbit-emulator-bag-")
+        try:
+            written_hz = self._worker.run(build_bag, str(path), snap, config, columns, ring,
+                                          rate_hz, MAX_BAG_MESSAGES)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+        return path, written_hz
 
-        snap, ring, _, rows = self.runner.run_telemetry()
-        columns, rows = self._rows_of(snap, ring, rows)
-        config = ring.config if ring is not None else self.last_config
-        if len(rows) > 1:  # a long run: fewer messages per second, the whole run
-            per_row = 1 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])
-            span_s = max(float(rows[-1, 0] - rows[0, 0]), 1e-9)
-            rate_hz = min(rate_hz, MAX_BAG_MESSAGES / (per_row * span_s))
-            dt_s = float(rows[1, 0] - rows[0, 0])
-            rate_hz = 1.0 / (thinning_step(rate_hz, dt_s) * dt_s)  # the rate written
-        buffer = io.BytesIO()
-        with tempfile.TemporaryDirectory() as tmp, \
-                zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as zf:
-            bag = write_bag(Path(tmp) / "bag", config, rows,
-                            {name: k for k, name in enumerate(columns)}, rate_hz)
-            for path in sorted(bag.iterdir()):
-                zf.write(path, f"bag/{path.name}")
-        return buffer.getvalue(), rate_hz
+    def _download_source(self):
+        """(state, config, columns, the ring's file or None) of the current run."""
+        snap = self.runner.snapshot()
+        ring = self.runner.ring_of(snap)
+        if ring is None:
+            columns = loop_columns(len(snap["satellites"]), len(snap["robots"]))
+            return snap, self.last_config, columns, None
+        return snap, ring.config, ring.columns, ring.reader()
 
 
-class CsvLines:
-    """One run's telemetry CSV, formatted as its rows come: each read formats only the
-    rows committed since the one before (a 30 s ring took 0.7 s to format whole, every
-    time), and lets go of those the ring has dropped. The bytes are those of
-    :func:`app.report.telemetry_csv_text`."""
+def give_back_memory() -> None:
+    """Hand the memory freed by a heavy read back to the system (glibc's malloc_trim):
+    without it the allocator keeps what the copies of a big ring used, and the web
+    process's resident size stays tens of MiB up after each download."""
+    try:
+        import ctypes
 
-    def __init__(self, columns: list[str]) -> None:
-        from app.report import csv_row_format
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: nothing to do
+        pass
 
-        self.header = ",".join(columns) + "\n"
-        self.row_format = csv_row_format(len(columns))
-        self.lines: collections.deque[str] = collections.deque()
-        self.first = 0
-        """The number (since the run began) of the row of lines[0]."""
 
-    def text(self, first: int, rows: np.ndarray) -> str:
-        """The CSV of rows numbered first, first + 1, … (a later read never starts
-        earlier)."""
-        return "".join(self.document(first, rows))
+class CsvChunks:
+    """The formatted CSV of the newest whole chunks of one ring, up to ``budget`` bytes:
+    eight clients polling the CSV of a 30 s run format only the rows new since the last
+    read, not the whole ring each, and the memory it costs stays bounded (the oldest
+    chunks go first; a read of another ring, or clear(), empties it)."""
 
-    def document(self, first: int, rows: np.ndarray) -> list[str]:
-        """The CSV as its lines (the header first), for a response that streams them: a
-        list of the cached strings, not one more copy of the text (a full 1 GiB ring is
-        gigabytes of text)."""
-        have = self.first + len(self.lines)
-        if not self.first <= first <= have:  # a gap: begin again from these rows
-            self.lines.clear()
-            self.first = have = first
-        fmt = self.row_format
-        self.lines.extend(fmt % row for row in map(tuple, rows[have - first:].tolist()))
-        while self.first < first:
-            self.lines.popleft()
-            self.first += 1
-        return [self.header, *self.lines]
+    def __init__(self, budget: int) -> None:
+        self.budget = budget
+        self._lock = threading.Lock()
+        self._ring: str | None = None
+        self._chunks: dict[int, bytes] = {}
+        self._bytes = 0
+
+    def clear(self) -> None:
+        with self._lock:
+            self._ring, self._chunks, self._bytes = None, {}, 0
+
+    def get(self, ring: str, number: int) -> bytes | None:
+        with self._lock:
+            return self._chunks.get(number) if ring == self._ring else None
+
+    def put(self, ring: str, number: int, data: bytes) -> None:
+        with self._lock:
+            if ring != self._ring:
+                self._ring, self._chunks, self._bytes = ring, {}, 0
+            if number in self._chunks or len(data) > self.budget:
+                return
+            self._chunks[number] = data
+            self._bytes += len(data)
+            while self._bytes > self.budget:  # the oldest rows go first
+                self._bytes -= len(self._chunks.pop(min(self._chunks)))
 
 
 class SharedReads:
@@ -372,7 +411,10 @@ class SharedReads:
     def exclusive(self, compute):
         """compute() in the heavy reads' turn (one at a time), not kept."""
         with self._lock:
-            return compute()
+            try:
+                return compute()
+            finally:
+                give_back_memory()
 
     def get(self, name: str, compute):
         with self._lock:
@@ -383,7 +425,10 @@ class SharedReads:
             if last is not None and last[0] == state and (
                     last[1] == cycles or now - last[2] <= self.max_age_s):
                 return last[3]
-            value = compute()
+            try:
+                value = compute()
+            finally:
+                give_back_memory()
             self._last[name] = (state, cycles, now, value)
             return value
 
