@@ -384,13 +384,24 @@ def test_the_viewer_panels_start_settings_are_a_valid_override(live):
     ({"Host": "evil.example:8000"}, 400, "host 'evil.example:8000' is not allowed"),
     ({"Origin": "http://evil.example"}, 403, "origin 'http://evil.example' is not allowed"),
     ({"Origin": "null"}, 403, "origin 'null' is not allowed"),
+    # the same host on another port, or by another scheme, is another origin
+    ({"Origin": "http://127.0.0.1:9999"}, 403, "origin 'http://127.0.0.1:9999' is not allowed"),
+    ({"Origin": "http://127.0.0.1"}, 403, "origin 'http://127.0.0.1' is not allowed"),
+    ({"Origin": "https://127.0.0.1:{port}"}, 403,
+     "origin 'https://127.0.0.1:{port}' is not allowed"),
+    ({"Origin": "http://localhost:{port}"}, 403,
+     "origin 'http://localhost:{port}' is not allowed"),  # the request's Host is 127.0.0.1
+    ({"Origin": "http://127.0.0.1:{port}/x"}, 403,
+     "origin 'http://127.0.0.1:{port}/x' is not allowed"),
 ])
 def test_foreign_hosts_and_origins_are_refused_and_change_nothing(live, headers, status,
                                                                   detail):
-    """DNS rebinding (a foreign Host) and cross-site pages (a foreign Origin) reach
-    nothing: not the state, not a start."""
+    """DNS rebinding (a foreign Host) and pages of other origins (a foreign Origin: other
+    host, port or scheme) reach nothing: not the state, not a start."""
     live.client.post("/api/stop")
     gen = live.state()["generation"]
+    headers = {k: v.format(port=live.port) for k, v in headers.items()}
+    detail = detail.format(port=live.port)
     for method, path in [("get", "/api/state"), ("post", "/api/scenarios/collision/start"),
                          ("post", "/api/stop")]:
         r = getattr(live.client, method)(path, headers=headers)
@@ -401,8 +412,26 @@ def test_foreign_hosts_and_origins_are_refused_and_change_nothing(live, headers,
 def test_a_same_origin_page_and_loopback_names_are_served(live):
     port = live.port
     for headers in [{"Origin": f"http://127.0.0.1:{port}"}, {"Host": f"localhost:{port}"},
-                    {"Host": f"[::1]:{port}"}]:
+                    {"Host": f"[::1]:{port}"},
+                    {"Host": f"localhost:{port}", "Origin": f"http://LOCALHOST:{port}"},
+                    {"Host": f"[::1]:{port}", "Origin": f"http://[::1]:{port}"}]:
         assert live.client.get("/api/health", headers=headers).status_code == 200, headers
+
+
+def test_a_request_a_browser_marks_as_from_another_site_may_only_read(live):
+    """No Origin but Sec-Fetch-Site naming another site (or another port of this host,
+    "same-site"): reads are served, nothing that changes state."""
+    live.client.post("/api/stop")
+    gen = live.state()["generation"]
+    for site in ["cross-site", "same-site"]:
+        headers = {"Sec-Fetch-Site": site}
+        assert live.client.get("/api/state", headers=headers).status_code == 200
+        r = live.client.post("/api/scenarios/collision/start", headers=headers)
+        assert r.status_code == 403, r.text
+        assert r.json()["detail"] == "a request from another site's page may not change anything"
+    assert live.state()["generation"] == gen
+    headers = {"Sec-Fetch-Site": "same-origin", "Origin": f"http://127.0.0.1:{live.port}"}
+    assert live.client.post("/api/stop", headers=headers).status_code == 200
 
 
 def test_a_body_that_is_not_json_is_refused_before_anything_reads_it(live):
@@ -561,3 +590,123 @@ def test_the_web_app_runs_a_docking_to_capture_and_its_metrics_say_so(live):
     metrics = live.client.get("/api/metrics").json()
     assert metrics["capture"]["captured"] and metrics["success"]["passed"]
     assert "similarity" in metrics["scaling"]["text"]
+
+
+def _peak_raw_force_N(live, since_s: float) -> float:
+    """The largest raw F/T force component arm 1 read since scenario time since_s (the
+    telemetry CSV)."""
+    import csv
+    import io
+
+    rows = list(csv.DictReader(io.StringIO(live.client.get("/api/telemetry").text)))
+    columns = ["rob1_ft_fx_N", "rob1_ft_fy_N", "rob1_ft_fz_N"]
+    return max(abs(float(row[c])) for row in rows if float(row["t_s"]) >= since_s
+               for c in columns)
+
+
+def test_a_push_at_the_limit_never_reaches_the_sensor_range(live):
+    """The push limit is the F/T sensor's range less the mockup's weight, the bias, 4
+    sigma of noise and the hand's cap (a 100 N push, the old maximum, always ended in the
+    sensor-range safety stop, 95 N after 0.7 s): a push at it, down (along the weight: the
+    worst direction), leaves the run running; 0.1 N more is refused with 422, naming the
+    limit and why."""
+    from app.scenarios import load_scenario
+
+    live.client.post("/api/reset")
+    cfg = load_scenario("free-floating")
+    expected = (cfg.sensor.range_force_N - 1.0 * 9.81 - np.linalg.norm(cfg.sensor.bias_force_N)
+                - 4.0 * cfg.sensor.noise_force_N - cfg.hand.max_force_N)  # 1 kg mockup
+    assert expected == pytest.approx(60.90, abs=0.01)
+    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    assert s["status"] == "running", s
+    limit = s["push_limits_N"][0]
+    assert limit == pytest.approx(expected, abs=1e-3)
+    t0 = live.wait_for(lambda s: s["t_s"] >= 0.3)["t_s"]
+    too_much = {"satellite": 1, "force_N": [0.0, 0.0, -(limit + 0.1)], "duration_s": 0.5}
+    r = live.client.post("/api/push", json=too_much)
+    assert r.status_code == 422
+    assert r.json() == {"detail": (
+        f"force_N: magnitude {limit + 0.1:.1f} N exceeds satellite 1's push limit "
+        f"{limit:.1f} N (the F/T sensor's 100 N range less the mockup's weight 9.8 N, the "
+        f"bias 2.6 N, 4 sigma of noise 6.7 N and the hand's 20 N)")}
+    r = live.client.post("/api/push", json={**too_much, "force_N": [0.0, 0.0, -limit]})
+    assert r.status_code == 200, r.text
+    s = live.wait_for(lambda s: s["t_s"] >= r.json()["t_s"] + 1.0)
+    assert s["status"] == "running", s["reason"]
+    peak = _peak_raw_force_N(live, t0)
+    print(f"\npush of {limit:.2f} N down for 0.5 s: peak raw F/T force {peak:.1f} N "
+          f"(range 100 N)")
+    assert limit < peak < 100.0 - cfg.hand.max_force_N + 5.0  # the hand's share is left
+    live.client.post("/api/stop")
+
+
+def test_concurrent_pushes_add_up_to_the_limit_at_most(live):
+    """Two pushes at once each within the limit but beyond it together (2 x 60 N ended a
+    run): the second is refused while the first pushes, on the same satellite, from
+    clients racing; once the first has ended a push is taken again."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    assert s["status"] == "running", s
+    limit = s["push_limits_N"][0]
+    live.wait_for(lambda s: s["t_s"] >= 0.3)
+    body = {"satellite": 1, "force_N": [0.6 * limit, 0.0, 0.0], "duration_s": 0.4}
+    with ThreadPoolExecutor(2) as pool:
+        answers = list(pool.map(lambda b: live.client.post("/api/push", json=b), [
+            body, {**body, "force_N": [-0.6 * limit, 0.0, 0.0]}]))
+    assert sorted(a.status_code for a in answers) == [200, 422], [a.text for a in answers]
+    refused = next(a for a in answers if a.status_code == 422).json()["detail"]
+    assert refused.startswith(f"force_N: magnitude {0.6 * limit:.1f} N with "
+                              f"{0.6 * limit:.1f} N already pushing it exceeds satellite "
+                              f"1's push limit {limit:.1f} N"), refused
+    t_push = next(a for a in answers if a.status_code == 200).json()["t_s"]
+    live.wait_for(lambda s: s["t_s"] >= t_push + 0.4 + 0.15)
+    r = live.client.post("/api/push", json={**body, "force_N": [-0.6 * limit, 0.0, 0.0]})
+    assert r.status_code == 200, r.text
+    s = live.wait_for(lambda s: s["t_s"] >= r.json()["t_s"] + 0.6)
+    assert s["status"] == "running", s["reason"]
+    live.client.post("/api/stop")
+
+
+def test_a_start_overtaken_by_a_reset_is_never_a_200_that_is_not_running(live):
+    """Two clients: one starts (hil, a 60 s calibration: a start-up of most of a second), the
+    other resets while it starts (every other round once the state says "starting", else
+    at a random moment within 1.5 s). The start answers 200 only with the run running,
+    else 409 saying it did not start (it answered 200 "idle" 6 times in 8); each round is
+    bounded."""
+    import random
+    import threading
+
+    rng = random.Random(35)
+    body = {"mode": "hil", "wrench": {"calibration_s": 60.0}}
+    outcomes = []
+    for k in range(8):
+        live.client.post("/api/reset")
+        answer = {}
+
+        def start(answer=answer):
+            answer["r"] = live.client.post("/api/scenarios/free-floating/start", json=body,
+                                           timeout=30)
+
+        starter = threading.Thread(target=start)
+        t0 = time.monotonic()
+        starter.start()
+        if k % 2 == 0:
+            live.wait_for(lambda s: s["status"] == "starting", timeout_s=10.0, poll_s=0.005)
+        else:
+            time.sleep(rng.uniform(0.0, 1.5))
+        assert live.client.post("/api/reset", timeout=30).json()["status"] == "idle"
+        starter.join(timeout=30)
+        assert not starter.is_alive() and time.monotonic() - t0 < 30
+        r = answer["r"]
+        if r.status_code == 200:
+            assert r.json()["status"] == "running", r.json()["status"]
+        else:
+            assert r.status_code == 409, r.text
+            assert r.json()["detail"].startswith("scenario 'free-floating' did not start: "), (
+                r.json())
+        outcomes.append((r.status_code, r.json().get("detail", "")[42:80]))
+    print(f"\nstart vs reset, 8 rounds: {outcomes}")
+    assert sum(code == 409 for code, _ in outcomes) >= 4  # the rounds reset while starting
+    assert live.client.post("/api/reset").json()["status"] == "idle"

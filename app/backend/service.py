@@ -23,9 +23,15 @@ from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.telemetry import loop_columns
 
-__all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
+__all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest",
+           "StopQueued", "StillStarting", "push_limit"]
 
-MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's range
+MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's default range: no push is ever larger
+NOISE_SIGMAS = 4.0
+"""The push limit keeps this many standard deviations of the sensor's noise free."""
+PUSH_END_MARGIN_S = 0.1
+"""A push counts as pushing until this long (scenario time) after its end as the state
+showed it: the state lags the loop by a few cycles."""
 MAX_PUSH_DURATION_S = 5.0
 MAX_BAG_MESSAGES = 60_000
 """A bag from the web app holds at most about this many messages (~10 s to write here):
@@ -38,6 +44,22 @@ class UnknownScenario(LookupError):
 
 class InvalidRequest(ValueError):
     """A request that is well-formed JSON but invalid; the message names the field."""
+
+
+class StopQueued(RuntimeError):
+    """A stop sent to a stalled loop: it ends the run as soon as the loop runs again."""
+
+    def __init__(self, message: str, state: dict) -> None:
+        super().__init__(message)
+        self.state = state
+
+
+class StillStarting(RuntimeError):
+    """A start whose run was still starting when the start request stopped waiting."""
+
+    def __init__(self, message: str, state: dict) -> None:
+        super().__init__(message)
+        self.state = state
 
 
 class EmulatorService:
@@ -55,7 +77,11 @@ class EmulatorService:
             self.default_scenario, config, None)
         """(scenario, config, mode) of the last start or reset: what a reset restarts."""
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
-        self._reads = SharedReads(self.runner.snapshot)
+        self._reads = SharedReads(self.state)
+        self._push_lock = threading.Lock()
+        self._pushes: list[tuple[int, int, float, float]] = []
+        """(generation, satellite (1-based), end t_s, |force| N) of the pushes under way."""
+        self._limits: tuple[Any, list[float]] = (None, [])
         self._csv: tuple[Any, CsvLines] | None = None  # (the run's ring, its CSV lines)
 
     # --- lifecycle ----------------------------------------------------------------------
@@ -75,11 +101,19 @@ class EmulatorService:
     def state(self) -> dict[str, Any]:
         """The loop's latest state; status "fault" with the reason while the loop process
         is dead or stalled."""
-        snap = self.runner.snapshot()
+        snap = {**self.runner.snapshot(), "push_limits_N": self.push_limits_N()}
         fault = self.runner.fault()
         if fault is not None:
-            snap = {**snap, "status": "fault", "reason": fault}
+            snap.update(status="fault", reason=fault)
         return snap
+
+    def push_limits_N(self) -> list[float]:
+        """Each satellite's push limit in the current run (:func:`push_limit`)."""
+        config = self.last_config
+        if self._limits[0] is not config:
+            self._limits = (config, [round(push_limit(config, i)[0], 3)
+                                     for i in range(len(config.satellites))])
+        return self._limits[1]
 
     def _refuse_if_busy(self) -> None:
         """RunnerBusy while a healthy loop is starting or running a run (what
@@ -138,9 +172,12 @@ class EmulatorService:
         self, name: str, overrides: dict | None = None, mode: str | None = None,
         wait_s: float = 60.0,
     ) -> dict[str, Any]:
-        """Start scenario `name`; returns the state once running (or failed to start). A
-        hil start is pre-flighted whatever the loop's state: a faulted loop still shows
-        its last status (say "running"), and the start replaces it."""
+        """Start scenario `name`; returns the state once running (or finished: a run that
+        ended before the answer), or the failure's state (status "error" or
+        "safety_stop"). A hil start is pre-flighted whatever the loop's state: a faulted
+        loop still shows its last status (say "running"), and the start replaces it.
+        RunnerBusy when the run did not start after all: overtaken by a reset or another
+        start, or stopped during its start-up; StillStarting after ``wait_s``."""
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._refuse_if_busy()  # 409 before a pre-flight's seconds
@@ -149,15 +186,37 @@ class EmulatorService:
             gen = self.runner.request_start(name, config, mode)
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
-        # error / safety_stop
-        self.runner.wait_until(
-            lambda s: s["generation"] >= gen and s["status"] != "starting", wait_s
-        )
+        # error / safety_stop; a stall on the way is waited through (the start goes on
+        # when the loop does), a dead loop is a 503
+        snap = self.runner.wait_for(
+            lambda s: s["generation"] > gen or (s["generation"] == gen
+                                                and s["status"] != "starting"),
+            wait_s, through_stalls=True)
+        if snap is None:
+            raise StillStarting(
+                f"scenario {name!r} is still starting after {wait_s:g} s; it runs when it "
+                f"is ready (POST /api/stop ends it)", self.state())
+        if snap["generation"] > gen:
+            raise RunnerBusy(
+                f"scenario {name!r} did not start: a reset or another start overtook it "
+                f"(the emulator is now at run {snap['generation']}, status "
+                f"{snap['status']!r})")
+        if snap["status"] == "stopped":
+            raise RunnerBusy(f"scenario {name!r} did not start: {snap['reason']}")
         return self.state()
 
     def stop(self) -> dict[str, Any]:
+        """Stop the run; returns the state once stopped. To a stalled loop the stop is
+        queued (StopQueued): the loop takes it first when it runs again, so a run never
+        goes on after a stop; to a dead one LoopDown (nothing runs)."""
+        stalled = self.runner.fault()
         self.runner.request_stop()
-        self.runner.wait_until(lambda s: s["status"] not in ("running", "starting"), 10.0)
+        if stalled is not None:
+            raise StopQueued(
+                f"{stalled}: the stop is queued and ends the run as soon as the loop "
+                f"runs again (POST /api/reset replaces the loop process)", self.state())
+        self.runner.wait_until(lambda s: s["status"] not in ("running", "starting"), 10.0,
+                               through_stalls=True)
         return self.state()
 
     def reset(self, name: str | None = None, mode: str | None = None) -> dict[str, Any]:
@@ -182,10 +241,28 @@ class EmulatorService:
         force = validate_push(satellite, force_N, duration_s, state["n_satellites"])
         point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
             point_m, state["layout"]["satellites"][satellite - 1][1])
-        self.runner.post(Push(satellite=satellite - 1, force_R_N=force, duration_s=duration_s,
-                              point_B_m=point))
+        with self._push_lock:  # the check and the record of a push, one at a time
+            self._within_push_limit(state, satellite, math.hypot(*force))
+            self.runner.post(Push(satellite=satellite - 1, force_R_N=force,
+                                  duration_s=duration_s, point_B_m=point))
+            self._pushes.append((state["generation"], satellite,
+                                 state["t_s"] + duration_s + PUSH_END_MARGIN_S,
+                                 math.hypot(*force)))
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
                 "point_m": list(point), "t_s": self.state()["t_s"]}
+
+    def _within_push_limit(self, state: dict, satellite: int, force_N: float) -> None:
+        """InvalidRequest when this push and those still pushing the same satellite would
+        add up beyond its push limit (:func:`push_limit`)."""
+        self._pushes = [p for p in self._pushes
+                        if p[0] == state["generation"] and p[2] > state["t_s"]]
+        pushing = sum(p[3] for p in self._pushes if p[1] == satellite)
+        limit_N, why = push_limit(self.last_config, satellite - 1)
+        if force_N + pushing > limit_N:
+            already = f" with {pushing:.1f} N already pushing it" if pushing else ""
+            raise InvalidRequest(
+                f"force_N: magnitude {force_N:.1f} N{already} exceeds satellite "
+                f"{satellite}'s push limit {limit_N:.1f} N ({why})")
 
     def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
         """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
@@ -235,15 +312,18 @@ class EmulatorService:
         columns, rows = self._rows_of(snap, ring, rows)
         config = ring.config if ring is not None else self.last_config
         loop = snap["loop"]
+        fault = self.runner.fault()  # a dead or stalled loop: its run is not "running"
+        status = "fault" if fault is not None else snap["status"]
         facts = RunFacts(
-            mode=snap["mode"], status=snap["status"], cycles=loop["cycles"],
+            mode=snap["mode"], status=status, cycles=loop["cycles"],
             wall_s=loop["wall_s"],
             cycle_time_us={"p50": loop["cycle_time_us"]["p50"] if loop["cycles"] else None,
                            "p99": loop["cycle_time_us"]["p99"] if loop["cycles"] else None},
             safety_stop=snap["safety_stop"], passivity=snap.get("passivity"),
             arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])},
             capture=snap.get("capture"),
-            error=snap.get("reason") if snap["status"] == "error" else None)
+            error=fault if fault is not None else (
+                snap.get("reason") if status == "error" else None))
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
 
@@ -401,6 +481,29 @@ def validate_point(point_m, size_m) -> tuple[float, float, float]:
             f"point_m: {list(point)} is outside the satellite's box: each coordinate within "
             f"+-{[round(h, 6) for h in half]} m of its COM")
     return point
+
+
+def push_limit(config: EmulatorConfig, satellite0: int) -> tuple[float, str]:
+    """(the largest force (N) the pushes on satellite ``satellite0`` may add up to, how it
+    was derived). A raw F/T force reading at the sensor's range stops the run
+    (``[loop] stop_at_sensor_range``); on one axis of the sensor that carries the mockup
+    the reading is at most |push| + m·g + |bias| + noise + the hand's force, so the pushes
+    get the range less the mockup's weight, the bias, NOISE_SIGMAS standard deviations of
+    noise and the operator's hand at its cap (``[hand] max_force_N``), which may pull at
+    any time. Never negative."""
+    from app.sim.scaling import mockup_mass_kg
+
+    sensor = config.sensor
+    weight_N = mockup_mass_kg(config.satellites[satellite0], config) * float(
+        np.linalg.norm(config.lab.gravity_mps2))
+    bias_N = float(np.linalg.norm(sensor.bias_force_N))
+    noise_N = NOISE_SIGMAS * sensor.noise_force_N
+    hand_N = config.hand.max_force_N
+    limit_N = max(0.0, sensor.range_force_N - weight_N - bias_N - noise_N - hand_N)
+    why = (f"the F/T sensor's {sensor.range_force_N:g} N range less the mockup's weight "
+           f"{weight_N:.1f} N, the bias {bias_N:.1f} N, {NOISE_SIGMAS:g} sigma of noise "
+           f"{noise_N:.1f} N and the hand's {hand_N:g} N")
+    return limit_N, why
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:
