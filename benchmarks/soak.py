@@ -14,10 +14,11 @@ traffic goes to 127.0.0.1; it stops by itself.
 
 Every 10 s it samples the loop's cycles, deadline misses and resyncs (``/api/state``), the
 resident memory (VmRSS) of the web and loop processes, and the rows lost: gaps in the
-telemetry CSV's time column (one row per cycle, 2 ms apart) and rows missing from a ring
-that should be full. It prints the samples, the
-CPU time the host took away meanwhile (steal, from /proc/stat: deadline misses follow it on
-a shared VM), and the verdict against the targets: deadline misses < 0.1 %, no resync,
+telemetry CSV's time column (one row per cycle, 2 ms apart), within a CSV and between
+one read and the next (the ring keeps 30 s, the reads are 10 s apart: they overlap). It
+prints the samples, the CPU time the host took away meanwhile (steal, from /proc/stat:
+deadline misses follow it on a shared VM), and the verdict against the targets: deadline
+misses < 0.1 %, no resync, no row lost,
 each process's memory within 10 % of its value at the end of the first minute.
 
 The machine's own floor: after the soak, with the server gone, a null loop runs for
@@ -121,12 +122,20 @@ def push(url: str, stop: threading.Event, errors: list) -> None:
                 errors.append(f"push: {r.status_code} {r.text[:200]}")
 
 
-def lost_rows(csv_text: str, capacity: int, cycles: int, dt_s: float = 0.002) -> int:
-    """Rows missing from a telemetry CSV: gaps in its time column, and rows short of a
-    ring that should be full (``cycles`` ran before the read, ``capacity`` rows kept)."""
+def lost_rows(csv_text: str, last_t_s: float | None,
+              dt_s: float = 0.002) -> tuple[int, float | None]:
+    """(rows lost, the time of this CSV's last row): rows missing from the run's record as
+    the telemetry CSVs show it, one row a cycle: gaps in this CSV's time column, and
+    between the last row of the CSV read before (``last_t_s``) and this one's first (the
+    ring keeps ``--ring-s`` seconds, far more than the reads' interval, so the reads must
+    overlap). Rows the ring dropped as it wrapped are not lost: a later read no longer
+    holds the oldest rows, but an earlier one did."""
     t_s = np.loadtxt(csv_text.splitlines()[1:], delimiter=",", usecols=0, ndmin=1)
-    gaps = int(np.sum(np.round(np.diff(t_s) / dt_s) - 1)) if len(t_s) > 1 else 0
-    return gaps + max(0, min(capacity, cycles) - len(t_s))
+    if len(t_s) == 0:
+        return 0, last_t_s
+    steps = np.diff(t_s if last_t_s is None or t_s[0] <= last_t_s
+                    else np.concatenate([[last_t_s], t_s]))
+    return int(np.sum(np.round(steps / dt_s) - 1)), float(t_s[-1])
 
 
 def null_loop(seconds: float, work_us: float, rate_hz: float = 500.0) -> tuple[int, int, str]:
@@ -202,7 +211,7 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
             threads.append(threading.Thread(target=push, args=(url, stop, errors)))
             for t in threads:
                 t.start()
-            samples, lost = [], 0
+            samples, lost, last_t_s = [], 0, None
             t0, steal0 = time.monotonic(), steal_ticks()
             first = api.get("/api/state").json()["loop"]
             base = (first["cycles"], first["deadline_misses"], first["resyncs"])
@@ -220,8 +229,8 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
                 if state["status"] != "running":
                     print(f"the run ended: {state['status']}: {state['reason']}")
                     break
-                lost += lost_rows(api.get("/api/telemetry").text, int(ring_s * 500),
-                                  loop["cycles"])
+                missing, last_t_s = lost_rows(api.get("/api/telemetry").text, last_t_s)
+                lost += missing
                 steal = steal_ticks()
                 p50_us = loop["cycle_time_us"]["p50"]
                 samples.append((time.monotonic() - t0, loop["cycles"] - base[0],

@@ -27,8 +27,9 @@ __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest",
            "StopQueued", "StillStarting", "push_limit"]
 
 MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's default range: no push is ever larger
-NOISE_SIGMAS = 4.0
-"""The push limit keeps this many standard deviations of the sensor's noise free."""
+NOISE_SIGMAS = 6.0
+"""The push limit keeps this many standard deviations of the sensor's noise free: a
+reading beyond 6 sigma on one of 3 axes at 500 Hz comes about once in a week."""
 PUSH_END_MARGIN_S = 0.1
 """A push counts as pushing until this long (scenario time) after its end as the state
 showed it: the state lags the loop by a few cycles."""
