@@ -126,3 +126,32 @@ def test_the_panel_warns_before_a_satellite_s_course_leaves_its_arm_s_reach():
     assert seconds_until_beyond([0, 0, 2.0], [0, 0, 0], [0, 0, 0], 1.0) == 0.0  # beyond
     assert seconds_until_beyond([0, 0, 0.5], [0, 0, 0], [0, 0, 0], 1.0) == np.inf
     assert seconds_until_beyond([0, 0, 0.5], [0, 0, -1.0], [0, 0, 0], 1.0) == 1.5  # through
+
+
+def test_the_push_limit_keeps_room_for_weight_bias_noise_hand_and_overlapping_pulses():
+    """push_limit: the sensor's range less m·|g|, |bias|, 6 sigma of noise, the hand's cap
+    and the most the scripted pulses push that satellite at once (pulses that only touch
+    end to end do not add up; pulses on another satellite do not count)."""
+    from app.backend.service import push_limit
+    from app.config import merge_overrides
+    from app.scenarios import load_scenario
+
+    cfg = merge_overrides(load_scenario("collision"), {
+        "sensor": {"range_force_N": 150.0, "bias_force_N": [3.0, 0.0, 4.0],
+                   "noise_force_N": 0.5},
+        "hand": {"max_force_N": 10.0}, "lab": {"gravity_mps2": [0.0, 0.0, -10.0]},
+        "satellites": {"0": {"mass_kg": 2.0}}})
+    name0, name1 = cfg.satellites[0].name, cfg.satellites[1].name
+    base = 150.0 - 2.0 * 10.0 - 5.0 - 6 * 0.5 - 10.0  # satellite 0: a 2 kg mockup
+    assert push_limit(cfg, 0)[0] == pytest.approx(base)
+    pulses = [{"satellite": name0, "start_s": 1.0, "end_s": 2.0, "force_N": [3.0, 4.0, 0.0]},
+              {"satellite": name0, "start_s": 1.5, "end_s": 3.0, "force_N": [0.0, 0.0, 7.0]},
+              {"satellite": name0, "start_s": 3.0, "end_s": 4.0, "force_N": [9.0, 0.0, 0.0]},
+              {"satellite": name1, "start_s": 0.0, "end_s": 9.0, "force_N": [50.0, 0, 0]}]
+    limit_N, why = push_limit(merge_overrides(cfg, {"pulses": pulses}), 0)
+    assert limit_N == pytest.approx(base - 12.0)  # 5 + 7 at once; 7 and 9 only touch
+    assert why == ("the F/T sensor's 150 N range less the mockup's weight 20.0 N, the bias "
+                   "5.0 N, 6 sigma of noise 3.0 N, the scripted pulses' 12.0 N and the "
+                   "hand's 10 N")
+    heavy = merge_overrides(cfg, {"satellites": {"0": {"mass_kg": 20.0}}})
+    assert push_limit(heavy, 0)[0] == 0.0  # a mockup too heavy for any push: never negative

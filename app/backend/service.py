@@ -488,23 +488,40 @@ def push_limit(config: EmulatorConfig, satellite0: int) -> tuple[float, str]:
     """(the largest force (N) the pushes on satellite ``satellite0`` may add up to, how it
     was derived). A raw F/T force reading at the sensor's range stops the run
     (``[loop] stop_at_sensor_range``); on one axis of the sensor that carries the mockup
-    the reading is at most |push| + m·g + |bias| + noise + the hand's force, so the pushes
-    get the range less the mockup's weight, the bias, NOISE_SIGMAS standard deviations of
-    noise and the operator's hand at its cap (``[hand] max_force_N``), which may pull at
-    any time. Never negative."""
+    the reading is at most |push| + m·g + |bias| + noise + the hand's force + the scripted
+    pulses', so the pushes get the range less the mockup's weight, the bias,
+    NOISE_SIGMAS standard deviations of noise, the operator's hand at its cap (``[hand]
+    max_force_N``: it may pull at any time) and the most the scenario's ``[[pulses]]``
+    push that satellite at once. Never negative."""
     from app.sim.scaling import mockup_mass_kg
 
-    sensor = config.sensor
-    weight_N = mockup_mass_kg(config.satellites[satellite0], config) * float(
+    sensor, satellite = config.sensor, config.satellites[satellite0]
+    weight_N = mockup_mass_kg(satellite, config) * float(
         np.linalg.norm(config.lab.gravity_mps2))
     bias_N = float(np.linalg.norm(sensor.bias_force_N))
     noise_N = NOISE_SIGMAS * sensor.noise_force_N
     hand_N = config.hand.max_force_N
-    limit_N = max(0.0, sensor.range_force_N - weight_N - bias_N - noise_N - hand_N)
+    pulses_N = _most_pulses_at_once_N(config, satellite.name)
+    limit_N = max(0.0, sensor.range_force_N - weight_N - bias_N - noise_N - hand_N
+                  - pulses_N)
     why = (f"the F/T sensor's {sensor.range_force_N:g} N range less the mockup's weight "
            f"{weight_N:.1f} N, the bias {bias_N:.1f} N, {NOISE_SIGMAS:g} sigma of noise "
-           f"{noise_N:.1f} N and the hand's {hand_N:g} N")
+           f"{noise_N:.1f} N" + (f", the scripted pulses' {pulses_N:.1f} N" if pulses_N
+                                 else "") + f" and the hand's {hand_N:g} N")
     return limit_N, why
+
+
+def _most_pulses_at_once_N(config: EmulatorConfig, name: str) -> float:
+    """The largest sum of the force magnitudes of the ``[[pulses]]`` on satellite `name`
+    that act at the same time."""
+    events = sorted((t, sign * math.hypot(*p.force_N))  # an end before a start at one t
+                    for p in config.pulses if p.satellite == name
+                    for t, sign in ((p.start_s, 1.0), (p.end_s, -1.0)))
+    most = total = 0.0
+    for _, change in events:
+        total += change
+        most = max(most, total)
+    return most
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:
