@@ -371,7 +371,7 @@ ATTACK_PAGE = """<!doctype html><title>another local service</title><script>
 window.results = {};
 function socket(url) {
   return new Promise((done) => {
-    const ws = new WebSocket(url);
+    const ws = new WebSocket(url, ["SUBPROTOCOL"]);
     ws.onopen = () => { done("open"); ws.close(); };
     ws.onerror = () => done("error");
     ws.onclose = (e) => done("closed " + e.code);
@@ -397,7 +397,8 @@ def _serve_attack_page(app: str, viser: str):
     import http.server
     import threading
 
-    body = ATTACK_PAGE.replace("APP", app).replace("VISER", viser).encode()
+    body = (ATTACK_PAGE.replace("APP", app).replace("VISER", viser)
+            .replace("SUBPROTOCOL", _subprotocol()).encode())
 
     class Page(http.server.BaseHTTPRequestHandler):
         def do_GET(self):  # noqa: N802 - http.server's name
@@ -415,10 +416,17 @@ def _serve_attack_page(app: str, viser: str):
     return f"http://127.0.0.1:{server.server_address[1]}/", server
 
 
-OWN_PAGE_CHECK = """async () => {
+def _subprotocol() -> str:
+    """The websocket subprotocol viser's own page asks for (its version)."""
+    import viser
+
+    return f"viser-v{viser.__version__}"
+
+
+OWN_PAGE_CHECK = """async (subprotocol) => {
   const r = await fetch("/api/stop", {method: "POST"});
   const ws = await new Promise((done) => {
-    const s = new WebSocket("ws://" + location.host + "/viewer");
+    const s = new WebSocket("ws://" + location.host + "/viewer", [subprotocol]);
     s.onopen = () => { done("open"); s.close(); };
     s.onerror = () => done("error");
     setTimeout(() => done("timeout"), 10000);
@@ -454,7 +462,7 @@ def _attack_and_own_page(live, browser, token: str | None) -> None:
         assert state["generation"] == gen and state["status"] != "running", state["status"]
         assert results["post"] == "sent"  # (sent by the browser; refused by the app)
         assert results["viewer"] != "open" and results["viser"] != "open", results
-        status, ws = own.evaluate(OWN_PAGE_CHECK)
+        status, ws = own.evaluate(OWN_PAGE_CHECK, _subprotocol())
         assert (status, ws) == (200, "open")
     finally:
         context.close()
