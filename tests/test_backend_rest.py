@@ -629,12 +629,13 @@ def test_a_push_at_the_limit_never_reaches_the_sensor_range(live):
         f"force_N: magnitude {limit + 0.1:.1f} N exceeds satellite 1's push limit "
         f"{limit:.1f} N (the F/T sensor's 100 N range less the mockup's weight 9.8 N, the "
         f"bias 2.6 N, 6 sigma of noise 10.0 N and the hand's 20 N)")}
-    r = live.client.post("/api/push", json={**too_much, "force_N": [0.0, 0.0, -limit]})
+    r = live.client.post("/api/push", json={**too_much, "force_N": [0.0, 0.0, -limit],
+                                            "duration_s": 0.15})  # (longer: out of reach)
     assert r.status_code == 200, r.text
     s = live.wait_for(lambda s: s["t_s"] >= r.json()["t_s"] + 1.0)
     assert s["status"] == "running", s["reason"]
     peak = _peak_raw_force_N(live, t0)
-    print(f"\npush of {limit:.2f} N down for 0.5 s: peak raw F/T force {peak:.1f} N "
+    print(f"\npush of {limit:.2f} N down for 0.15 s: peak raw F/T force {peak:.1f} N "
           f"(range 100 N)")
     assert limit < peak < 100.0 - cfg.hand.max_force_N + 5.0  # the hand's share is left
     live.client.post("/api/stop")
@@ -713,3 +714,87 @@ def test_a_start_overtaken_by_a_reset_is_never_a_200_that_is_not_running(live):
     if any(seen == "starting" for _, seen, _ in outcomes):  # a reset overtook a start
         assert any(code == 409 for code, _, _ in outcomes)
     assert live.client.post("/api/reset").json()["status"] == "idle"
+
+
+def _push(live, force_N, duration_s, satellite=1):
+    return live.client.post("/api/push", json={"satellite": satellite, "force_N": force_N,
+                                               "duration_s": duration_s})
+
+
+def _runs_on_after(live, t_end_s: float, for_s: float = 2.0) -> None:
+    """The run is still running for_s of scenario time after t_end_s, with no stop."""
+    s = live.wait_for(lambda s: s["t_s"] >= t_end_s + for_s or s["status"] != "running",
+                      timeout_s=30.0)
+    assert s["status"] == "running" and s["safety_stop"] is None, (s["status"], s["reason"])
+
+
+def test_a_push_the_arm_cannot_follow_is_refused_and_the_largest_taken_leaves_the_run_on(live):
+    """collision (1 kg, force scale 1): a 5 N push for 0.3 s gives 1.5 m/s, beyond the
+    velocity change the arm follows (it ended the run in a tracking-error stop at 0.58 s):
+    422 naming the limit, nothing changed; the largest push taken (at the velocity-change
+    limit, push_max_dv_mps) leaves the run running 2 s after its end."""
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/collision/start", json={"mode": "hil"}).json()
+    assert s["status"] == "running", s
+    limit = s["push_max_dv_mps"][0]
+    assert limit == pytest.approx(0.1)
+    live.wait_for(lambda s: s["t_s"] >= 0.2)
+    r = _push(live, [0.0, 5.0, 0.0], 0.3)
+    assert r.status_code == 422
+    assert r.json() == {"detail": (
+        "force_N, duration_s: the push changes satellite 1's velocity by 1.500 m/s, beyond "
+        "its velocity-change limit 0.100 m/s (0.5 of the smallest velocity change an arm "
+        "followed within the 50 mm tracking-error bound, benchmarks/push_follow.py; the "
+        "change is force_scale x |force| x duration / mass)")}
+    before = live.client.get("/api/state").json()["satellites"][0]["applied_force_N"]
+    assert np.linalg.norm(before) < 1e-9  # nothing pushes
+    r = _push(live, [0.0, 5.0, 0.0], limit / 5.0)  # 1 kg, force scale 1: Δv = 5 N x T
+    assert r.status_code == 200, r.text
+    r2 = _push(live, [0.0, 0.0, 5.0], 0.01)  # on top of it: beyond the limit together
+    assert r2.status_code == 422
+    assert "velocity by 0.050 m/s with 0.100 m/s already under way" in r2.json()["detail"]
+    _runs_on_after(live, r.json()["t_s"] + limit / 5.0)
+    live.client.post("/api/stop")
+
+
+def test_a_push_that_sends_the_course_out_of_reach_is_refused_a_braking_one_taken(live):
+    """free-floating (at rest): pushes at the push limit down (-z), from the longest
+    velocity change allowed down, are refused while the satellite's course (CW, 5 s)
+    would leave the arm's reach or safety volume, with 422 saying where and when; the
+    largest taken leaves the run running 2 s after its end. Then, the satellite drifting
+    out, a push against the drift (which its course already left before) is taken."""
+    from app.backend.service import course_exit
+    from app.scenarios import load_scenario
+
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    assert s["status"] == "running", s
+    force_N, per_N = s["push_limits_N"][0], 0.005 / 1.0  # force scale / mass
+    live.wait_for(lambda s: s["t_s"] >= 0.2)
+    refused, taken = [], None
+    for dv in np.arange(s["push_max_dv_mps"][0], 0.0, -0.01):
+        r = _push(live, [0.0, 0.0, -force_N], dv / (per_N * force_N))
+        if r.status_code == 200:
+            taken = (dv, r.json()["t_s"] + dv / (per_N * force_N))
+            break
+        assert r.status_code == 422
+        refused.append(r.json()["detail"])
+    assert refused and taken, refused
+    assert all(m.startswith("force_N, duration_s: the push sends satellite 1 out of "
+                            "ceiling's reach (1.2 m from its shoulder) in ") and
+               m.endswith(" s on its course (CW, from its state now), within the 5.0 s "
+                          "horizon (5 s or the run's time left): the run would stop")
+               for m in refused), refused
+    print(f"\nfree-floating: the largest push taken down gives {taken[0]:.2f} m/s")
+    _runs_on_after(live, taken[1])
+    s = live.client.get("/api/state").json()
+    drift = np.array(s["satellites"][0]["velocity_mps"])
+    assert -drift[2] > 0.8 * taken[0]
+    assert course_exit(s, load_scenario("free-floating"), 1, np.zeros(3), 5.0)[0] <= 5.0
+    brake_s = -drift[2] / (per_N * force_N)
+    r = _push(live, [0.0, 0.0, force_N], brake_s)
+    assert r.status_code == 200, r.text
+    _runs_on_after(live, r.json()["t_s"] + brake_s)
+    v = live.client.get("/api/state").json()["satellites"][0]["velocity_mps"]
+    assert abs(v[2]) < 0.3 * -drift[2], v  # braked
+    live.client.post("/api/stop")

@@ -94,8 +94,14 @@ class PushRequest(BaseModel):
         examples=[[0.0, 20.0, 0.0]],
     )
     duration_s: FiniteFloat = Field(
-        gt=0.0, le=MAX_PUSH_DURATION_S, description="seconds", examples=[0.3]
-    )
+        gt=0.0, le=MAX_PUSH_DURATION_S,
+        description="seconds. On a satellite an arm carries, the velocity change the push "
+                    "gives (force_scale |force_N| duration_s / mass), with the pushes still "
+                    "under way, is at most its limit (/api/state push_max_dv_mps: what the "
+                    "arm can follow), and its course after the push must not leave the "
+                    "arm's safety volume or reach within 5 s (or the run's time left) "
+                    "unless it did before; 422 beyond",
+        examples=[0.3])
     point_m: list[FiniteFloat] | None = Field(
         default=None, min_length=3, max_length=3,
         description="where the hand pushes: a point of the satellite's box in its body axes "

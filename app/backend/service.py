@@ -11,6 +11,7 @@ import io
 import math
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -21,10 +22,11 @@ from app.preflight import PreflightRefused, preflight
 from app.report import json_safe
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
+from app.sim.scaling import scaling_of
 from app.sim.telemetry import loop_columns
 
 __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest",
-           "StopQueued", "StillStarting", "push_limit"]
+           "StopQueued", "StillStarting", "push_limit", "push_max_dv", "course_exit"]
 
 MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's default range: no push is ever larger
 NOISE_SIGMAS = 6.0
@@ -34,6 +36,20 @@ PUSH_END_MARGIN_S = 0.1
 """A push counts as pushing until this long (scenario time) after its end as the state
 showed it: the state lags the loop by a few cycles."""
 MAX_PUSH_DURATION_S = 5.0
+DEFAULT_TRACKING_ERROR_M = 0.05
+"""``[loop] max_tracking_error_m``'s default, at which MAX_PUSH_DV_MPS was measured."""
+COURSE_HORIZON_S = 5.0
+"""A push may not send a satellite's course out of its arm's safety volume or reach this
+soon (or within the run's time left, if shorter): the scene warns at the same horizon."""
+COURSE_STEP_S = 0.01
+"""The predicted course is checked at this spacing (a satellite at 0.1 m/s moves 1 mm)."""
+MOTION_MARGIN = 0.5
+"""The push's velocity change may be this fraction of the smallest one measured to be
+followed (benchmarks/push_follow.py)."""
+MAX_PUSH_DV_MPS = 0.1
+"""The largest velocity change (m/s, lab) the pushes under way on a satellite may give it
+at ``[loop] max_tracking_error_m`` = 0.05 m (it scales with that bound): MOTION_MARGIN of
+the smallest Δv an arm followed in benchmarks/push_follow.py."""
 MAX_BAG_MESSAGES = 60_000
 """A bag from the web app holds at most about this many messages (~10 s to write here):
 a long run's bag is thinned below the rate asked for. `run --bag` has no such bound."""
@@ -63,6 +79,18 @@ class StillStarting(RuntimeError):
         self.state = state
 
 
+@dataclass(frozen=True)
+class _PushRecord:
+    """A push the service accepted (what the next push's checks count)."""
+
+    generation: int
+    satellite: int  # 1-based
+    start_s: float  # scenario time as the state showed it at acceptance
+    duration_s: float
+    force_N: float  # magnitude
+    dv_R: np.ndarray  # the velocity change it gives (R, lab m/s)
+
+
 class EmulatorService:
     """Builds emulators from scenarios + overrides and drives one :class:`Runner`."""
 
@@ -80,8 +108,8 @@ class EmulatorService:
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
         self._reads = SharedReads(self.state)
         self._push_lock = threading.Lock()
-        self._pushes: list[tuple[int, int, float, float]] = []
-        """(generation, satellite (1-based), end t_s, |force| N) of the pushes under way."""
+        self._pushes: list[_PushRecord] = []
+        """The pushes under way (until PUSH_END_MARGIN_S after their end)."""
         self._limits: tuple[Any, list[float]] = (None, [])
         self._csv: tuple[Any, CsvLines] | None = None  # (the run's ring, its CSV lines)
 
@@ -102,7 +130,8 @@ class EmulatorService:
     def state(self) -> dict[str, Any]:
         """The loop's latest state; status "fault" with the reason while the loop process
         is dead or stalled."""
-        snap = {**self.runner.snapshot(), "push_limits_N": self.push_limits_N()}
+        snap = {**self.runner.snapshot(), "push_limits_N": self.push_limits_N(),
+                "push_max_dv_mps": self.push_max_dv_mps()}
         fault = self.runner.fault()
         if fault is not None:
             snap.update(status="fault", reason=fault)
@@ -115,6 +144,12 @@ class EmulatorService:
             self._limits = (config, [round(push_limit(config, i)[0], 3)
                                      for i in range(len(config.satellites))])
         return self._limits[1]
+
+    def push_max_dv_mps(self) -> list[float]:
+        """Each satellite's push velocity-change limit in the current run
+        (:func:`push_max_dv`)."""
+        config = self.last_config
+        return [round(push_max_dv(config)[0], 4) for _ in config.satellites]
 
     def _refuse_if_busy(self) -> None:
         """RunnerBusy while a healthy loop is starting or running a run (what
@@ -243,27 +278,76 @@ class EmulatorService:
         point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
             point_m, state["layout"]["satellites"][satellite - 1][1])
         with self._push_lock:  # the check and the record of a push, one at a time
+            self._drop_ended_pushes(state)
             self._within_push_limit(state, satellite, math.hypot(*force))
+            dv_R = self._push_dv_R(satellite, force, duration_s)
+            self._within_push_motion(state, satellite, dv_R)
             self.runner.post(Push(satellite=satellite - 1, force_R_N=force,
                                   duration_s=duration_s, point_B_m=point))
-            self._pushes.append((state["generation"], satellite,
-                                 state["t_s"] + duration_s + PUSH_END_MARGIN_S,
-                                 math.hypot(*force)))
+            self._pushes.append(_PushRecord(state["generation"], satellite, state["t_s"],
+                                            duration_s, math.hypot(*force), dv_R))
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
                 "point_m": list(point), "t_s": self.state()["t_s"]}
+
+    def _drop_ended_pushes(self, state: dict) -> None:
+        """Forget the pushes of other runs and those over (PUSH_END_MARGIN_S after)."""
+        self._pushes = [p for p in self._pushes
+                        if p.generation == state["generation"]
+                        and p.start_s + p.duration_s + PUSH_END_MARGIN_S > state["t_s"]]
 
     def _within_push_limit(self, state: dict, satellite: int, force_N: float) -> None:
         """InvalidRequest when this push and those still pushing the same satellite would
         add up beyond its push limit (:func:`push_limit`)."""
-        self._pushes = [p for p in self._pushes
-                        if p[0] == state["generation"] and p[2] > state["t_s"]]
-        pushing = sum(p[3] for p in self._pushes if p[1] == satellite)
+        pushing = sum(p.force_N for p in self._pushes if p.satellite == satellite)
         limit_N, why = push_limit(self.last_config, satellite - 1)
         if force_N + pushing > limit_N:
             already = f" with {pushing:.1f} N already pushing it" if pushing else ""
             raise InvalidRequest(
                 f"force_N: magnitude {force_N:.1f} N{already} exceeds satellite "
                 f"{satellite}'s push limit {limit_N:.1f} N ({why})")
+
+    def _push_dv_R(self, satellite: int, force, duration_s: float) -> np.ndarray:
+        """The velocity change (R, lab m/s) a push gives the ODS satellite:
+        force_scale F T / m (the ODS's law, app/sim/scaling.py)."""
+        config = self.last_config
+        per_N = scaling_of(config).force_scale / config.satellites[satellite - 1].mass_kg
+        return per_N * duration_s * np.asarray(force, float)
+
+    def _within_push_motion(self, state: dict, satellite: int, dv_R: np.ndarray) -> None:
+        """InvalidRequest when the push would move the satellite beyond what its arm can
+        follow (:func:`push_max_dv`, with the pushes still under way on it) or send its
+        course out of its arm's safety volume or reach within the horizon
+        (:func:`course_exit`) where it did not leave before. Only for a satellite an arm
+        carries in a running run (hil): nothing else can stop on a push's motion."""
+        if state["status"] != "running" or not any(
+                rob["satellite"] == satellite for rob in state["robots"]):
+            return
+        under_way = [p for p in self._pushes if p.satellite == satellite]
+        dv = float(np.linalg.norm(dv_R))
+        pushing = sum(float(np.linalg.norm(p.dv_R)) for p in under_way)
+        limit, why = push_max_dv(self.last_config)
+        if dv + pushing > limit * (1.0 + 1e-9):  # (a push at the limit, computed back)
+            already = f" with {pushing:.3f} m/s already under way" if pushing else ""
+            raise InvalidRequest(
+                f"force_N, duration_s: the push changes satellite {satellite}'s velocity by "
+                f"{dv:.3f} m/s{already}, beyond its velocity-change limit {limit:.3f} m/s "
+                f"({why})")
+        t_s = state["t_s"]
+        left_R = sum((p.dv_R * min(1.0, max(0.0, (p.start_s + p.duration_s - t_s)
+                                                 / p.duration_s)) for p in under_way),
+                     np.zeros(3))  # the part of the pushes under way still to come
+        horizon_s = min(COURSE_HORIZON_S, state["duration_s"] - t_s)
+        if horizon_s <= 0.0:
+            return
+        before_s, _ = course_exit(state, self.last_config, satellite, left_R, horizon_s)
+        after_s, where = course_exit(state, self.last_config, satellite, left_R + dv_R,
+                                     horizon_s)
+        if after_s <= horizon_s < before_s:
+            raise InvalidRequest(
+                f"force_N, duration_s: the push sends satellite {satellite} {where} in "
+                f"{after_s:.1f} s on its course (CW, from its state now), within the "
+                f"{horizon_s:.1f} s horizon ({COURSE_HORIZON_S:g} s or the run's time left): "
+                f"the run would stop")
 
     def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
         """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
@@ -522,6 +606,54 @@ def _most_pulses_at_once_N(config: EmulatorConfig, name: str) -> float:
         total += change
         most = max(most, total)
     return most
+
+
+def push_max_dv(config: EmulatorConfig) -> tuple[float, str]:
+    """(the largest velocity change (lab m/s) the pushes under way on a carried satellite
+    may add up to, how it was derived): MAX_PUSH_DV_MPS, measured at the default
+    ``[loop] max_tracking_error_m`` (0.05 m), scaled with the run's (the arm's lag turns a
+    velocity step into a proportional tracking error)."""
+    bound_m = config.loop.max_tracking_error_m
+    limit = MAX_PUSH_DV_MPS * bound_m / DEFAULT_TRACKING_ERROR_M
+    why = (f"{MOTION_MARGIN:g} of the smallest velocity change an arm followed within "
+           f"the {1e3 * bound_m:g} mm tracking-error bound, benchmarks/push_follow.py; "
+           f"the change is force_scale x |force| x duration / mass")
+    return limit, why
+
+
+def course_exit(state: dict, config: EmulatorConfig, satellite: int, dv_R,
+                horizon_s: float) -> tuple[float, str]:
+    """(when the course of satellite `satellite` (1-based) first leaves the safety volume
+    or the reach (HOLD_RADIUS_M from the shoulder) of an arm that carries it, within
+    horizon_s, inf if it does not; what it leaves). The course: force-free CW in lab units
+    (the ODS's own dynamics at the lab orbit rate k_T Omega: a straight line bends within
+    seconds where the time is scaled), from the ODS state of the latest snapshot with
+    dv_R (R, m/s) added now, sampled every COURSE_STEP_S."""
+    from app.sim.orbital import cw_course_m, orbit_rate
+    from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M
+
+    sat = state["satellites"][satellite - 1]
+    W = scaling_of(config).orbit_rate_lab(orbit_rate(config.orbit.altitude_m))
+    t = np.arange(0.0, horizon_s + COURSE_STEP_S, COURSE_STEP_S)
+    course_R = cw_course_m(W, sat["position_m"], np.asarray(sat["velocity_mps"]) + dv_R, t)
+    T_W_R = np.asarray(state["layout"]["T_W_R"])
+    course_W = course_R @ T_W_R[:3, :3].T + T_W_R[:3, 3]
+    first, where = np.inf, ""
+    layout = state["layout"]
+    for k, rob in enumerate(state["robots"]):
+        if rob["satellite"] != satellite:
+            continue
+        lo, hi = (np.asarray(b) for b in layout["safety_boxes_W_m"][k])
+        T_W_B = np.asarray(layout["arms"][k][1])
+        shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+        for out, name in (
+                (np.any((course_W < lo) | (course_W > hi), axis=1),
+                 f"out of {rob['name']}'s safety volume"),
+                (np.linalg.norm(course_W - shoulder_W, axis=1) > HOLD_RADIUS_M,
+                 f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from its shoulder)")):
+            if out.any() and t[np.argmax(out)] < first:
+                first, where = float(t[np.argmax(out)]), name
+    return first, where
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:
