@@ -61,3 +61,16 @@ def test_push_limit_quick():
     limit_N, range_N, peak_N = float(cells[1]), float(cells[2]), float(cells[3])
     assert limit_N + 20.0 < peak_N < range_N, row  # the push, the hand, the weight: below
     assert cells[5] == "0 of 1", row
+
+
+def test_push_follow_quick():
+    """The arm follows a push at the force limit in collision to a velocity change at
+    least twice the web app's limit (the margin the limit claims), and the script says
+    what it derives."""
+    from app.backend.service import MAX_PUSH_DV_MPS, MOTION_MARGIN
+
+    out = _run("benchmarks.push_follow")
+    row = next(line for line in out.splitlines() if line.startswith("| collision |"))
+    followed = float(row.strip("|").split("|")[-1])
+    assert followed >= MAX_PUSH_DV_MPS / MOTION_MARGIN, row
+    assert f"the web app's MAX_PUSH_DV_MPS = {MAX_PUSH_DV_MPS:g} m/s" in out
