@@ -319,7 +319,7 @@ class EmulatorService:
         course out of its arm's safety volume or reach within the horizon
         (:func:`course_exit`) where it did not leave before. Only for a satellite an arm
         carries in a running run (hil): nothing else can stop on a push's motion."""
-        if state["status"] != "running" or not any(
+        if state["status"] != "running" or state["mode"] != "hil" or not any(
                 rob["satellite"] == satellite for rob in state["robots"]):
             return
         under_way = [p for p in self._pushes if p.satellite == satellite]
