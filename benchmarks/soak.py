@@ -12,10 +12,13 @@ and 8 client threads that poll
 (the telemetry ring holds the last ``--ring-s`` seconds, so each CSV is that long). All
 traffic goes to 127.0.0.1; it stops by itself.
 
-Every 10 s it samples the loop's cycles, deadline misses and resyncs (``/api/state``), and
-the resident memory (VmRSS) of the web and loop processes. It prints the samples, the
-CPU time the host took away meanwhile (steal, from /proc/stat: deadline misses follow it on
-a shared VM), and the verdict against the targets: deadline misses < 0.1 %, no resync,
+Every 10 s it samples the loop's cycles, deadline misses and resyncs (``/api/state``), the
+resident memory (VmRSS) of the web and loop processes, and the rows lost: gaps in the
+telemetry CSV's time column (one row per cycle, 2 ms apart), within a CSV and between
+one read and the next (the ring keeps 30 s, the reads are 10 s apart: they overlap). It
+prints the samples, the CPU time the host took away meanwhile (steal, from /proc/stat:
+deadline misses follow it on a shared VM), and the verdict against the targets: deadline
+misses < 0.1 %, no resync, no row lost,
 each process's memory within 10 % of its value at the end of the first minute.
 
 The machine's own floor: after the soak, with the server gone, a null loop runs for
@@ -105,7 +108,9 @@ def push(url: str, stop: threading.Event, errors: list) -> None:
     directions = itertools.cycle(np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]]))
     with httpx.Client(base_url=url, timeout=60.0) as client:
         while not stop.wait(20.0):
-            sat = client.get("/api/state").json()["satellites"][0]
+            state = client.get("/api/state").json()
+            force_N = min(force_N, state["push_limits_N"][0])  # what the server takes
+            sat = state["satellites"][0]
             dv = -np.array(sat["velocity_mps"]) - np.array(sat["position_m"]) / 20.0
             if np.linalg.norm(dv) < 2e-3:  # at rest near its start: an excursion
                 dv = 0.008 * next(directions)
@@ -115,6 +120,22 @@ def push(url: str, stop: threading.Event, errors: list) -> None:
                 "force_N": (force_N * dv / np.linalg.norm(dv)).tolist()})
             if r.status_code != 200:
                 errors.append(f"push: {r.status_code} {r.text[:200]}")
+
+
+def lost_rows(csv_text: str, last_t_s: float | None,
+              dt_s: float = 0.002) -> tuple[int, float | None]:
+    """(rows lost, the time of this CSV's last row): rows missing from the run's record as
+    the telemetry CSVs show it, one row a cycle: gaps in this CSV's time column, and
+    between the last row of the CSV read before (``last_t_s``) and this one's first (the
+    ring keeps ``--ring-s`` seconds, far more than the reads' interval, so the reads must
+    overlap). Rows the ring dropped as it wrapped are not lost: a later read no longer
+    holds the oldest rows, but an earlier one did."""
+    t_s = np.loadtxt(csv_text.splitlines()[1:], delimiter=",", usecols=0, ndmin=1)
+    if len(t_s) == 0:
+        return 0, last_t_s
+    steps = np.diff(t_s if last_t_s is None or t_s[0] <= last_t_s
+                    else np.concatenate([[last_t_s], t_s]))
+    return int(np.sum(np.round(steps / dt_s) - 1)), float(t_s[-1])
 
 
 def null_loop(seconds: float, work_us: float, rate_hz: float = 500.0) -> tuple[int, int, str]:
@@ -190,7 +211,7 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
             threads.append(threading.Thread(target=push, args=(url, stop, errors)))
             for t in threads:
                 t.start()
-            samples = []
+            samples, lost, last_t_s = [], 0, None
             t0, steal0 = time.monotonic(), steal_ticks()
             first = api.get("/api/state").json()["loop"]
             base = (first["cycles"], first["deadline_misses"], first["resyncs"])
@@ -208,6 +229,8 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
                 if state["status"] != "running":
                     print(f"the run ended: {state['status']}: {state['reason']}")
                     break
+                missing, last_t_s = lost_rows(api.get("/api/telemetry").text, last_t_s)
+                lost += missing
                 steal = steal_ticks()
                 p50_us = loop["cycle_time_us"]["p50"]
                 samples.append((time.monotonic() - t0, loop["cycles"] - base[0],
@@ -235,11 +258,11 @@ def soak(minutes: float, ring_s: float, clients: int = CLIENTS, viewer: bool = T
         print(f"\nthe machine's floor: a null loop, {floor_s:g} s at 500 Hz, busy-waiting the "
               f"loop's median cycle ({p50_us:.0f} us), nothing else running ...", flush=True)
         floor = machine_floor(floor_s, p50_us)
-    return report(samples, counts, errors, floor)
+    return report(samples, counts, errors, floor, lost)
 
 
 def report(samples: list[tuple], counts: dict, errors: list,
-           floor: tuple[int, int, str, float] | None = None) -> int:
+           floor: tuple[int, int, str, float] | None = None, lost: int = 0) -> int:
     t, cycles, misses, resyncs = samples[-1][:4]
     after_1min = [s for s in samples if s[0] >= 60.0] or samples
     ratio = misses / cycles if cycles else 0.0
@@ -266,6 +289,7 @@ def report(samples: list[tuple], counts: dict, errors: list,
         (f"loop process memory within {drift['loop']:.1%} of its value at 1 min",
          drift["loop"] <= 0.10, "≤ 10 %"),
         (f"failed requests {len(errors)}", not errors, "none"),
+        (f"telemetry rows lost {lost} (one CSV read every {SAMPLE_S:g} s)", lost == 0, "none"),
     ]
     for text, ok, target in verdicts:
         print(f"{'met    ' if ok else 'NOT MET'}  {text} (target {target})")

@@ -224,3 +224,58 @@ def test_serve_refuses_an_open_bind_or_a_weak_token_before_binding(env_token, ar
                           text=True, timeout=60)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_no_log_line_ever_shows_the_token(tmp_path):
+    """A token session of a real `serve`: the link, then mis-cased and percent-encoded
+    query tokens, on HTTP and on the viewer's websocket (whose lines go through uvicorn's
+    error logger, not its access log). The whole log (stdout and stderr) holds the token
+    nowhere, not even percent-encoded, and shows the lines with <token> in its place."""
+    from urllib.parse import quote
+
+    env = {**os.environ, "ORBIT_EMULATOR_TOKEN": TOKEN}
+    proc, out = _serve(env)
+    encoded = "".join(f"%{b:02X}" for b in TOKEN.encode())  # every byte percent-encoded
+    try:
+        port = int(re.search(r"web app\s+http://127\.0\.0\.1:(\d+)/", out).group(1))
+        base = f"127.0.0.1:{port}"
+        html = {"Accept": "text/html"}
+        assert httpx.get(f"http://{base}/?token={TOKEN}", headers=html).status_code == 303
+        for query in [f"token={TOKEN}", f"TOKEN={TOKEN}", f"Token={TOKEN}&x=1",
+                      f"%74oken={TOKEN}", f"token={encoded}", f"x=1;token={TOKEN}",
+                      f"other={TOKEN}"]:
+            httpx.get(f"http://{base}/api/health?{query}")
+            try:
+                _viewer_frames(f"ws://{base}/viewer?{query}")
+            except websockets.InvalidStatus:
+                pass  # refused: the query's token is not one the server takes
+        assert _viewer_frames(f"ws://{base}/viewer?token={TOKEN}") > 0
+        assert quote(TOKEN) == TOKEN  # (what a client may send as is)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        rest, err = proc.communicate(timeout=60)
+    log = out + rest + err
+    assert "WebSocket /viewer?token=<token>" in log, log[-3000:]
+    assert "WebSocket /viewer?TOKEN=<token>" in log and "/api/health?%74oken=<token>" in log
+    assert TOKEN not in log and encoded not in log and encoded.lower() not in log
+
+
+def test_serve_on_a_port_in_use_says_so_before_starting_anything():
+    """`serve --port P` with P taken: an `error:` line naming the port, exit 2, within
+    seconds and before the loop process or the viewer started (their lines are absent)."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        t0 = time.monotonic()
+        proc = subprocess.run([EXE, "serve", "--port", str(port)], capture_output=True,
+                              text=True, timeout=60)
+        took_s = time.monotonic() - t0
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert proc.stderr.startswith(f"error: --port {port}: cannot listen on 127.0.0.1 port "
+                                  f"{port}: Address already in use"), proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stdout == ""
+    assert "startup" not in proc.stderr.lower() and "viser" not in proc.stderr.lower()
+    print(f"\nport in use: refused after {took_s:.2f} s")

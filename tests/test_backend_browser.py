@@ -365,3 +365,119 @@ def test_the_replay_file_plays_offline_with_the_server_stopped(page, tmp_path):
         assert max(changes) > 200, changes  # it plays: the satellites move, the bar runs
     finally:
         context.close()
+
+
+ATTACK_PAGE = """<!doctype html><title>another local service</title><script>
+window.results = {};
+function socket(url) {
+  return new Promise((done) => {
+    const ws = new WebSocket(url, ["SUBPROTOCOL"]);
+    ws.onopen = () => { done("open"); ws.close(); };
+    ws.onerror = () => done("error");
+    ws.onclose = (e) => done("closed " + e.code);
+    setTimeout(() => done("timeout"), 5000);
+  });
+}
+(async () => {
+  try {  // a body-less POST: no CORS preflight; the token cookie goes along (same site)
+    await fetch("http://APP/api/scenarios/collision/start",
+                {method: "POST", mode: "no-cors", credentials: "include"});
+    results.post = "sent";
+  } catch (e) { results.post = "error " + e; }
+  results.viewer = await socket("ws://APP/viewer");
+  results.viser = await socket("ws://VISER/");
+  results.done = true;
+})();
+</script>"""
+
+
+def _serve_attack_page(app: str, viser: str):
+    """A page on another port of 127.0.0.1 that tries to start a run and open the viewer's
+    websockets on the app: (its URL, the server to shut down)."""
+    import http.server
+    import threading
+
+    body = (ATTACK_PAGE.replace("APP", app).replace("VISER", viser)
+            .replace("SUBPROTOCOL", _subprotocol()).encode())
+
+    class Page(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - http.server's name
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return f"http://127.0.0.1:{server.server_address[1]}/", server
+
+
+def _subprotocol() -> str:
+    """The websocket subprotocol viser's own page asks for (its version)."""
+    import viser
+
+    return f"viser-v{viser.__version__}"
+
+
+OWN_PAGE_CHECK = """async (subprotocol) => {
+  const r = await fetch("/api/stop", {method: "POST"});
+  const ws = await new Promise((done) => {
+    const s = new WebSocket("ws://" + location.host + "/viewer", [subprotocol]);
+    s.onopen = () => { done("open"); s.close(); };
+    s.onerror = () => done("error");
+    setTimeout(() => done("timeout"), 10000);
+  });
+  return [r.status, ws];
+}"""
+
+
+def _attack_and_own_page(live, browser, token: str | None) -> None:
+    """In one browser context (the operator's): the app's page (opened from the token
+    link where there is one), then a page on another port of 127.0.0.1 that posts a start
+    and opens the viewer websocket (the app's relay and viser's own port): nothing starts,
+    no socket opens; the app's own page still stops a run and opens its viewer."""
+    context = browser.new_context()
+    try:
+        own = context.new_page()
+        own.goto(live.url + ("/" if token is None else f"/?token={token}"))
+        if token is not None:  # the link set the SameSite=Strict cookie, sent to any port
+            assert any(c["name"] == "orbit_emulator_token" for c in context.cookies())
+        live.client.post("/api/stop")
+        gen = live.state()["generation"]
+        url, server = _serve_attack_page(f"127.0.0.1:{live.port}",
+                                         f"127.0.0.1:{live.viser_port}")
+        try:
+            evil = context.new_page()
+            evil.goto(url)
+            evil.wait_for_function("window.results.done === true", timeout=30_000)
+            results = evil.evaluate("window.results")
+        finally:
+            server.shutdown()
+        time.sleep(1.0)  # a start that got through would have moved on by now
+        state = live.state()
+        assert state["generation"] == gen and state["status"] != "running", state["status"]
+        assert results["post"] == "sent"  # (sent by the browser; refused by the app)
+        assert results["viewer"] != "open" and results["viser"] != "open", results
+        status, ws = own.evaluate(OWN_PAGE_CHECK, _subprotocol())
+        assert (status, ws) == (200, "open")
+    finally:
+        context.close()
+
+
+def test_a_page_on_another_port_can_neither_start_a_run_nor_open_the_viewer(live, page):
+    """Origin is scheme, host and port: a page of another local web service (here
+    http://127.0.0.1:<another port>) is refused, in Chromium, without a token."""
+    _attack_and_own_page(live, page.context.browser, token=None)
+
+
+def test_with_a_token_the_cookie_from_another_port_does_not_help(page):
+    """With a token, the operator opened the printed link: the cookie (SameSite=Strict,
+    but cookies know no ports) goes along with the other port's requests; the origin
+    check refuses them all the same."""
+    token = "token-for-the-origin-test-0123456789"
+    with LiveServer(token=token) as server:
+        _attack_and_own_page(server, page.context.browser, token=token)

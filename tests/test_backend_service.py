@@ -165,3 +165,73 @@ def test_the_csv_cache_keeps_the_newest_whole_chunks_of_one_ring_within_its_budg
     assert cache.get("ring-b", 4) is None and cache.get("ring-b", 0) == b"xy"
     cache.clear()
     assert cache.get("ring-b", 0) is None
+
+
+def test_the_push_limit_keeps_room_for_weight_bias_noise_hand_and_overlapping_pulses():
+    """push_limit: the sensor's range less m·|g|, |bias|, 6 sigma of noise, the hand's cap
+    and the most the scripted pulses push that satellite at once (pulses that only touch
+    end to end do not add up; pulses on another satellite do not count)."""
+    from app.backend.service import push_limit
+    from app.config import merge_overrides
+    from app.scenarios import load_scenario
+
+    cfg = merge_overrides(load_scenario("collision"), {
+        "sensor": {"range_force_N": 150.0, "bias_force_N": [3.0, 0.0, 4.0],
+                   "noise_force_N": 0.5},
+        "hand": {"max_force_N": 10.0}, "lab": {"gravity_mps2": [0.0, 0.0, -10.0]},
+        "satellites": {"0": {"mass_kg": 2.0}}})
+    name0, name1 = cfg.satellites[0].name, cfg.satellites[1].name
+    base = 150.0 - 2.0 * 10.0 - 5.0 - 6 * 0.5 - 10.0  # satellite 0: a 2 kg mockup
+    assert push_limit(cfg, 0)[0] == pytest.approx(base)
+    pulses = [{"satellite": name0, "start_s": 1.0, "end_s": 2.0, "force_N": [3.0, 4.0, 0.0]},
+              {"satellite": name0, "start_s": 1.5, "end_s": 3.0, "force_N": [0.0, 0.0, 7.0]},
+              {"satellite": name0, "start_s": 3.0, "end_s": 4.0, "force_N": [9.0, 0.0, 0.0]},
+              {"satellite": name1, "start_s": 0.0, "end_s": 9.0, "force_N": [50.0, 0, 0]}]
+    limit_N, why = push_limit(merge_overrides(cfg, {"pulses": pulses}), 0)
+    assert limit_N == pytest.approx(base - 12.0)  # 5 + 7 at once; 7 and 9 only touch
+    assert why == ("the F/T sensor's 150 N range less the mockup's weight 20.0 N, the bias "
+                   "5.0 N, 6 sigma of noise 3.0 N, the scripted pulses' 12.0 N and the "
+                   "hand's 10 N")
+    heavy = merge_overrides(cfg, {"satellites": {"0": {"mass_kg": 20.0}}})
+    assert push_limit(heavy, 0)[0] == 0.0  # a mockup too heavy for any push: never negative
+
+
+def test_a_push_s_course_leaves_where_the_straight_line_does_and_bends_under_a_fast_orbit():
+    """course_exit: at the real orbit rate (800 km, 1e-3 rad/s) the CW course over 5 s is
+    the straight line, so it leaves the reach when seconds_until_beyond says (within its
+    0.01 s sampling), and the box likewise; under a time scale that makes the orbit rate
+    ~1 rad/s, the course bends and leaves elsewhere: where the CW state transition crosses
+    the box's floor (the out-of-plane motion swings down)."""
+    from app.backend.service import COURSE_STEP_S, course_exit
+    from app.scenarios import load_scenario
+    from app.sim.orbital import cw_state_transition, orbit_rate
+    from app.sim.scaling import scaling_of
+    from app.sim.servo import seconds_until_beyond, seconds_until_outside
+    from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M
+
+    cfg = load_scenario("free-floating")
+    state = {"layout": {"T_W_R": np.eye(4).tolist(), "arms": [["floor", np.eye(4).tolist()]],
+                        "safety_boxes_W_m": [[[-1.5, -1.5, 0.05], [1.5, 1.5, 2.4]]]},
+             "robots": [{"name": "floor", "satellite": 1}],
+             "satellites": [{"position_m": [0.0, 0.5, 1.0], "velocity_mps": [0.0, 0.0, 0.0]}]}
+    t_reach = seconds_until_beyond([0, 0.5, 1.0], [0, 0.2, 0], SHOULDER_B_M, HOLD_RADIUS_M)
+    t_s, where = course_exit(state, cfg, 1, np.array([0.0, 0.2, 0.0]), 5.0)
+    assert t_reach - COURSE_STEP_S < t_s <= t_reach + COURSE_STEP_S
+    assert where == f"out of floor's reach ({HOLD_RADIUS_M:g} m from its shoulder)"
+    assert course_exit(state, cfg, 1, np.zeros(3), 5.0) == (np.inf, "")  # at rest: stays
+    assert course_exit(state, cfg, 1, np.array([0.0, 0.2, 0.0]), 1.0)[0] == np.inf
+    state["satellites"][0]["position_m"] = [0.0, 0.0, 0.3]  # near the floor of the box
+    t_box = seconds_until_outside([0, 0, 0.3], [0, 0, -0.1], [-1.5, -1.5, 0.05],
+                                  [1.5, 1.5, 2.4])
+    t_s, where = course_exit(state, cfg, 1, np.array([0.0, 0.0, -0.1]), 5.0)
+    assert (t_s, where) == (pytest.approx(t_box, abs=COURSE_STEP_S),
+                            "out of floor's safety volume")
+    state["satellites"][0]["position_m"] = [0.0, 0.5, 1.0]
+    fast = load_scenario("gravity-stabilised")  # a time scale of 1000: 1.04 rad/s in the lab
+    t_fast, where = course_exit(state, fast, 1, np.array([0.0, 0.2, 0.0]), 5.0)
+    assert abs(t_fast - t_reach) > 0.1  # not the straight line's: z swings down to the floor
+    assert where == "out of floor's safety volume"
+    W = scaling_of(fast).orbit_rate_lab(orbit_rate(fast.orbit.altitude_m))
+    for t, inside in ((t_fast - COURSE_STEP_S, True), (t_fast, False)):  # crossed there
+        p = (cw_state_transition(W, t) @ np.array([0.0, 0.5, 1.0, 0.0, 0.2, 0.0]))[:3]
+        assert (np.linalg.norm(p - SHOULDER_B_M) <= HOLD_RADIUS_M and p[2] >= 0.05) == inside

@@ -50,3 +50,27 @@ def test_contact_fidelity_quick():
                  "| paper |", "| passivity |", "| compensated |", "| comp., no noise |",
                  "## Free-floating", "| chain | status | tracking max |"):
         assert line in out, line
+
+
+def test_push_limit_quick():
+    """A push at the limit with the hand at its cap, along the weight, stays below the
+    sensor's range and the run goes on."""
+    out = _run("benchmarks.push_limit")
+    row = next(line for line in out.splitlines() if line.startswith("| free-floating |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    limit_N, range_N, peak_N = float(cells[1]), float(cells[2]), float(cells[3])
+    assert limit_N + 20.0 < peak_N < range_N, row  # the push, the hand, the weight: below
+    assert cells[5] == "0 of 1", row
+
+
+def test_push_follow_quick():
+    """The arm follows a push at the force limit in collision to a velocity change at
+    least twice the web app's limit (the margin the limit claims), and the script says
+    what it derives."""
+    from app.backend.service import MAX_PUSH_DV_MPS, MOTION_MARGIN
+
+    out = _run("benchmarks.push_follow")
+    row = next(line for line in out.splitlines() if line.startswith("| collision |"))
+    followed = float(row.strip("|").split("|")[-1])
+    assert followed >= MAX_PUSH_DV_MPS / MOTION_MARGIN, row
+    assert f"the web app's MAX_PUSH_DV_MPS = {MAX_PUSH_DV_MPS:g} m/s" in out

@@ -9,6 +9,7 @@ from app.sim.orbital import (
     OrbitalSimulator,
     along_track_drift_rate,
     box_inertia,
+    cw_course_m,
     cw_state_transition,
     omega_inertial_from_relative,
     omega_relative_into,
@@ -242,3 +243,13 @@ def test_inertial_and_relative_angular_velocity_convert_both_ways():
     # at rest in R (identity attitude): inertially turning with R, at Ω about ẑ
     np.testing.assert_allclose(omega_inertial_from_relative([1.0, 0, 0, 0], [0, 0, 0], W800),
                                [[0.0, 0.0, W800]], rtol=0, atol=1e-18)
+
+
+def test_cw_course_is_the_state_transition_at_every_time():
+    """cw_course_m gives, for each time at once, the positions Phi(t) [p; v] gives."""
+    p0, v0 = np.array([0.3, -0.2, 0.1]), np.array([0.01, -0.02, 0.005])
+    t = np.array([0.0, 0.5, 600.0, 5000.0])
+    course = cw_course_m(W800, p0, v0, t)
+    for k, t_s in enumerate(t):
+        np.testing.assert_allclose(course[k], (cw_state_transition(W800, t_s)
+                                               @ np.concatenate([p0, v0]))[:3], atol=1e-9)

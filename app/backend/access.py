@@ -4,8 +4,10 @@ Three ASGI middlewares, outermost first in ``create_app``:
 
 * :class:`BodyLimit`: 413 for a request body over 64 KiB, before anything reads it whole;
 * :class:`SameOrigin`: the Host header must name an allowed host (DNS rebinding: 400), an
-  Origin header too (cross-site pages, on HTTP and websocket alike: 403), and a request
-  body must be ``application/json`` (a cross-site form or ``text/plain`` post: 415);
+  Origin header must be the app's own origin, scheme, host and port (a page of any other
+  origin, another port of this host included, on HTTP and websocket alike: 403), and a
+  request body must be ``application/json`` (a cross-site form or ``text/plain`` post:
+  415);
 * :class:`TokenGate`: with a token (required for a bind beyond loopback), every request,
   the 3D viewer's included, must carry it (401): ``Authorization: Bearer <token>``, the
   ``orbit_emulator_token`` cookie, or ``?token=<token>`` in the URL, which also sets the
@@ -156,13 +158,19 @@ class BodyLimit:
 
 
 class SameOrigin:
-    """Against DNS rebinding and cross-site requests (HTTP and websocket).
+    """Against DNS rebinding and requests from other origins (HTTP and websocket).
 
     The Host header must name an allowed host (400 otherwise): a page on a foreign name
     that resolves to this machine cannot reach the API. An Origin header, which browsers
-    send with cross-site and state-changing requests, must name an allowed host too (403).
-    A request with a body must declare ``application/json`` (415): a cross-site form or
-    ``text/plain`` post, which browsers send without asking first, is refused.
+    send with every cross-origin request, every POST and every websocket handshake, must
+    be the app's own origin (403 otherwise): the scheme the request came in by, and the
+    host and port of its Host header. Host names alone are not enough: a page served on
+    another port of this host (any other local web service) is another origin, and
+    SameSite cookies, the token's included, go along with its requests all the same.
+    Without an Origin (API clients), a request that a browser marks as coming from another
+    site (``Sec-Fetch-Site``) may only read (GET, HEAD). A request with a body must
+    declare ``application/json`` (415): a cross-site form or ``text/plain`` post, which
+    browsers send without asking first, is refused.
     """
 
     def __init__(self, app, hosts: frozenset[str]) -> None:
@@ -178,16 +186,58 @@ class SameOrigin:
             return await _reject(scope, send, 400, f"host {host!r} is not allowed")
         origin = headers.get(b"origin")
         if origin is not None:
-            authority = origin.decode("latin-1").split("://", 1)[-1]
-            if _host_name(authority) not in self.hosts:
-                return await _reject(scope, send, 403,
-                                     f"origin {origin.decode('latin-1')!r} is not allowed")
+            text = origin.decode("latin-1")
+            if _origin(text) != own_origin(scope.get("scheme", "http"), host):
+                return await _reject(scope, send, 403, f"origin {text!r} is not allowed")
+        elif _from_another_site(scope, headers):
+            return await _reject(scope, send, 403, "a request from another site's page "
+                                 "may not change anything")
         if scope["type"] == "http" and _has_body(headers):
             kind = headers.get(b"content-type", b"").split(b";")[0].strip().lower()
             if kind != b"application/json":
                 return await _reject(scope, send, 415,
                                      "a request body must be application/json")
         return await self.app(scope, receive, send)
+
+
+DEFAULT_PORTS = {"http": 80, "https": 443}
+
+
+def own_origin(scheme: str, host: str) -> tuple[str, str, int]:
+    """(scheme, host name, port) of the app as a request reached it: its scheme (ws and
+    wss are http and https) and its Host header."""
+    scheme = {"ws": "http", "wss": "https"}.get(scheme, scheme)
+    return scheme, _host_name(host), _port_of(host, DEFAULT_PORTS.get(scheme, 0))
+
+
+def _origin(text: str) -> tuple[str, str, int] | None:
+    """An Origin header as (scheme, host name, port); None for "null" or anything not
+    ``scheme://host[:port]``."""
+    scheme, sep, authority = text.strip().lower().partition("://")
+    if not sep or not authority or "/" in authority or scheme not in DEFAULT_PORTS:
+        return None
+    port = _port_of(authority, DEFAULT_PORTS[scheme])
+    return (scheme, _host_name(authority), port) if port >= 0 else None
+
+
+def _port_of(authority: str, default: int) -> int:
+    """The port of 'host:port' or '[::1]:port' (default without one; -1 if not a port)."""
+    authority = authority.strip()
+    rest = authority.rsplit("]", 1)[1] if authority.startswith("[") else (
+        authority if authority.count(":") == 1 else "")
+    if ":" not in rest:
+        return default
+    digits = rest.rsplit(":", 1)[1]
+    return int(digits) if digits.isascii() and digits.isdigit() and len(digits) <= 5 else -1
+
+
+def _from_another_site(scope, headers: dict) -> bool:
+    """A browser's request (Sec-Fetch-Site) from another origin that may change state:
+    any method but GET and HEAD, and every websocket."""
+    site = headers.get(b"sec-fetch-site", b"").strip().lower()
+    if site not in (b"cross-site", b"same-site"):
+        return False
+    return scope["type"] == "websocket" or scope.get("method") not in ("GET", "HEAD")
 
 
 def _cookies(headers: dict, name: str) -> list[str]:

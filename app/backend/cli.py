@@ -7,7 +7,9 @@ import logging
 import os
 import re
 import signal
+import socket
 from pathlib import Path
+from urllib.parse import unquote
 
 from app.backend.access import TOKEN_ENV, access_token
 
@@ -36,8 +38,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             raise ValueError("--token-file: there is no token to write (the server is on "
                              f"loopback and {TOKEN_ENV} is not set)")
         _write_secret(Path(args.token_file), token)
+    listener = bind_port(args.host, args.port)  # before the loop and the viewer start
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger("uvicorn.access").addFilter(RedactToken())
     app = create_app(viser_port=args.viser_port, host=args.host,
                      default_scenario=args.scenario, token=token)
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
@@ -47,6 +49,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             f"?token={token}" if generated else f"?token=${TOKEN_ENV}")
 
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level="info")
+    redact_logs(token)  # after uvicorn.Config, which sets up uvicorn's log handlers
     server = uvicorn.Server(config)
 
     original_startup = server.startup
@@ -77,23 +80,80 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         original_exit(sig, frame)
 
     server.handle_exit = handle_exit  # type: ignore[method-assign]
-    server.run()
+    server.run(sockets=[listener])
     if interrupted:  # uvicorn re-raises it after the shutdown, but asyncio may drop that
         raise KeyboardInterrupt
     return 0
 
 
+def bind_port(host: str, port: int) -> socket.socket:
+    """A socket bound to (host, port) for uvicorn to listen on, or ValueError naming the
+    port: checked before anything starts (a port in use used to start the loop and the
+    viewer first, then end in uvicorn's message)."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(
+            host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[0]
+    except (socket.gaierror, UnicodeError) as err:
+        raise ValueError(f"--host {host}: cannot be bound: {err}") from None
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+    except OSError as err:
+        sock.close()
+        raise ValueError(f"--port {port}: cannot listen on {host} port {port}: "
+                         f"{err.strerror or err} (another server there? choose another "
+                         f"--port, or 0 for any free one)") from None
+    sock.set_inheritable(True)
+    return sock
+
+
 class RedactToken(logging.Filter):
-    """Keeps a ``token=`` in a request's URL out of the access log."""
+    """Keeps the token out of every log line: the value of any URL query parameter named
+    token in any case or percent-encoding (``?token=``, ``?TOKEN=``, ``?%74oken=``), and
+    the token itself wherever it appears (``token``: the server's). Installed on the log
+    handlers (:func:`redact_logs`), so that it sees every record, uvicorn's websocket lines
+    (its error logger) and access lines alike."""
+
+    def __init__(self, token: str | None = None) -> None:
+        super().__init__()
+        self.token = token
+
+    def clean(self, text: str) -> str:
+        text = QUERY_PARAM.sub(self._redact_param, text)
+        return text.replace(self.token, "<token>") if self.token else text
+
+    @staticmethod
+    def _redact_param(match: re.Match) -> str:
+        name = unquote(match.group(2))
+        return match.group(0) if name.strip().lower() != "token" else (
+            f"{match.group(1)}{match.group(2)}=<token>")
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str):
+            record.msg = self.clean(record.msg)
         if isinstance(record.args, tuple):
-            record.args = tuple(TOKEN_IN_URL.sub(r"\1<token>", a) if isinstance(a, str)
-                                else a for a in record.args)
+            record.args = tuple(self.clean(a) if isinstance(a, str) else a
+                                for a in record.args)
+        elif isinstance(record.args, dict):
+            record.args = {k: self.clean(v) if isinstance(v, str) else v
+                           for k, v in record.args.items()}
+        if record.exc_text:
+            record.exc_text = self.clean(record.exc_text)
         return True
 
 
-TOKEN_IN_URL = re.compile(r"((?:^|[?&])token=)[^&\s]*")
+QUERY_PARAM = re.compile(r"([?&;])([^=&;?#\s\"']*)=([^&;#\s\"']*)")
+"""A URL query parameter: (separator, name, value)."""
+
+
+def redact_logs(token: str | None) -> RedactToken:
+    """:class:`RedactToken` on every handler of the root logger and of uvicorn's."""
+    redact = RedactToken(token)
+    for name in ("", "uvicorn", "uvicorn.error", "uvicorn.access", "websockets"):
+        for handler in logging.getLogger(name).handlers:
+            handler.addFilter(redact)
+    return redact
 
 
 def _write_secret(path: Path, token: str) -> None:

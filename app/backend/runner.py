@@ -26,6 +26,7 @@ process, which starts and stops the process and
 from __future__ import annotations
 
 import collections
+import logging
 import multiprocessing as mp
 import queue
 import signal
@@ -40,6 +41,8 @@ from app.backend.loop_process import _loop_main
 from app.backend.ring import RunTelemetry
 from app.config import EmulatorConfig
 from app.sim.hand import Command
+
+log = logging.getLogger("orbit_emulator.runner")
 
 #: Statuses reported by the runner: the emulator's own plus "starting" (moving the
 #: arms to their start poses) and "error" (an exception in the loop; see ``reason``).
@@ -61,9 +64,10 @@ class LoopDown(RunnerError):
 MISS_WINDOW_S = 10.0
 """Health reports the deadline-miss ratio over this window."""
 STALL_S = 0.5
+"""A loop process whose heartbeat has not moved for this long is stalled (a fault that
+ends when it beats again)."""
 SEND_TIMEOUT_S = 1.0
-"""A loop process that takes no command for this long is at fault (see Runner._send)."""
-"""A loop process whose heartbeat has not moved for this long is stalled."""
+"""A loop process that takes no command for this long is killed (see Runner._send)."""
 
 
 def exit_reason(exitcode: int | None) -> str:
@@ -124,7 +128,10 @@ class Runner:
         self._pending: str | None = None  # status asked for and not yet published
         self._pending_gen = -1
         self._beat = (0, time.monotonic())  # last heartbeat seen, and when it moved
-        self._fault: str | None = None
+        self._fault: str | None = None  # the process is gone: until restart()
+        self._stalled = False  # no heartbeat for STALL_S: until the next beat
+        self.last_stall: dict | None = None
+        """The last stall that ended: {"duration_s", "ended_at"} (monotonic clock)."""
         self._watch: threading.Thread | None = None
         self._timing: collections.deque = collections.deque(maxlen=int(MISS_WINDOW_S / 0.1) + 2)
         self._rings: dict[int, RunTelemetry] = {}  # by generation; the last two are kept
@@ -155,7 +162,7 @@ class Runner:
             if time.monotonic() > deadline:
                 raise RunnerError("the loop process did not start in time")
             time.sleep(0.02)
-        self._fault = None
+        self._fault, self._stalled = None, False
         self._beat = (snapshots.heartbeat(self._shm.buf), time.monotonic())
         if self._watch is None:
             self._watch = threading.Thread(target=self._watchdog, name="runner-watchdog",
@@ -187,8 +194,10 @@ class Runner:
         return miss_ratio_of(samples, window_s)
 
     def fault(self) -> str | None:
-        """Why the loop process cannot serve (dead, or no heartbeat for STALL_S); None when
-        it is fine. Sticky until :meth:`restart`."""
+        """Why the loop process cannot serve now; None when it is fine. A process that
+        exited (or was killed for not taking a command) stays at fault until
+        :meth:`restart`; a stall (no heartbeat for STALL_S: a VM pause, a swap storm, a
+        SIGSTOP) lasts until the next heartbeat, and control returns with it."""
         with self._state_lock:
             if self._fault is not None or self._proc is None or self._shm is None:
                 return self._fault
@@ -199,9 +208,22 @@ class Runner:
             now = time.monotonic()
             current = snapshots.heartbeat(self._shm.buf)
             if current != count:
+                if self._stalled:
+                    self._stalled = False
+                    self.last_stall = {"duration_s": now - since, "ended_at": now}
+                    log.warning("the loop process answered again after %.2f s without a "
+                                "heartbeat", now - since)
                 self._beat = (current, now)
-            elif now - since > STALL_S:
-                self._fault = f"the loop process has not answered for {now - since:.1f} s"
+                return None
+            if now - since > STALL_S:
+                self._stalled = True
+                return f"the loop process has not answered for {now - since:.1f} s"
+            return None
+
+    def dead(self) -> str | None:
+        """Why the loop process is gone for good (until :meth:`restart`), else None."""
+        self.fault()
+        with self._state_lock:
             return self._fault
 
     def restart(self, config: EmulatorConfig, scenario: str, mode: str | None) -> None:
@@ -247,15 +269,18 @@ class Runner:
     def alive(self) -> bool:
         return self._proc is not None and self._proc.is_alive()
 
-    def _send(self, msg: tuple) -> None:
+    def _send(self, msg: tuple, through_stall: bool = False) -> None:
         """Hand the loop a command, or raise LoopDown. The pipe takes 64 KiB before the
         loop reads; a larger message to a stalled loop would block the caller (who may
-        hold the state lock that health needs), so one sender thread writes to the pipe
-        and a loop that does not take a message within SEND_TIMEOUT_S is a fault."""
+        hold the state lock that health needs), so one sender thread writes to the pipe.
+        A loop that does not take a message within SEND_TIMEOUT_S is killed: the message
+        is half-written, and the run must not go on where no command reaches it.
+        ``through_stall``: send to a stalled loop too (a stop: it takes it as soon as it
+        runs again)."""
         if self._proc is None:
             raise RunnerError("the loop process is not running")
         reason = self.fault()
-        if reason is not None:
+        if reason is not None and not (through_stall and self._fault is None):
             raise LoopDown(reason)
         with self._state_lock:  # one sender thread, whoever sends first
             if self._sender is None:
@@ -263,12 +288,19 @@ class Runner:
                                                 name="loop-commands", daemon=True)
                 self._sender.start()
         done, failed = threading.Event(), []
-        self._outbox.put((self._cmd, msg, done, failed))
+        with self._state_lock:
+            proc = self._proc
+            self._outbox.put((self._cmd, msg, done, failed))
         if not done.wait(SEND_TIMEOUT_S):
+            reason = (f"the loop process did not take a command for {SEND_TIMEOUT_S:g} s "
+                      f"and was stopped (killed)")
             with self._state_lock:
-                self._fault = (f"the loop process has not taken a command for "
-                               f"{SEND_TIMEOUT_S:g} s")
-            raise LoopDown(self._fault)
+                if self._proc is proc and self._fault is None:  # not replaced meanwhile
+                    self._fault = reason
+                    log.error("%s", reason)
+            if proc is not None and proc.is_alive():
+                proc.kill()
+            raise LoopDown(reason)
         if failed:
             raise LoopDown(f"the loop process is gone ({type(failed[0]).__name__})")
 
@@ -279,8 +311,8 @@ class Runner:
             conn, msg, done, failed = self._outbox.get()
             try:
                 conn.send(msg)
-            except (OSError, EOFError, ValueError) as err:  # the process died meanwhile
-                failed.append(err)
+            except Exception as err:  # noqa: BLE001 - the process died, or its pipe was
+                failed.append(err)   # closed under a blocked send (TypeError): go on
             finally:
                 done.set()
 
@@ -331,18 +363,27 @@ class Runner:
     def wall_s(self) -> float:
         return self.snapshot()["loop"]["wall_s"]
 
-    def wait_until(self, predicate: Callable[[dict], bool], timeout_s: float) -> bool:
+    def wait_until(self, predicate: Callable[[dict], bool], timeout_s: float,
+                   through_stalls: bool = False) -> bool:
         """Wait for the published state to satisfy predicate; raises LoopDown as soon as
-        the loop process dies or stalls meanwhile."""
+        the loop process dies or (unless ``through_stalls``) stalls meanwhile."""
+        return self.wait_for(predicate, timeout_s, through_stalls) is not None
+
+    def wait_for(self, predicate: Callable[[dict], bool], timeout_s: float,
+                 through_stalls: bool = False) -> dict | None:
+        """The first published state that satisfies predicate (None after timeout_s); a
+        LoopDown as :meth:`wait_until`."""
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if predicate(self.snapshot()):
-                return True
+        while True:
+            snap = self.snapshot()
+            if predicate(snap):
+                return snap
             reason = self.fault()
-            if reason is not None:
+            if reason is not None and (not through_stalls or self.dead() is not None):
                 raise LoopDown(reason)
+            if time.monotonic() >= deadline:
+                return None
             time.sleep(0.01)
-        return predicate(self.snapshot())
 
     # --- requests -----------------------------------------------------------------------
 
@@ -400,7 +441,8 @@ class Runner:
             return self._rings.get(snap.get("generation", -1))
 
     def request_stop(self) -> None:
-        self._send(("stop",))
+        """Stop the run; to a stalled loop too, which takes it first when it runs again."""
+        self._send(("stop",), through_stall=True)
 
     def request_reset(self, scenario: str, config: EmulatorConfig, mode: str | None) -> int:
         with self._state_lock:

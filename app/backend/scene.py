@@ -23,7 +23,14 @@ import numpy as np
 import viser
 
 from app.backend.replay import ReplayRecorder
-from app.backend.service import EmulatorService, InvalidRequest, RunnerBusy, UnknownScenario
+from app.backend.service import (
+    EmulatorService,
+    InvalidRequest,
+    RunnerBusy,
+    StillStarting,
+    StopQueued,
+    UnknownScenario,
+)
 from app.scenarios import load_scenario, scenario_names
 from app.sim.hand import ray_box_hit
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
@@ -333,7 +340,7 @@ class EmulatorScene:
         try:
             fn()
             self.gui_message.content = ""
-        except (RunnerBusy, InvalidRequest, UnknownScenario) as err:
+        except (RunnerBusy, InvalidRequest, UnknownScenario, StopQueued, StillStarting) as err:
             self.gui_message.content = f"**{type(err).__name__}**: {err}"
         except Exception as err:  # pragma: no cover
             log.exception("GUI action failed")

@@ -48,6 +48,8 @@ from app.backend.service import (
     EmulatorService,
     InvalidRequest,
     RunnerBusy,
+    StillStarting,
+    StopQueued,
     UnknownScenario,
 )
 from app.backend.viewer import PATH as VIEWER_PATH
@@ -87,12 +89,21 @@ class PushRequest(BaseModel):
                                  examples=[1])
     force_N: list[FiniteFloat] = Field(
         min_length=3, max_length=3,
-        description=f"force in R (N), magnitude at most {MAX_PUSH_FORCE_N:g} N (sensor range)",
+        description=f"force in R (N), magnitude at most {MAX_PUSH_FORCE_N:g} N, and with the "
+                    "pushes still under way on the same satellite at most its push limit "
+                    "(/api/state push_limits_N: the F/T sensor's range less the mockup's "
+                    "weight, bias, noise and the hand; 422 beyond)",
         examples=[[0.0, 20.0, 0.0]],
     )
     duration_s: FiniteFloat = Field(
-        gt=0.0, le=MAX_PUSH_DURATION_S, description="seconds", examples=[0.3]
-    )
+        gt=0.0, le=MAX_PUSH_DURATION_S,
+        description="seconds. On a satellite an arm carries, the velocity change the push "
+                    "gives (force_scale |force_N| duration_s / mass), with the pushes still "
+                    "under way, is at most its limit (/api/state push_max_dv_mps: what the "
+                    "arm can follow), and its course after the push must not leave the "
+                    "arm's safety volume or reach within 5 s (or the run's time left) "
+                    "unless it did before; 422 beyond",
+        examples=[0.3])
     point_m: list[FiniteFloat] | None = Field(
         default=None, min_length=3, max_length=3,
         description="where the hand pushes: a point of the satellite's box in its body axes "
@@ -125,6 +136,9 @@ class Health(BaseModel):
     scene_generation: int | None = Field(
         description="generation of the run the 3D scene shows (see /api/state)"
     )
+    last_stall_s: float | None = Field(
+        default=None, description="how long the loop process's last stall that ended "
+        "lasted (s; null if none): it answered again and has control back")
 
 
 class Message(BaseModel):
@@ -314,15 +328,20 @@ def create_app(
             "loop_alive": alive,
             "emulator_status": svc.runner.status,
             "scene_generation": request.app.state.scene.generation,
+            "last_stall_s": (None if svc.runner.last_stall is None
+                             else round(svc.runner.last_stall["duration_s"], 3)),
         }
 
     @app.get("/api/scenarios", response_model=list[ScenarioInfo], tags=["scenarios"])
     async def scenarios():
         return EmulatorService.scenarios()
 
+    queued_202 = {202: {"description": "accepted, not done yet: the state, and in "
+                        "`detail` what happens next"}}
+
     @app.post(
         "/api/scenarios/{name}/start", tags=["scenarios"],
-        responses={404: {"model": Message}, **errors_409},
+        responses={404: {"model": Message}, **errors_409, **queued_202},
     )
     def start(
         name: str,
@@ -337,9 +356,13 @@ def create_app(
     ) -> dict[str, Any]:
         """Start a scenario with optional overrides; returns the state once running.
 
-        404: unknown scenario; 409: one is already running; 422: invalid overrides (the
+        200 only for a run that started (status "running", or "finished" for a run that
+        ended before the answer). 404: unknown scenario; 409: one is already running, or
+        this start did not start after all (overtaken by a reset or another start, or
+        stopped during its start-up; the message says which); 422: invalid overrides (the
         message names the field), or the scenario could not start (e.g. a start pose out
-        of reach: the state then has status "error" and the reason).
+        of reach: the state then has status "error" and the reason); 202: still starting
+        after 60 s.
         """
         svc = service(request)
         overrides = dict(body or {})
@@ -358,11 +381,19 @@ def create_app(
             raise _http(409, err) from None
         except InvalidRequest as err:
             raise _http(422, err) from None
+        except StillStarting as err:
+            return JSONResponse(status_code=202,
+                                content=json_safe({**err.state, "detail": str(err)}))
 
-    @app.post("/api/stop", tags=["control"])
+    @app.post("/api/stop", tags=["control"], responses=queued_202)
     def stop(request: Request) -> dict[str, Any]:
-        """Stop the running scenario (no-op when none runs)."""
-        return json_safe(service(request).stop())
+        """Stop the running scenario (no-op when none runs). 202 while the loop process is
+        stalled: the stop is queued and ends the run as soon as the loop runs again."""
+        try:
+            return json_safe(service(request).stop())
+        except StopQueued as err:
+            return JSONResponse(status_code=202,
+                                content=json_safe({**err.state, "detail": str(err)}))
 
     @app.post("/api/reset", tags=["control"])
     def reset(request: Request) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +22,38 @@ from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.preflight import PreflightRefused, preflight
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
+from app.sim.scaling import scaling_of
 from app.sim.telemetry import loop_columns
 
-__all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest"]
+__all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest",
+           "StopQueued", "StillStarting", "push_limit", "push_max_dv", "course_exit"]
 
-MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's range
+MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's default range: no push is ever larger
+NOISE_SIGMAS = 6.0
+"""The push limit keeps this many standard deviations of the sensor's noise free: a
+reading beyond 6 sigma on one of 3 axes at 500 Hz comes about once in a week."""
+PUSH_END_MARGIN_S = 0.1
+"""A push counts as pushing until this long (scenario time) after its end as the state
+showed it: the state lags the loop by a few cycles."""
 MAX_PUSH_DURATION_S = 5.0
 CSV_CHUNK_ROWS = 2048
 """Rows read and formatted at a time for a CSV download."""
 CSV_CACHE_BYTES = 16 << 20
 """The formatted CSV kept for the next reader (:class:`CsvChunks`): a 30 s one-arm run's."""
+DEFAULT_TRACKING_ERROR_M = 0.05
+"""``[loop] max_tracking_error_m``'s default, at which MAX_PUSH_DV_MPS was measured."""
+COURSE_HORIZON_S = 5.0
+"""A push may not send a satellite's course out of its arm's safety volume or reach this
+soon (or within the run's time left, if shorter): the scene warns at the same horizon."""
+COURSE_STEP_S = 0.01
+"""The predicted course is checked at this spacing (a satellite at 0.1 m/s moves 1 mm)."""
+MOTION_MARGIN = 0.5
+"""The push's velocity change may be this fraction of the smallest one measured to be
+followed (benchmarks/push_follow.py)."""
+MAX_PUSH_DV_MPS = 0.1
+"""The largest velocity change (m/s, lab) the pushes under way on a satellite may give it
+at ``[loop] max_tracking_error_m`` = 0.05 m (it scales with that bound): MOTION_MARGIN of
+the smallest Δv an arm followed in benchmarks/push_follow.py."""
 MAX_BAG_MESSAGES = 60_000
 """A bag from the web app holds at most about this many messages (~10 s to write here):
 a long run's bag is thinned below the rate asked for. `run --bag` has no such bound."""
@@ -62,6 +85,34 @@ class InvalidRequest(ValueError):
     """A request that is well-formed JSON but invalid; the message names the field."""
 
 
+class StopQueued(RuntimeError):
+    """A stop sent to a stalled loop: it ends the run as soon as the loop runs again."""
+
+    def __init__(self, message: str, state: dict) -> None:
+        super().__init__(message)
+        self.state = state
+
+
+class StillStarting(RuntimeError):
+    """A start whose run was still starting when the start request stopped waiting."""
+
+    def __init__(self, message: str, state: dict) -> None:
+        super().__init__(message)
+        self.state = state
+
+
+@dataclass(frozen=True)
+class _PushRecord:
+    """A push the service accepted (what the next push's checks count)."""
+
+    generation: int
+    satellite: int  # 1-based
+    start_s: float  # scenario time as the state showed it at acceptance
+    duration_s: float
+    force_N: float  # magnitude
+    dv_R: np.ndarray  # the velocity change it gives (R, lab m/s)
+
+
 class EmulatorService:
     """Builds emulators from scenarios + overrides and drives one :class:`Runner`."""
 
@@ -77,9 +128,13 @@ class EmulatorService:
             self.default_scenario, config, None)
         """(scenario, config, mode) of the last start or reset: what a reset restarts."""
         self.runner = Runner(config, scenario=self.default_scenario, **runner_kwargs)
-        self._reads = SharedReads(self.runner.snapshot)
+        self._reads = SharedReads(self.state)
         self._worker = DownloadWorker()  # the zip and the bag are built in a process
         self._csv_chunks = CsvChunks(CSV_CACHE_BYTES)
+        self._push_lock = threading.Lock()
+        self._pushes: list[_PushRecord] = []
+        """The pushes under way (until PUSH_END_MARGIN_S after their end)."""
+        self._limits: tuple[Any, list[float]] = (None, [])
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -99,11 +154,26 @@ class EmulatorService:
     def state(self) -> dict[str, Any]:
         """The loop's latest state; status "fault" with the reason while the loop process
         is dead or stalled."""
-        snap = self.runner.snapshot()
+        snap = {**self.runner.snapshot(), "push_limits_N": self.push_limits_N(),
+                "push_max_dv_mps": self.push_max_dv_mps()}
         fault = self.runner.fault()
         if fault is not None:
-            snap = {**snap, "status": "fault", "reason": fault}
+            snap.update(status="fault", reason=fault)
         return snap
+
+    def push_limits_N(self) -> list[float]:
+        """Each satellite's push limit in the current run (:func:`push_limit`)."""
+        config = self.last_config
+        if self._limits[0] is not config:
+            self._limits = (config, [round(push_limit(config, i)[0], 3)
+                                     for i in range(len(config.satellites))])
+        return self._limits[1]
+
+    def push_max_dv_mps(self) -> list[float]:
+        """Each satellite's push velocity-change limit in the current run
+        (:func:`push_max_dv`)."""
+        config = self.last_config
+        return [round(push_max_dv(config)[0], 4) for _ in config.satellites]
 
     def _refuse_if_busy(self) -> None:
         """RunnerBusy while a healthy loop is starting or running a run (what
@@ -167,9 +237,12 @@ class EmulatorService:
         self, name: str, overrides: dict | None = None, mode: str | None = None,
         wait_s: float = 60.0,
     ) -> dict[str, Any]:
-        """Start scenario `name`; returns the state once running (or failed to start). A
-        hil start is pre-flighted whatever the loop's state: a faulted loop still shows
-        its last status (say "running"), and the start replaces it."""
+        """Start scenario `name`; returns the state once running (or finished: a run that
+        ended before the answer), or the failure's state (status "error" or
+        "safety_stop"). A hil start is pre-flighted whatever the loop's state: a faulted
+        loop still shows its last status (say "running"), and the start replaces it.
+        RunnerBusy when the run did not start after all: overtaken by a reset or another
+        start, or stopped during its start-up; StillStarting after ``wait_s``."""
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._refuse_if_busy()  # 409 before a pre-flight's seconds
@@ -179,15 +252,37 @@ class EmulatorService:
             self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
-        # error / safety_stop
-        self.runner.wait_until(
-            lambda s: s["generation"] >= gen and s["status"] != "starting", wait_s
-        )
+        # error / safety_stop; a stall on the way is waited through (the start goes on
+        # when the loop does), a dead loop is a 503
+        snap = self.runner.wait_for(
+            lambda s: s["generation"] > gen or (s["generation"] == gen
+                                                and s["status"] != "starting"),
+            wait_s, through_stalls=True)
+        if snap is None:
+            raise StillStarting(
+                f"scenario {name!r} is still starting after {wait_s:g} s; it runs when it "
+                f"is ready (POST /api/stop ends it)", self.state())
+        if snap["generation"] > gen:
+            raise RunnerBusy(
+                f"scenario {name!r} did not start: a reset or another start overtook it "
+                f"(the emulator is now at run {snap['generation']}, status "
+                f"{snap['status']!r})")
+        if snap["status"] == "stopped":
+            raise RunnerBusy(f"scenario {name!r} did not start: {snap['reason']}")
         return self.state()
 
     def stop(self) -> dict[str, Any]:
+        """Stop the run; returns the state once stopped. To a stalled loop the stop is
+        queued (StopQueued): the loop takes it first when it runs again, so a run never
+        goes on after a stop; to a dead one LoopDown (nothing runs)."""
+        stalled = self.runner.fault()
         self.runner.request_stop()
-        self.runner.wait_until(lambda s: s["status"] not in ("running", "starting"), 10.0)
+        if stalled is not None:
+            raise StopQueued(
+                f"{stalled}: the stop is queued and ends the run as soon as the loop "
+                f"runs again (POST /api/reset replaces the loop process)", self.state())
+        self.runner.wait_until(lambda s: s["status"] not in ("running", "starting"), 10.0,
+                               through_stalls=True)
         return self.state()
 
     def reset(self, name: str | None = None, mode: str | None = None) -> dict[str, Any]:
@@ -213,10 +308,77 @@ class EmulatorService:
         force = validate_push(satellite, force_N, duration_s, state["n_satellites"])
         point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
             point_m, state["layout"]["satellites"][satellite - 1][1])
-        self.runner.post(Push(satellite=satellite - 1, force_R_N=force, duration_s=duration_s,
-                              point_B_m=point))
+        with self._push_lock:  # the check and the record of a push, one at a time
+            self._drop_ended_pushes(state)
+            self._within_push_limit(state, satellite, math.hypot(*force))
+            dv_R = self._push_dv_R(satellite, force, duration_s)
+            self._within_push_motion(state, satellite, dv_R)
+            self.runner.post(Push(satellite=satellite - 1, force_R_N=force,
+                                  duration_s=duration_s, point_B_m=point))
+            self._pushes.append(_PushRecord(state["generation"], satellite, state["t_s"],
+                                            duration_s, math.hypot(*force), dv_R))
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
                 "point_m": list(point), "t_s": self.state()["t_s"]}
+
+    def _drop_ended_pushes(self, state: dict) -> None:
+        """Forget the pushes of other runs and those over (PUSH_END_MARGIN_S after)."""
+        self._pushes = [p for p in self._pushes
+                        if p.generation == state["generation"]
+                        and p.start_s + p.duration_s + PUSH_END_MARGIN_S > state["t_s"]]
+
+    def _within_push_limit(self, state: dict, satellite: int, force_N: float) -> None:
+        """InvalidRequest when this push and those still pushing the same satellite would
+        add up beyond its push limit (:func:`push_limit`)."""
+        pushing = sum(p.force_N for p in self._pushes if p.satellite == satellite)
+        limit_N, why = push_limit(self.last_config, satellite - 1)
+        if force_N + pushing > limit_N:
+            already = f" with {pushing:.1f} N already pushing it" if pushing else ""
+            raise InvalidRequest(
+                f"force_N: magnitude {force_N:.1f} N{already} exceeds satellite "
+                f"{satellite}'s push limit {limit_N:.1f} N ({why})")
+
+    def _push_dv_R(self, satellite: int, force, duration_s: float) -> np.ndarray:
+        """The velocity change (R, lab m/s) a push gives the ODS satellite:
+        force_scale F T / m (the ODS's law, app/sim/scaling.py)."""
+        config = self.last_config
+        per_N = scaling_of(config).force_scale / config.satellites[satellite - 1].mass_kg
+        return per_N * duration_s * np.asarray(force, float)
+
+    def _within_push_motion(self, state: dict, satellite: int, dv_R: np.ndarray) -> None:
+        """InvalidRequest when the push would move the satellite beyond what its arm can
+        follow (:func:`push_max_dv`, with the pushes still under way on it) or send its
+        course out of its arm's safety volume or reach within the horizon
+        (:func:`course_exit`) where it did not leave before. Only for a satellite an arm
+        carries in a running run (hil): nothing else can stop on a push's motion."""
+        if state["status"] != "running" or state["mode"] != "hil" or not any(
+                rob["satellite"] == satellite for rob in state["robots"]):
+            return
+        under_way = [p for p in self._pushes if p.satellite == satellite]
+        dv = float(np.linalg.norm(dv_R))
+        pushing = sum(float(np.linalg.norm(p.dv_R)) for p in under_way)
+        limit, why = push_max_dv(self.last_config)
+        if dv + pushing > limit * (1.0 + 1e-9):  # (a push at the limit, computed back)
+            already = f" with {pushing:.3f} m/s already under way" if pushing else ""
+            raise InvalidRequest(
+                f"force_N, duration_s: the push changes satellite {satellite}'s velocity by "
+                f"{dv:.3f} m/s{already}, beyond its velocity-change limit {limit:.3f} m/s "
+                f"({why})")
+        t_s = state["t_s"]
+        left_R = sum((p.dv_R * min(1.0, max(0.0, (p.start_s + p.duration_s - t_s)
+                                                 / p.duration_s)) for p in under_way),
+                     np.zeros(3))  # the part of the pushes under way still to come
+        horizon_s = min(COURSE_HORIZON_S, state["duration_s"] - t_s)
+        if horizon_s <= 0.0:
+            return
+        before_s, _ = course_exit(state, self.last_config, satellite, left_R, horizon_s)
+        after_s, where = course_exit(state, self.last_config, satellite, left_R + dv_R,
+                                     horizon_s)
+        if after_s <= horizon_s < before_s:
+            raise InvalidRequest(
+                f"force_N, duration_s: the push sends satellite {satellite} {where} in "
+                f"{after_s:.1f} s on its course (CW, from its state now), within the "
+                f"{horizon_s:.1f} s horizon ({COURSE_HORIZON_S:g} s or the run's time left): "
+                f"the run would stop")
 
     def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
         """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
@@ -282,15 +444,18 @@ class EmulatorService:
         columns, rows = self._rows_of(snap, ring, rows)
         config = ring.config if ring is not None else self.last_config
         loop = snap["loop"]
+        fault = self.runner.fault()  # a dead or stalled loop: its run is not "running"
+        status = "fault" if fault is not None else snap["status"]
         facts = RunFacts(
-            mode=snap["mode"], status=snap["status"], cycles=loop["cycles"],
+            mode=snap["mode"], status=status, cycles=loop["cycles"],
             wall_s=loop["wall_s"],
             cycle_time_us={"p50": loop["cycle_time_us"]["p50"] if loop["cycles"] else None,
                            "p99": loop["cycle_time_us"]["p99"] if loop["cycles"] else None},
             safety_stop=snap["safety_stop"], passivity=snap.get("passivity"),
             arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])},
             capture=snap.get("capture"),
-            error=snap.get("reason") if snap["status"] == "error" else None)
+            error=fault if fault is not None else (
+                snap.get("reason") if status == "error" else None))
         index = {name: k for k, name in enumerate(columns)}
         return metrics_of(config, rows, index, facts)
 
@@ -446,6 +611,94 @@ def validate_point(point_m, size_m) -> tuple[float, float, float]:
             f"point_m: {list(point)} is outside the satellite's box: each coordinate within "
             f"+-{[round(h, 6) for h in half]} m of its COM")
     return point
+
+
+def push_limit(config: EmulatorConfig, satellite0: int) -> tuple[float, str]:
+    """(the largest force (N) the pushes on satellite ``satellite0`` may add up to, how it
+    was derived). A raw F/T force reading at the sensor's range stops the run
+    (``[loop] stop_at_sensor_range``); on one axis of the sensor that carries the mockup
+    the reading is at most |push| + m·g + |bias| + noise + the hand's force + the scripted
+    pulses', so the pushes get the range less the mockup's weight, the bias,
+    NOISE_SIGMAS standard deviations of noise, the operator's hand at its cap (``[hand]
+    max_force_N``: it may pull at any time) and the most the scenario's ``[[pulses]]``
+    push that satellite at once. Never negative."""
+    from app.sim.scaling import mockup_mass_kg
+
+    sensor, satellite = config.sensor, config.satellites[satellite0]
+    weight_N = mockup_mass_kg(satellite, config) * float(
+        np.linalg.norm(config.lab.gravity_mps2))
+    bias_N = float(np.linalg.norm(sensor.bias_force_N))
+    noise_N = NOISE_SIGMAS * sensor.noise_force_N
+    hand_N = config.hand.max_force_N
+    pulses_N = _most_pulses_at_once_N(config, satellite.name)
+    limit_N = max(0.0, sensor.range_force_N - weight_N - bias_N - noise_N - hand_N
+                  - pulses_N)
+    why = (f"the F/T sensor's {sensor.range_force_N:g} N range less the mockup's weight "
+           f"{weight_N:.1f} N, the bias {bias_N:.1f} N, {NOISE_SIGMAS:g} sigma of noise "
+           f"{noise_N:.1f} N" + (f", the scripted pulses' {pulses_N:.1f} N" if pulses_N
+                                 else "") + f" and the hand's {hand_N:g} N")
+    return limit_N, why
+
+
+def _most_pulses_at_once_N(config: EmulatorConfig, name: str) -> float:
+    """The largest sum of the force magnitudes of the ``[[pulses]]`` on satellite `name`
+    that act at the same time."""
+    events = sorted((t, sign * math.hypot(*p.force_N))  # an end before a start at one t
+                    for p in config.pulses if p.satellite == name
+                    for t, sign in ((p.start_s, 1.0), (p.end_s, -1.0)))
+    most = total = 0.0
+    for _, change in events:
+        total += change
+        most = max(most, total)
+    return most
+
+
+def push_max_dv(config: EmulatorConfig) -> tuple[float, str]:
+    """(the largest velocity change (lab m/s) the pushes under way on a carried satellite
+    may add up to, how it was derived): MAX_PUSH_DV_MPS, measured at the default
+    ``[loop] max_tracking_error_m`` (0.05 m), scaled with the run's (the arm's lag turns a
+    velocity step into a proportional tracking error)."""
+    bound_m = config.loop.max_tracking_error_m
+    limit = MAX_PUSH_DV_MPS * bound_m / DEFAULT_TRACKING_ERROR_M
+    why = (f"{MOTION_MARGIN:g} of the smallest velocity change an arm followed within "
+           f"the {1e3 * bound_m:g} mm tracking-error bound, benchmarks/push_follow.py; "
+           f"the change is force_scale x |force| x duration / mass")
+    return limit, why
+
+
+def course_exit(state: dict, config: EmulatorConfig, satellite: int, dv_R,
+                horizon_s: float) -> tuple[float, str]:
+    """(when the course of satellite `satellite` (1-based) first leaves the safety volume
+    or the reach (HOLD_RADIUS_M from the shoulder) of an arm that carries it, within
+    horizon_s, inf if it does not; what it leaves). The course: force-free CW in lab units
+    (the ODS's own dynamics at the lab orbit rate k_T Omega: a straight line bends within
+    seconds where the time is scaled), from the ODS state of the latest snapshot with
+    dv_R (R, m/s) added now, sampled every COURSE_STEP_S."""
+    from app.sim.orbital import cw_course_m, orbit_rate
+    from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M
+
+    sat = state["satellites"][satellite - 1]
+    W = scaling_of(config).orbit_rate_lab(orbit_rate(config.orbit.altitude_m))
+    t = np.arange(0.0, horizon_s + COURSE_STEP_S, COURSE_STEP_S)
+    course_R = cw_course_m(W, sat["position_m"], np.asarray(sat["velocity_mps"]) + dv_R, t)
+    T_W_R = np.asarray(state["layout"]["T_W_R"])
+    course_W = course_R @ T_W_R[:3, :3].T + T_W_R[:3, 3]
+    first, where = np.inf, ""
+    layout = state["layout"]
+    for k, rob in enumerate(state["robots"]):
+        if rob["satellite"] != satellite:
+            continue
+        lo, hi = (np.asarray(b) for b in layout["safety_boxes_W_m"][k])
+        T_W_B = np.asarray(layout["arms"][k][1])
+        shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+        for out, name in (
+                (np.any((course_W < lo) | (course_W > hi), axis=1),
+                 f"out of {rob['name']}'s safety volume"),
+                (np.linalg.norm(course_W - shoulder_W, axis=1) > HOLD_RADIUS_M,
+                 f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from its shoulder)")):
+            if out.any() and t[np.argmax(out)] < first:
+                first, where = float(t[np.argmax(out)]), name
+    return first, where
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:

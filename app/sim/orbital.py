@@ -193,6 +193,21 @@ def cw_state_transition(orbit_rate_radps: float, t_s: float) -> np.ndarray:
     )
 
 
+def cw_course_m(orbit_rate_radps: float, position_m, velocity_mps, t_s) -> np.ndarray:
+    """Positions (len(t_s), 3) of a force-free CW course from (position_m, velocity_mps)
+    at the times t_s: the first three rows of :func:`cw_state_transition`, all times at
+    once."""
+    W = float(orbit_rate_radps)
+    t = np.asarray(t_s, float)[:, None]
+    (x, y, z), (vx, vy, vz) = np.asarray(position_m, float), np.asarray(velocity_mps, float)
+    c, s = np.cos(W * t), np.sin(W * t)
+    return np.hstack([
+        (4 - 3 * c) * x + s / W * vx + 2 * (1 - c) / W * vy,
+        6 * (s - W * t) * x + y - 2 * (1 - c) / W * vx + (4 * s - 3 * W * t) / W * vy,
+        c * z + s / W * vz,
+    ])
+
+
 def along_track_drift_rate(orbit_rate_radps: float, x0_m: float, vy0_mps: float) -> float:
     """Secular along-track drift of a CW orbit, -3 (2 W x0 + y'0); zero when drift-free."""
     return -3.0 * (2.0 * orbit_rate_radps * x0_m + vy0_mps)
