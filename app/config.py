@@ -447,6 +447,25 @@ class CompensationConfig(_Model):
         return self
 
 
+class UncertaintyConfig(_Model):
+    """The restitution's uncertainty (app/uncertainty.py; docs/fidelity-uncertainty.md).
+
+    A hil run keeps a snapshot of the whole loop ``lead_s`` before the contact its ideal
+    run predicts; after the run, ``replicates`` copies of the contact window run from it
+    through the same loop, each with fresh sensor noise of the covariance measured at the
+    start-up calibration; their spread is the restitution's standard deviation. The
+    pre-flight forecasts it the same way on a noise-free twin, with the configured noise.
+    """
+
+    enabled: StrictBool = True
+    replicates: Annotated[int, Field(ge=2, le=1000)] = 30
+    """Replicates of the contact window (the sd of 30 is known to about ±13 %)."""
+    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.25
+    """How long before the ideal run's first touch the snapshot is taken: the approach
+    speed (read 50 ms before the first touch) and the contact gate's opening must be in
+    the replicated window."""
+
+
 class PassivityConfig(_Model):
     """Passivity layer between the measured wrenches and the ODS (app/sim/passivity.py).
 
@@ -620,6 +639,7 @@ class EmulatorConfig(_Model):
     wrench: WrenchProcessingConfig = WrenchProcessingConfig()
     passivity: PassivityConfig = PassivityConfig()
     compensation: CompensationConfig = CompensationConfig()
+    uncertainty: UncertaintyConfig = UncertaintyConfig()
     materials: Annotated[dict[str, ContactMaterial],
                          Field(max_length=MAX_MATERIALS)] = DEFAULT_MATERIALS
     hand: HandConfig = HandConfig()
