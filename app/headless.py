@@ -13,6 +13,7 @@ from app.plots import plot_run
 from app.preflight import preflight
 from app.report import write_json, write_telemetry_csv
 from app.sim.loop import Emulator
+from app.uncertainty import forecast, snapshot_time_s, spread_of_run
 
 
 @dataclass
@@ -57,7 +58,10 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
         return None
     if prediction is None:  # no robots: no pre-flight, but a reference still
         return ideal_collision(config, duration_s)
-    return collision_of(prediction)  # at the run's rate (two satellites)
+    reference = collision_of(prediction)  # at the run's rate (two satellites)
+    if reference:  # the fidelity forecast (app/uncertainty.py), in metrics.json
+        reference["forecast"] = forecast(config, reference)
+    return reference
 
 
 def run_scenario(
@@ -92,6 +96,8 @@ def run_scenario(
         reference = checked_reference(config, duration_s, with_ideal)
         ideal = reference if ideal is None else ideal
     em = Emulator(config, mode=mode)
+    if em.mode == "hil":  # the uncertainty's snapshot, before the predicted contact
+        em.snapshot_at_s = snapshot_time_s(config, ideal)
     t0 = time.perf_counter()
     failure = None
     try:
@@ -105,12 +111,26 @@ def run_scenario(
             ideal = None
         error = None if failure is None else f"{type(failure).__name__}: {failure}"
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
+        if failure is None:
+            _add_uncertainty(em, metrics)
         files = []
         if out_dir is not None:
             files = write_run_files(em, metrics, out_dir, bag=bag, bag_rate_hz=bag_rate_hz)
     if failure is not None:
         raise RunFailed(error, RunResult(em, metrics, files)) from failure
     return RunResult(em, metrics, files)
+
+
+def _add_uncertainty(em: Emulator, metrics: dict) -> None:
+    """The restitution's interval from the replicates of the contact window
+    (app/uncertainty.py), with the wall time they took."""
+    coll = metrics.get("collision")
+    if coll is None or em.snapshot is None:
+        return
+    t0 = time.perf_counter()
+    spread_of_run(em, coll)
+    if coll.get("uncertainty") is not None:
+        coll["uncertainty"]["wall_s"] = time.perf_counter() - t0
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:
