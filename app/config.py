@@ -447,6 +447,13 @@ class CompensationConfig(_Model):
         return self
 
 
+def _two_or_more(n: int) -> int:
+    if n < 2:
+        raise ValueError(f"must be 2 or more (a standard deviation needs two replicates), "
+                         f"got {n}")
+    return n
+
+
 class UncertaintyConfig(_Model):
     """The restitution's uncertainty (app/uncertainty.py; docs/fidelity-uncertainty.md).
 
@@ -458,7 +465,7 @@ class UncertaintyConfig(_Model):
     """
 
     enabled: StrictBool = True
-    replicates: Annotated[int, Field(ge=2, le=1000)] = 30
+    replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 30
     """Replicates of the contact window (the sd of 30 is known to about ±13 %)."""
     lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.25
     """How long before the ideal run's first touch the snapshot is taken: the approach
