@@ -32,7 +32,7 @@ from app.metrics import collision_metrics
 from app.sim.loop import Emulator
 
 __all__ = ["SensorNoise", "configured_noise", "forecast", "measured_noise", "replicate",
-           "restitution_spread", "snapshot_time_s", "spread_of_run"]
+           "restitution_spread", "run_interval", "snapshot_time_s", "spread_of_run"]
 
 QUIET_S = 0.05
 """A contact ends once the bodies have been apart this long (app/metrics.py)."""
@@ -125,12 +125,14 @@ def _redraw(em: Emulator, noise: list[SensorNoise], rng: np.random.Generator) ->
 
 def restitution_spread(snapshot: Emulator, pair: tuple[int, int], until_s: float,
                        noise: list[SensorNoise], replicates: int,
-                       rng: np.random.Generator) -> dict:
+                       rng: np.random.Generator, tick=None) -> dict:
     """{"restitution_sd", "replicates", "replicates_with_restitution", "restitutions"}:
     the standard deviation (ddof 1) of the replicates' restitutions (None with fewer than
-    two)."""
+    two). ``tick``: called before each replicate (a supervisor's heartbeat)."""
     values = []
     for _ in range(replicates):
+        if tick is not None:
+            tick()
         coll = replicate(snapshot, pair, until_s, noise, rng)
         values.append(None if coll is None else coll["restitution"])
     got = [v for v in values if v is not None]
@@ -145,11 +147,12 @@ def _rng(config: EmulatorConfig, stream: int) -> np.random.Generator:
     return np.random.default_rng([config.loop.seed, 28, stream])
 
 
-def spread_of_run(em: Emulator, coll: dict | None) -> None:
+def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
     """After a hil run (its ``snapshot`` kept): add ``restitution_sd`` and
     ``restitution_interval_95`` ([e − 1.96 sd, e + 1.96 sd]) to its collision metrics
     ``coll`` (in place; both None where there is no snapshot, no noise measured, or no
-    restitution), and ``uncertainty`` (how they were found)."""
+    restitution), and ``uncertainty`` (how they were found). ``tick``: called before each
+    replicate."""
     if coll is None:
         return
     coll["restitution_sd"] = coll["restitution_interval_95"] = None
@@ -169,7 +172,7 @@ def spread_of_run(em: Emulator, coll: dict | None) -> None:
                   coll["window_s"][1] + 0.5 + 2 * coll["contact_duration_s"])
     cfg = em.config.uncertainty
     spread = restitution_spread(snap, pair, until_s, noise, cfg.replicates,
-                                _rng(em.config, 1))
+                                _rng(em.config, 1), tick)
     sd, e = spread["restitution_sd"], coll["restitution"]
     coll["restitution_sd"] = sd
     if sd is not None:
@@ -226,3 +229,25 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     out["restitution_sd"] = spread["restitution_sd"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
     return out
+
+
+def run_interval(em: Emulator, tick=None) -> dict | None:
+    """After a run that kept a snapshot (the web app's loop, which has no ideal run of its
+    own): its first collision's restitution and the interval around it, {"restitution",
+    "restitution_sd", "restitution_interval_95", "uncertainty"}; None without a snapshot
+    or a collision."""
+    from app.metrics import contact_pair
+
+    if em.snapshot is None or em.n_sat < 2:
+        return None
+    rows, index = em.telemetry.rows(), em.telemetry.index
+    pair = contact_pair(rows, index, em.n_sat) if len(rows) else None
+    if pair is None:
+        return None
+    bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
+    coll = collision_metrics(rows, index, em.dt_s, *pair, bodies=bodies)
+    if coll is None:
+        return None
+    spread_of_run(em, coll, tick)
+    return {key: coll.get(key) for key in ("pair", "restitution", "restitution_sd",
+                                           "restitution_interval_95", "uncertainty")}
