@@ -466,8 +466,11 @@ class UncertaintyConfig(_Model):
 
     enabled: StrictBool = True
     replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 30
-    """Replicates of the contact window (the sd of 30 is known to about ±13 %)."""
-    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.25
+    """Replicates of a run's contact window (the sd of 30 is known to about ±13 %)."""
+    forecast_replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 60
+    """Replicates of the pre-flight's forecast (60: about ±9 %; it is checked against the
+    spread over seeds, itself known to ±13-16 % from 20-30 seeds)."""
+    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.15
     """How long before the ideal run's first touch the snapshot is taken: the approach
     speed (read 50 ms before the first touch) and the contact gate's opening must be in
     the replicated window."""

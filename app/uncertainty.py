@@ -197,7 +197,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     ``[uncertainty] enabled`` off).
 
     A hil twin of the run with the sensor's noise off (and its calibration exact) runs
-    to the snapshot; ``[uncertainty] replicates`` replicates of the contact window then
+    to the snapshot; ``[uncertainty] forecast_replicates`` replicates of the window then
     run with the configured noise and calibration error. {"restitution_sd",
     "peak_force_N" (the ideal contact's), "noise_force_N" (σ per sample), and
     "peak_to_noise" (their ratio)}.
@@ -215,7 +215,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     out = {"restitution_sd": None, "peak_force_N": float(ideal["peak_force_N"]),
            "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
-           "replicates": config.uncertainty.replicates}
+           "replicates": config.uncertainty.forecast_replicates}
     if twin.status != "running":
         out["note"] = (f"the noise-free twin stopped before the contact ({twin.status}: "
                        f"{(twin.safety_stop or {}).get('reason')})")
@@ -224,8 +224,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
     snap = twin.copy_state()
     spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
-                                configured_noise(config), config.uncertainty.replicates,
-                                _rng(config, 2))
+                                configured_noise(config),
+                                config.uncertainty.forecast_replicates, _rng(config, 2))
     out["restitution_sd"] = spread["restitution_sd"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
     return out

@@ -565,7 +565,8 @@ def test_the_web_app_runs_a_docking_to_capture_and_its_metrics_say_so(live):
 
 SHORT_COLLISION = {"satellites": {"0": {"position_m": [-0.16, 0, 0]},
                                   "1": {"position_m": [0.16, 0, 0]}},
-                   "loop": {"duration_s": 1.2}, "uncertainty": {"replicates": 4}}
+                   "loop": {"duration_s": 1.2},
+                   "uncertainty": {"replicates": 4, "forecast_replicates": 4}}
 """The shipped collision started closer: its contact at 0.74 s in a 1.2 s run."""
 
 

@@ -158,7 +158,8 @@ def test_a_collision_run_prints_its_forecast_before_and_its_interval_after(tmp_p
     interval in the summary, and both are in metrics.json."""
     argv = ["run", "collision", "--quiet", "--duration", "1.2", "--out", str(tmp_path / "o"),
             "--set", "satellites.0.position_m=[-0.16,0,0]",
-            "--set", "satellites.1.position_m=[0.16,0,0]", "--set", "uncertainty.replicates=4"]
+            "--set", "satellites.1.position_m=[0.16,0,0]", "--set", "uncertainty.replicates=4",
+            "--set", "uncertainty.forecast_replicates=4"]
     proc = subprocess.run([EXE, *argv], capture_output=True, text=True, timeout=300,
                           cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr

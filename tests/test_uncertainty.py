@@ -28,7 +28,7 @@ def short_collision(*extra: str):
 
 @pytest.fixture(scope="module")
 def reference():
-    config = short_collision("uncertainty.replicates=8")
+    config = short_collision("uncertainty.replicates=8", "uncertainty.forecast_replicates=12")
     return checked_reference(config, config.loop.duration_s)
 
 
@@ -40,8 +40,9 @@ def test_a_replicate_with_the_runs_own_noise_is_the_run_itself(reference):
     em.snapshot_at_s = snapshot_time_s(config, reference)
     em.run(config.loop.duration_s)
     snap = em.snapshot
-    assert snap is not None and snap.t_s == pytest.approx(reference["contact_start_s"] - 0.25,
-                                                          abs=em.dt_s)
+    lead_s = config.uncertainty.lead_s
+    assert snap is not None and snap.t_s == pytest.approx(
+        reference["contact_start_s"] - lead_s, abs=em.dt_s)
     kept = copy.deepcopy(snap.ods.y)
     coll = replicate(snap, (1, 2), em.t_s)
     assert np.array_equal(snap.ods.y, kept)  # the snapshot itself is left as it was
@@ -101,7 +102,7 @@ def test_without_noise_the_forecast_is_zero_spread():
     """No sensor noise: every replicate is the same contact (no calibration error
     either), so the forecast sd is 0 — the spread is the noise's, nothing else's."""
     config = short_collision("sensor.noise_force_N=0", "sensor.noise_torque_Nm=0",
-                             "uncertainty.replicates=3")
+                             "uncertainty.forecast_replicates=3")
     reference = checked_reference(config, config.loop.duration_s)
     assert reference["forecast"]["restitution_sd"] == 0.0
     assert reference["forecast"]["peak_to_noise"] is None
@@ -128,6 +129,8 @@ def test_fields_are_null_where_there_is_no_restitution_or_no_collision(reference
 @pytest.mark.parametrize("key, value, message", [
     ("replicates", 1, "uncertainty.replicates: must be 2 or more (a standard deviation "
                       "needs two replicates), got 1"),
+    ("forecast_replicates", 0, "uncertainty.forecast_replicates: must be 2 or more (a "
+                               "standard deviation needs two replicates), got 0"),
     ("lead_s", 0.01, "uncertainty.lead_s: Input should be greater than or equal to 0.1"),
 ])
 def test_bad_settings_are_refused_by_name(key, value, message):
