@@ -220,4 +220,7 @@ def forecast_text(forecast: dict) -> str:
             + ("-" if sd is None else f"{sd:.3f}")
             + f" (contact peak {forecast['peak_force_N']:.2f} N against the sensor's "
             f"{forecast['noise_force_N']:.3g} N noise per sample"
-            + ("" if ratio is None else f": ratio {ratio:.2g}") + ")")
+            + ("" if ratio is None else f": ratio {ratio:.2g}") + ")"
+            + ("" if forecast.get("restitution_error_mean") is None else
+               "; the chain's predicted mean error "
+               f"{100 * forecast['restitution_error_mean']:+.0f} %"))

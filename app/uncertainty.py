@@ -200,7 +200,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     to the snapshot; ``[uncertainty] forecast_replicates`` replicates of the window then
     run with the configured noise and calibration error. {"restitution_sd",
     "peak_force_N" (the ideal contact's), "noise_force_N" (σ per sample), and
-    "peak_to_noise" (their ratio)}.
+    "peak_to_noise" (their ratio), "restitution_mean" and "restitution_error_mean" (the
+    replicates' mean and its error against the ideal: the chain's predicted bias)}.
     """
     at_s = snapshot_time_s(config, ideal)
     if at_s is None or not config.robots or ideal.get("restitution") is None:
@@ -212,7 +213,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     while twin.status == "running" and twin.t_s < at_s - 1e-9:
         twin.step()
     sigma = config.sensor.noise_force_N
-    out = {"restitution_sd": None, "peak_force_N": float(ideal["peak_force_N"]),
+    out = {"restitution_sd": None, "restitution_mean": None, "restitution_error_mean": None,
+           "peak_force_N": float(ideal["peak_force_N"]),
            "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
            "replicates": config.uncertainty.forecast_replicates}
@@ -228,6 +230,11 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
                                 config.uncertainty.forecast_replicates, _rng(config, 2))
     out["restitution_sd"] = spread["restitution_sd"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
+    got = [e for e in spread["restitutions"] if e is not None]
+    if got:  # the chain's own error on the configured contact, noise included
+        mean = float(np.mean(got))
+        out["restitution_mean"] = mean
+        out["restitution_error_mean"] = (mean - ideal["restitution"]) / ideal["restitution"]
     return out
 
 

@@ -168,7 +168,9 @@ def test_a_collision_run_prints_its_forecast_before_and_its_interval_after(tmp_p
     first = proc.stdout.splitlines()[0]
     assert first == (f"forecast before the run: restitution sd {forecast['restitution_sd']:.3f} "
                      f"(contact peak {forecast['peak_force_N']:.2f} N against the sensor's "
-                     f"1.67 N noise per sample: ratio {forecast['peak_to_noise']:.2g})")
+                     f"1.67 N noise per sample: ratio {forecast['peak_to_noise']:.2g}); the "
+                     f"chain's predicted mean error "
+                     f"{100 * forecast['restitution_error_mean']:+.0f} %")
     lo, hi = coll["restitution_interval_95"]
     assert (f"restitution 95 % interval [{lo:.3f}, {hi:.3f}] (sd {coll['restitution_sd']:.3f}, "
             f"4 replicates of the contact with the noise measured at calibration") in proc.stdout

@@ -96,6 +96,10 @@ def test_interval_and_forecast_match_the_spread_over_seeds(reference):
     assert forecast["peak_force_N"] == reference["peak_force_N"]
     assert forecast["noise_force_N"] == pytest.approx(5.0 / 3.0)
     assert forecast["peak_to_noise"] == pytest.approx(reference["peak_force_N"] / (5.0 / 3.0))
+    # the replicates' mean error predicts the runs' (sd of the mean over six seeds: ~0.05)
+    assert forecast["restitution_error_mean"] == pytest.approx(
+        (forecast["restitution_mean"] - ei) / ei)
+    assert abs(forecast["restitution_mean"] - e.mean()) < 3 * spread / np.sqrt(6) + 0.03
 
 
 def test_without_noise_the_forecast_is_zero_spread():
