@@ -123,14 +123,10 @@ def run_scenario(
 
 def _add_uncertainty(em: Emulator, metrics: dict) -> None:
     """The restitution's interval from the replicates of the contact window
-    (app/uncertainty.py), with the wall time they took."""
+    (app/uncertainty.py)."""
     coll = metrics.get("collision")
-    if coll is None or em.snapshot is None:
-        return
-    t0 = time.perf_counter()
-    spread_of_run(em, coll)
-    if coll.get("uncertainty") is not None:
-        coll["uncertainty"]["wall_s"] = time.perf_counter() - t0
+    if coll is not None and em.snapshot is not None:
+        spread_of_run(em, coll)
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:
