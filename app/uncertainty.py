@@ -29,7 +29,7 @@ import numpy as np
 
 from app.config import EmulatorConfig, merge_overrides
 from app.metrics import collision_metrics
-from app.sim.loop import Emulator
+from app.sim.loop import Emulator, StartPoseError
 
 __all__ = ["SensorNoise", "configured_noise", "forecast", "measured_noise", "replicate",
            "restitution_spread", "run_interval", "snapshot_time_s", "spread_of_run"]
@@ -208,16 +208,19 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
         return None
     quiet = merge_overrides(config, {"sensor": {"noise_force_N": 0.0, "noise_torque_Nm": 0.0},
                                      "loop": {"telemetry_capacity": 100}})
-    twin = Emulator(quiet, mode="hil")
-    twin.prepare()
-    while twin.status == "running" and twin.t_s < at_s - 1e-9:
-        twin.step()
     sigma = config.sensor.noise_force_N
     out = {"restitution_sd": None, "restitution_mean": None, "restitution_error_mean": None,
-           "peak_force_N": float(ideal["peak_force_N"]),
-           "noise_force_N": sigma,
+           "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
            "replicates": config.uncertainty.forecast_replicates}
+    twin = Emulator(quiet, mode="hil")
+    try:
+        twin.prepare()
+    except StartPoseError as err:  # the run itself will say so, and stop there
+        out["note"] = f"the noise-free twin could not start: {err}"
+        return out
+    while twin.status == "running" and twin.t_s < at_s - 1e-9:
+        twin.step()
     if twin.status != "running":
         out["note"] = (f"the noise-free twin stopped before the contact ({twin.status}: "
                        f"{(twin.safety_stop or {}).get('reason')})")
