@@ -123,10 +123,17 @@ def run_scenario(
 
 def _add_uncertainty(em: Emulator, metrics: dict) -> None:
     """The restitution's interval from the replicates of the contact window
-    (app/uncertainty.py)."""
+    (app/uncertainty.py); if they fail, the run's record is written all the same, with a
+    warning and no interval."""
     coll = metrics.get("collision")
-    if coll is not None and em.snapshot is not None:
+    if coll is None or em.snapshot is None:
+        return
+    try:
         spread_of_run(em, coll)
+    except Exception as err:  # noqa: BLE001 - the run's record matters more
+        coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
+        coll["warnings"].append(f"the restitution's interval failed: {type(err).__name__}: "
+                                f"{err}")
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:
