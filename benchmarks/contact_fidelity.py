@@ -219,11 +219,14 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
     fc = (reference.get("forecast") or {}).get("restitution_sd")
     rep_wall = float(np.median([r["wall_s"] for r in got if r["wall_s"] is not None]))
     run_wall = float(np.median([r["run_wall_s"] for r in got]))
+    def ratio(a: float, b: float) -> str:
+        return f"{a:.3f} / {b:.3f}" + (f" = {a / b:.2f}" if b > 0 else "")
+
     return (f"| {case} (e_ideal {ei:.3f}) | {seeds[0]}-{seeds[-1]} | "
             f"{100 * err.mean():+.1f} % ({100 * err.std(ddof=1) / math.sqrt(len(err)):.1f}) | "
             f"{sd:.3f} ({100 * sd / ei:.0f} % of e_ideal) | {holds}/{len(runs)} | "
-            f"{half:.3f} / {1.959964 * sd:.3f} = {half / (1.959964 * sd):.2f} | "
-            + ("— | " if fc is None else f"{fc:.3f} / {sd:.3f} = {fc / sd:.2f} | ")
+            f"{ratio(half, 1.959964 * sd)} | "
+            + ("— | " if fc is None else f"{ratio(fc, sd)} | ")
             + f"{len(runs) - len(got)} | {rep_wall:.2f} s / {run_wall:.2f} s | "
             f"{forecast_wall_s:.1f} s |")
 
