@@ -64,8 +64,8 @@ next; everything else in it is determined by the configuration and seed."""
 METRIC_FIELDS: dict[str, tuple[str, ...]] = {
     "": ("scenario", "mode", "status", "error", "duration_s", "cycles", "rate_hz",
          "realtime_factor", "cycle_time_us", "force_scale", "torque_scale", "scaling",
-         "vfdm_iterations", "seed", "satellites", "collision", "collision_forecast",
-         "safety_stop", "passivity", "capture", "success", "warnings"),
+         "vfdm_iterations", "seed", "satellites", "collision", "safety_stop", "passivity",
+         "collision_forecast", "capture", "success", "warnings"),
     "satellites": ("id", "name", "position_error_max_m", "position_error_rms_m",
                    "velocity_error_rms_mps", "attitude_error_max_rad", "delta_v_mps"),
     "collision": ("pair", "impulse_Ns", "impulse_balance", "true_impulse_Ns", "peak_force_N",
