@@ -65,6 +65,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from app.headless import checked_reference
 
         ideal = checked_reference(headless_config(config, duration), duration)
+        if ideal and ideal.get("forecast"):  # the fidelity forecast, before the arms move
+            from app.report import forecast_text
+
+            print(forecast_text(ideal["forecast"]), flush=True)
         from app.metrics import noise_spin_warnings
 
         carried = [config.satellite_index(r.satellite) for r in config.robots]

@@ -449,6 +449,35 @@ class CompensationConfig(_Model):
         return self
 
 
+def _two_or_more(n: int) -> int:
+    if n < 2:
+        raise ValueError(f"must be 2 or more (a standard deviation needs two replicates), "
+                         f"got {n}")
+    return n
+
+
+class UncertaintyConfig(_Model):
+    """The restitution's uncertainty (app/uncertainty.py; docs/fidelity-uncertainty.md).
+
+    A hil run keeps a snapshot of the whole loop ``lead_s`` before the contact its ideal
+    run predicts; after the run, ``replicates`` copies of the contact window run from it
+    through the same loop, each with fresh sensor noise of the covariance measured at the
+    start-up calibration; their spread is the restitution's standard deviation. The
+    pre-flight forecasts it the same way on a noise-free twin, with the configured noise.
+    """
+
+    enabled: StrictBool = True
+    replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 30
+    """Replicates of a run's contact window (the sd of 30 is known to about ±13 %)."""
+    forecast_replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 60
+    """Replicates of the pre-flight's forecast (60: about ±9 %; it is checked against the
+    spread over seeds, itself known to ±13-16 % from 20-30 seeds)."""
+    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.15
+    """How long before the ideal run's first touch the snapshot is taken: the approach
+    speed (read 50 ms before the first touch) and the contact gate's opening must be in
+    the replicated window."""
+
+
 class PassivityConfig(_Model):
     """Passivity layer between the measured wrenches and the ODS (app/sim/passivity.py).
 
@@ -625,6 +654,7 @@ class EmulatorConfig(_Model):
     wrench: WrenchProcessingConfig = WrenchProcessingConfig()
     passivity: PassivityConfig = PassivityConfig()
     compensation: CompensationConfig = CompensationConfig()
+    uncertainty: UncertaintyConfig = UncertaintyConfig()
     materials: Annotated[dict[str, ContactMaterial],
                          Field(max_length=MAX_MATERIALS)] = DEFAULT_MATERIALS
     hand: HandConfig = HandConfig()

@@ -16,6 +16,7 @@ from app.plots import PLOT_FILES, plot_run
 from app.preflight import preflight
 from app.report import write_json, write_telemetry_csv
 from app.sim.loop import Emulator
+from app.uncertainty import forecast, snapshot_time_s, spread_of_run
 
 
 @dataclass
@@ -62,7 +63,10 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
         return None
     if prediction is None:  # no robots: no pre-flight, but a reference still
         return ideal_collision(config, duration_s)
-    return collision_of(prediction)  # at the run's rate (two satellites)
+    reference = collision_of(prediction)  # at the run's rate (two satellites)
+    if reference:  # the fidelity forecast (app/uncertainty.py), in metrics.json
+        reference["forecast"] = forecast(config, reference)
+    return reference
 
 
 def run_scenario(
@@ -97,6 +101,8 @@ def run_scenario(
         reference = checked_reference(config, duration_s, with_ideal)
         ideal = reference if ideal is None else ideal
     em = Emulator(config, mode=mode)
+    if em.mode == "hil":  # the uncertainty's snapshot, before the predicted contact
+        em.snapshot_at_s = snapshot_time_s(config, ideal)
     t0 = time.perf_counter()
     failure = None
     try:
@@ -110,6 +116,8 @@ def run_scenario(
             ideal = None
         error = None if failure is None else f"{type(failure).__name__}: {failure}"
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
+        if failure is None:
+            _add_uncertainty(em, metrics)
         files, unwritten = [], None
         if out_dir is not None:
             try:
@@ -120,6 +128,21 @@ def run_scenario(
     if failure is not None:
         raise RunFailed(error, RunResult(em, metrics, files, unwritten)) from failure
     return RunResult(em, metrics, files, unwritten)
+
+
+def _add_uncertainty(em: Emulator, metrics: dict) -> None:
+    """The restitution's interval from the replicates of the contact window
+    (app/uncertainty.py); if they fail, the run's record is written all the same, with a
+    warning and no interval."""
+    coll = metrics.get("collision")
+    if coll is None or em.snapshot is None:
+        return
+    try:
+        spread_of_run(em, coll)
+    except Exception as err:  # noqa: BLE001 - the run's record matters more
+        coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
+        coll["warnings"].append(f"the restitution's interval failed: {type(err).__name__}: "
+                                f"{err}")
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:

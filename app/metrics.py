@@ -234,18 +234,15 @@ MIN_CONTACT_CYCLES = 6
 duration) and its reference is not converged (rigid at 100 Hz: e 0.57 against 0.95)."""
 
 
-def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
-                       noise: tuple[float, float, float] | None = None) -> None:
+def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float) -> None:
     """Add the comparison with the converged ideal run (in place): ``restitution_ideal``,
     ``restitution_error`` (e − e_ideal) / e_ideal, ``true_impulse_ratio`` |J_true| /
     |J_true,ideal| per satellite (None while either contact was still open at the end),
     and more ``warnings``. ideal: the ideal run's collision metrics; None: not compared.
 
     deadband_N: the F/T force deadband the contact meets (0 where the contact gate lifts
-    it, or without a sensor); noise: (σ of the sensor force noise per sample N, dt s,
-    force_scale · sqrt(1/m_a² + 1/m_b²) 1/kg) for the noise warning: the impulse the noise
-    adds over the ideal contact, σ·sqrt(T·dt), on both satellites, as an open-loop bound on
-    the restitution's spread (while the bodies touch, the contact takes part of it back).
+    it, or without a sensor). How far one run's restitution can be trusted is its
+    interval (``restitution_sd``, ``restitution_interval_95``: app/uncertainty.py).
     """
     ideal = ideal or None  # {}: the ideal run had no contact
     coll["restitution_ideal"] = None if ideal is None else ideal["restitution"]
@@ -273,18 +270,6 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float,
             warnings.append(
                 f"the ideal contact peaks at {ideal['peak_force_N']:.1f} N, under the F/T "
                 f"force deadband of {deadband_N:g} N: the sensor cannot see it whole")
-        if noise is not None and ei and noise[0] > 0:
-            sigma, dt, gain = noise
-            dv = sigma * np.sqrt(ideal["contact_duration_s"] * dt) * gain
-            spread = dv / (ideal["approach_speed_mps"] * ei)
-            if spread > 0.05:
-                warnings.append(
-                    f"the F/T noise ({sigma:.2g} N per sample) adds up to about "
-                    f"{dv * 1e3:.1f} mm/s to the satellites' relative velocity over the "
-                    f"{1e3 * ideal['contact_duration_s']:.0f} ms contact: one run's "
-                    f"restitution is uncertain by up to about ±{100 * spread:.0f} % "
-                    f"(an open-loop bound: while the bodies touch, the contact takes part "
-                    f"of it back)")
     coll["warnings"] = warnings
 
 
@@ -332,22 +317,16 @@ def run_facts(em: Emulator, wall_s: float, error: str | None = None) -> RunFacts
         error=error)
 
 
-def sensing_limits(em: Emulator, pair: tuple[int, int] = (1, 2),
-                   ) -> tuple[float, tuple[float, float, float] | None]:
-    """(the deadband a contact meets, the noise figures) of a run, for compare_with_ideal;
-    pair: the contact's satellites (1-based). Without arms (an ideal run) there is no
-    sensor: no deadband, no noise."""
-    return _sensing_limits(em.config, bool(em.arms), pair)
+def sensing_limits(em: Emulator) -> float:
+    """The F/T force deadband a contact of a run meets, for compare_with_ideal: 0 where
+    the contact gate lifts it, or without arms (an ideal run has no sensor)."""
+    return _contact_deadband(em.config, bool(em.arms))
 
 
-def _sensing_limits(cfg: EmulatorConfig, with_arms: bool, pair: tuple[int, int],
-                    ) -> tuple[float, tuple[float, float, float] | None]:
-    if not with_arms:
-        return 0.0, None
-    deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
-    masses = [cfg.satellites[s - 1].mass_kg for s in pair]
-    gain = scaling_of(cfg).force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
-    return deadband, (cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz, gain)
+def _contact_deadband(cfg: EmulatorConfig, with_arms: bool) -> float:
+    if not with_arms or cfg.wrench.contact_gate:
+        return 0.0
+    return cfg.wrench.deadband_force_N
 
 
 def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None,
@@ -410,14 +389,16 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                     + (f" (its first contact is between {' and '.join(ideal['pair'])})"
                        if ideal else "") + ": nothing to compare this one with")
                 ideal = None
-            compare_with_ideal(coll, ideal, *_sensing_limits(config, bool(facts.arm_of),
-                                                             pair))
+            compare_with_ideal(coll, ideal, _contact_deadband(config, bool(facts.arm_of)))
+            coll["restitution_sd"] = coll["restitution_interval_95"] = None  # hil: filled
+            coll["uncertainty"] = None  # by app/uncertainty.py after the run
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
                 coll["warnings"].append(
                     f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the F/T "
                     f"sensor's {config.sensor.range_force_N:g} N range: its readings "
                     f"clipped, and the ODS received less than the mockups exchanged")
         metrics["collision"] = coll
+    metrics["collision_forecast"] = (ideal_collision or {}).get("forecast")
     metrics["capture"] = None
     if config.capture is not None:
         metrics["capture"] = capture_metrics(config, rows, index, facts.capture)

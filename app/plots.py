@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from app.report import interval_text  # noqa: E402
+
 AXES = ("x", "y", "z")
 
 
@@ -139,6 +141,9 @@ def _collision_text(coll: dict) -> str:
         f"peak force {coll['peak_force_N']:.1f} N, contact {1e3 * coll['contact_duration_s']:.0f}"
         f" ms, energy absorbed {1e3 * coll['contact_energy_J']:.2f} mJ",
     ]
+    interval = interval_text(coll)
+    if interval:
+        lines += textwrap.wrap(interval, TEXT_COLUMNS, subsequent_indent="  ")
     for warning in coll.get("warnings", []):
         lines += textwrap.wrap(f"! {warning}", TEXT_COLUMNS, subsequent_indent="  ")
     return "\n".join(lines)

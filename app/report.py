@@ -100,6 +100,9 @@ def run_summary(metrics: dict) -> str:
             + f", peak force {coll['peak_force_N']:.1f} N, contact "
             f"{1e3 * coll['contact_duration_s']:.0f} ms, energy absorbed "
             f"{1e3 * coll['contact_energy_J']:.2f} mJ",
+            *([interval_text(coll)] if interval_text(coll) else []),
+            *([forecast_text(metrics["collision_forecast"])]
+              if metrics.get("collision_forecast") else []),
             *(f"WARNING: {w}" for w in coll.get("warnings", [])),
         ]
     success = metrics.get("success")
@@ -192,3 +195,32 @@ def gnc_success_lines(success: dict) -> list[str]:
                 f"{math.degrees(sync['attitude_error_max_rad']):.2f} deg, rate "
                 f"{math.degrees(sync['rate_error_max_radps']):.3f} deg/s at most")
     return lines
+
+
+def interval_text(coll: dict) -> str | None:
+    """The restitution's 95 % interval as a line (app/uncertainty.py); None without one."""
+    interval, sd = coll.get("restitution_interval_95"), coll.get("restitution_sd")
+    if interval is None:
+        return None
+    how = coll.get("uncertainty") or {}
+    ideal = coll.get("restitution_ideal")
+    holds = "" if ideal is None else (
+        f"; holds the ideal {ideal:.3f}" if interval[0] <= ideal <= interval[1]
+        else f"; does NOT hold the ideal {ideal:.3f}")
+    return (f"restitution 95 % interval [{interval[0]:.3f}, {interval[1]:.3f}] (sd "
+            f"{sd:.3f}, {how.get('replicates', '?')} replicates of the contact with the "
+            f"noise measured at calibration{holds})")
+
+
+def forecast_text(forecast: dict) -> str:
+    """The pre-flight's fidelity forecast as a line (app/uncertainty.py)."""
+    sd = forecast.get("restitution_sd")
+    ratio = forecast.get("peak_to_noise")
+    return ("forecast before the run: restitution sd "
+            + ("-" if sd is None else f"{sd:.3f}")
+            + f" (contact peak {forecast['peak_force_N']:.2f} N against the sensor's "
+            f"{forecast['noise_force_N']:.3g} N noise per sample"
+            + ("" if ratio is None else f": ratio {ratio:.2g}") + ")"
+            + ("" if forecast.get("restitution_error_mean") is None else
+               "; the chain's predicted mean error "
+               f"{100 * forecast['restitution_error_mean']:+.0f} %"))

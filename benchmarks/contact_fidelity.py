@@ -4,6 +4,7 @@
     .venv/bin/python -m benchmarks.contact_fidelity --map       # + the fidelity map (PNG)
     .venv/bin/python -m benchmarks.contact_fidelity --quick     # seed 0 only
     .venv/bin/python -m benchmarks.contact_fidelity --calibration 30   # bias calibration
+    .venv/bin/python -m benchmarks.contact_fidelity --calibration-check  # the interval
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -41,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from app.config import EmulatorConfig, assignment_override, merge_overrides
-from app.headless import ideal_collision, run_scenario
+from app.headless import checked_reference, headless_config, ideal_collision, run_scenario
 from app.metrics import compare_with_ideal, sensing_limits
 from app.scenarios import load_scenario
 
@@ -82,7 +83,7 @@ def collision_run(args: tuple) -> dict:
     bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
     coll = collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s, bodies=bodies)
     if coll is not None:
-        compare_with_ideal(coll, ideal, *sensing_limits(em))
+        compare_with_ideal(coll, ideal, sensing_limits(em))
     return {"collision": coll, "status": em.status,
             "removed_J": None if em.coupling.dissipated_J() is None
             else em.coupling.dissipated_J()["force"]}
@@ -157,6 +158,77 @@ def calibration_table(pool, seeds: list[int]) -> None:
         chatter = sum(c["touches"] > 1 for c in colls if c)
         print(f"| {seconds:g} s | {_fmt(err)} | {_fmt(ratio, pct=False)} | "
               f"{chatter}/{len(runs)} |", flush=True)
+
+
+CHECK_CASES = {"sponge vs rigid": ([], list(range(30))), "rigid vs rigid": (RIGID, list(range(20)))}
+"""The calibration check's cases: the shipped collision over seeds 0-29, rigid vs rigid
+over seeds 0-19 (issue 28), default sensor."""
+
+
+def interval_run(args: tuple) -> dict:
+    """One hil run (headless, as the CLI runs it, given its reference): the collision's
+    restitution, its sd and interval, and how the run ended."""
+    assignments, seed, reference = args
+    config = configure(load_scenario("collision"), assignments + [f"loop.seed={seed}"])
+    t0 = time.perf_counter()
+    result = run_scenario(config, ideal=reference, preflight_done=True)
+    total_s = time.perf_counter() - t0
+    coll = result.metrics["collision"] or {}
+    run_wall_s = result.metrics["duration_s"] / result.metrics["realtime_factor"]
+    return {"status": result.metrics["status"], "restitution": coll.get("restitution"),
+            "error": coll.get("restitution_error"), "sd": coll.get("restitution_sd"),
+            "interval": coll.get("restitution_interval_95"),
+            "wall_s": total_s - run_wall_s, "run_wall_s": run_wall_s}
+
+
+def calibration_check(pool, cases: dict = CHECK_CASES, assignments: list[str] = ()) -> list[str]:
+    """Per case: the restitution's mean error and sd over the seeds, how many runs' 95 %
+    intervals hold the ideal restitution, their median half-width against 1.96 x the
+    across-seed sd, and the pre-flight's forecast sd against the across-seed sd
+    (docs/fidelity-uncertainty.md)."""
+    lines = ["| case | seeds | mean error (SE) | sd of e across seeds | interval holds e_ideal "
+             "| median half-width / (1.96 sd) | forecast sd / sd | runs without e "
+             "| after the loop: replicates + metrics (median) / the loop's wall time "
+             "| pre-flight with its forecast |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for case, (extra, seeds) in cases.items():
+        config = configure(load_scenario("collision"), list(extra) + list(assignments))
+        config = headless_config(config, config.loop.duration_s)
+        t0 = time.perf_counter()
+        reference = checked_reference(config, config.loop.duration_s)
+        forecast_wall_s = time.perf_counter() - t0
+        runs = pool.map(interval_run, [(list(extra) + list(assignments), s, reference)
+                                       for s in seeds])
+        lines.append(_check_row(case, seeds, reference, runs, forecast_wall_s))
+        print(lines[-1], flush=True)
+    return lines
+
+
+def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
+               forecast_wall_s: float) -> str:
+    ei = reference["restitution"]
+    got = [r for r in runs if r["restitution"] is not None]
+    e = np.array([r["restitution"] for r in got])
+    err = (e - ei) / ei
+    sd = float(np.std(e, ddof=1))
+    with_interval = [r for r in got if r["interval"] is not None]
+    holds = sum(r["interval"][0] <= ei <= r["interval"][1] for r in with_interval)
+    half = float(np.median([r["sd"] * 1.959964 for r in with_interval])) if with_interval \
+        else float("nan")
+    fc = (reference.get("forecast") or {}).get("restitution_sd")
+    rep_wall = float(np.median([r["wall_s"] for r in got if r["wall_s"] is not None]))
+    run_wall = float(np.median([r["run_wall_s"] for r in got]))
+    def ratio(a: float, b: float) -> str:
+        return f"{a:.3f} / {b:.3f}" + (f" = {a / b:.2f}" if b > 0 else "")
+
+    return (f"| {case} (e_ideal {ei:.3f}) | {seeds[0]}-{seeds[-1]} | "
+            f"{100 * err.mean():+.1f} % ({100 * err.std(ddof=1) / math.sqrt(len(err)):.1f}) | "
+            f"{sd:.3f} ({100 * sd / ei:.0f} % of e_ideal) | {holds}/{len(runs)} | "
+            f"{ratio(half, 1.959964 * sd)} | "
+            + ("— | " if fc is None else f"{ratio(fc, sd)} | ")
+            + f"{len(runs) - len(got)} | {rep_wall:.2f} s / {run_wall:.2f} s | "
+            f"{forecast_wall_s:.1f} s |")
 
 
 def free_floating(assignments: list[str]) -> dict:
@@ -289,10 +361,20 @@ def main() -> None:
     parser.add_argument("--calibration", type=int, metavar="SEEDS", default=None,
                         help="instead: the compensated sponge over SEEDS seeds with the bias "
                              "calibration averaged over 0.5 s and over 2 s (the default)")
+    parser.add_argument("--calibration-check", action="store_true",
+                        help="instead: the restitution's 95 %% interval and the pre-flight's "
+                             "forecast against the spread over seeds (sponge 0-29, rigid "
+                             "0-19)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="with --calibration-check: a setting for every run")
     args = parser.parse_args()
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
+        if args.calibration_check:
+            calibration_check(pool, assignments=args.set)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
         if args.calibration:
             calibration_table(pool, list(range(args.calibration)))
             print(f"\n({time.perf_counter() - t0:.0f} s)")

@@ -120,6 +120,19 @@ def test_viewer_renders_both_arms(live, page):
     page.wait_for_timeout(1000)
 
 
+def test_the_page_shows_the_fidelity_forecast_before_start(live, page):
+    """Before Start, the page shows the pre-flight's forecast of the chosen scenario (the
+    shipped collision), the same figure the REST answer gives."""
+    assert live.state()["loop"]["cycles"] == 0
+    page.wait_for_function("document.querySelector('#fidelity').textContent"
+                           ".includes('fidelity forecast: restitution sd 0.')", timeout=60_000)
+    f = live.client.get("/api/scenarios/collision/forecast").json()["collision_forecast"]
+    assert page.text_content("#fidelity") == (
+        f"fidelity forecast: restitution sd {f['restitution_sd']:.3f} (contact peak "
+        f"{f['peak_force_N']:.1f} N, sensor noise {f['noise_force_N']:.2f} N)")
+    assert live.state()["loop"]["cycles"] == 0  # nothing moved
+
+
 def test_start_button_starts_the_scenario(live, page):
     assert live.state()["status"] == "idle" and live.state()["loop"]["cycles"] == 0
     page.wait_for_function("document.querySelector('#status').textContent"

@@ -829,3 +829,42 @@ def test_a_push_that_sends_the_course_out_of_reach_is_refused_a_braking_one_take
     v = live.client.get("/api/state").json()["satellites"][0]["velocity_mps"]
     assert abs(v[2]) < 0.3 * -drift[2], v  # braked
     live.client.post("/api/stop")
+
+
+SHORT_COLLISION = {"satellites": {"0": {"position_m": [-0.16, 0, 0]},
+                                  "1": {"position_m": [0.16, 0, 0]}},
+                   "loop": {"duration_s": 1.2},
+                   "uncertainty": {"replicates": 4, "forecast_replicates": 4}}
+"""The shipped collision started closer: its contact at 0.74 s in a 1.2 s run."""
+
+
+def test_the_forecast_before_start_and_the_interval_after_the_run(live):
+    """GET .../forecast gives the pre-flight's forecast before Start (null in ideal mode,
+    404 for an unknown scenario); a hil run's state carries its restitution's interval
+    once it has ended, and its metrics.json the same fields."""
+    t0 = time.monotonic()
+    f = live.client.get("/api/scenarios/collision/forecast")
+    assert f.status_code == 200, f.text
+    f = f.json()
+    c = f["collision_forecast"]
+    assert c["restitution_sd"] > 0.0 and c["noise_force_N"] == pytest.approx(5.0 / 3.0)
+    assert c["peak_to_noise"] == pytest.approx(c["peak_force_N"] / (5.0 / 3.0))
+    assert 0.0 < f["wall_s"] < time.monotonic() - t0
+    again = live.client.get("/api/scenarios/collision/forecast").json()
+    assert again == f  # cached: the same answer at once
+    ideal = live.client.get("/api/scenarios/collision/forecast", params={"mode": "ideal"})
+    assert ideal.json()["collision_forecast"] is None
+    assert live.client.get("/api/scenarios/nope/forecast").status_code == 404
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/collision/start",
+                         json={**SHORT_COLLISION, "mode": "hil"}).json()
+    assert s["status"] == "running", s
+    s = live.wait_for(lambda s: s["status"] != "running" and s["interval"] is not None, 60.0)
+    i = s["interval"]
+    lo, hi = i["restitution_interval_95"]
+    assert lo < i["restitution"] < hi
+    assert hi - lo == pytest.approx(2 * 1.959964 * i["restitution_sd"])
+    assert i["uncertainty"]["replicates"] == 4
+    coll = live.client.get("/api/metrics").json()["collision"]
+    assert coll["restitution"] == i["restitution"]
+    assert coll["restitution_interval_95"] == [lo, hi]

@@ -35,6 +35,9 @@ MISTAKES = {
                      "'cubesat' leaves the safety volume (at (3.000, 0.000, 1.000) m in W"),
     "bad value": (["run", "collision", "--set", "compensation.lead_s=-1"],
                   "compensation.lead_s: Input should be greater than 0"),
+    "one replicate": (["run", "collision", "--set", "uncertainty.replicates=1"],
+                      "uncertainty.replicates: must be 2 or more (a standard deviation needs "
+                      "two replicates), got 1"),
 }
 
 
@@ -262,3 +265,26 @@ def test_a_file_that_cannot_be_written_after_the_run_goes_elsewhere_and_exits_5(
     assert err.startswith(f"error: {out}/telemetry.csv: could not be written (Is a directory); "
                           f"written to {fallback}/telemetry.csv instead\n")
     shutil.rmtree(fallback)
+
+
+def test_a_collision_run_prints_its_forecast_before_and_its_interval_after(tmp_path):
+    """The pre-flight's forecast is printed before the run starts (first line), the
+    interval in the summary, and both are in metrics.json."""
+    argv = ["run", "collision", "--quiet", "--duration", "1.2", "--out", str(tmp_path / "o"),
+            "--set", "satellites.0.position_m=[-0.16,0,0]",
+            "--set", "satellites.1.position_m=[0.16,0,0]", "--set", "uncertainty.replicates=4",
+            "--set", "uncertainty.forecast_replicates=4"]
+    proc = subprocess.run([EXE, *argv], capture_output=True, text=True, timeout=300,
+                          cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    forecast, coll = metrics["collision_forecast"], metrics["collision"]
+    first = proc.stdout.splitlines()[0]
+    assert first == (f"forecast before the run: restitution sd {forecast['restitution_sd']:.3f} "
+                     f"(contact peak {forecast['peak_force_N']:.2f} N against the sensor's "
+                     f"1.67 N noise per sample: ratio {forecast['peak_to_noise']:.2g}); the "
+                     f"chain's predicted mean error "
+                     f"{100 * forecast['restitution_error_mean']:+.0f} %")
+    lo, hi = coll["restitution_interval_95"]
+    assert (f"restitution 95 % interval [{lo:.3f}, {hi:.3f}] (sd {coll['restitution_sd']:.3f}, "
+            f"4 replicates of the contact with the noise measured at calibration") in proc.stdout

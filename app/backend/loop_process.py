@@ -39,6 +39,7 @@ from app.metrics import noise_spin_warnings, passivity_metrics
 from app.sim.loop import Emulator
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
 from app.sim.scaling import scaling_of, summary_line
+from app.uncertainty import run_interval
 
 log = logging.getLogger("orbit_emulator.runner")
 
@@ -69,6 +70,8 @@ class LoopCore:
         self.scenario = scenario
         self.em = Emulator(config, mode=mode)
         self.generation = 0
+        self.interval: dict | None = None
+        """The last run's restitution interval (app/uncertainty.py), once computed."""
         self.shutdown = False
         self._pending: tuple | None = None  # a control message that interrupted a start
         self._rings: list = []  # the telemetry rings mapped (the current run's last)
@@ -121,8 +124,9 @@ class LoopCore:
                 except ValueError as err:
                     log.warning("command rejected: %s", err)
         elif kind == "start":
-            _, scenario, config, mode, ring = msg
-            self.begin(scenario, config, mode, prepare=True, ring=ring)
+            _, scenario, config, mode, ring, snapshot_at_s = msg
+            self.begin(scenario, config, mode, prepare=True, ring=ring,
+                       snapshot_at_s=snapshot_at_s)
         elif kind == "reset":
             _, scenario, config, mode, ring = msg
             self.begin(scenario, config, mode, prepare=False, ring=ring)
@@ -137,13 +141,18 @@ class LoopCore:
             self.shutdown = True
 
     def begin(self, scenario: str, config: EmulatorConfig, mode: str | None,
-              prepare: bool, ring: str | None = None) -> None:
-        """A new run (``ring``: the name of its telemetry ring in shared memory)."""
+              prepare: bool, ring: str | None = None,
+              snapshot_at_s: float | None = None) -> None:
+        """A new run (``ring``: the name of its telemetry ring in shared memory;
+        ``snapshot_at_s``: when it keeps a snapshot for the restitution's interval)."""
         self.status = "starting" if prepare else "idle"
         self.reason = None
         self.generation += 1
+        self.interval = None
         try:
             em = Emulator(config, mode=mode)
+            if em.mode == "hil":
+                em.snapshot_at_s = snapshot_at_s
             if ring is not None:
                 shm, data, counters = attach_ring(ring, em.telemetry.capacity,
                                                   len(em.telemetry.columns))
@@ -262,9 +271,24 @@ class LoopCore:
                 if em.safety_stop:
                     self.reason = em.safety_stop.get("reason")
                 self.publish()
+                self._interval(em)
                 return
             if n % self.snapshot_every == 0:
                 self.publish()
+
+    def _interval(self, em: Emulator) -> None:
+        """After a run, outside its paced cycles: the restitution's interval from the
+        replicates of its contact (app/uncertainty.py; a second or two, with the
+        heartbeat between replicates), published as ``interval``."""
+        if em.snapshot is None or em.status not in ("finished", "safety_stop"):
+            return
+        try:
+            self.interval = run_interval(em, tick=self.beat)
+        except Exception:  # noqa: BLE001 - the run's record matters more than its interval
+            log.exception("the restitution's interval failed")
+            self.interval = None
+        if self.em is em:
+            self.publish()
 
     # --- snapshots --------------------------------------------------------------------
 
@@ -358,6 +382,7 @@ class LoopCore:
             "contact_active": bool(em.contact_active),
             "capture": em.capture_event,
             "passivity": passivity_metrics(em),
+            "interval": self.interval,
             "warnings": self._config_warnings(em),
             "layout": {
                 "T_W_R": T_W_R.tolist(),

@@ -387,8 +387,11 @@ class Runner:
 
     # --- requests -----------------------------------------------------------------------
 
-    def request_start(self, scenario: str, config: EmulatorConfig, mode: str | None) -> int:
+    def request_start(self, scenario: str, config: EmulatorConfig, mode: str | None,
+                      snapshot_at_s: float | None = None) -> int:
         """Start `config` (validated) in the loop; returns the generation it will have.
+        ``snapshot_at_s``: when the loop keeps its snapshot for the restitution's interval
+        (app/uncertainty.py; from the pre-flight's ideal run), None for none.
 
         Raises RunnerBusy when a run is starting or running.
         """
@@ -399,7 +402,7 @@ class Runner:
                 raise RunnerBusy(f"a scenario is already {busy}; stop it first")
             gen = max(snap["generation"], self._pending_gen) + 1  # requests not yet seen
             ring = self._new_ring(gen, config, mode, snap["generation"])
-            self._send(("start", scenario, config, mode, ring.name))
+            self._send(("start", scenario, config, mode, ring.name, snapshot_at_s))
             self._pending, self._pending_gen = "starting", gen
             return gen
 

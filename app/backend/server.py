@@ -385,6 +385,25 @@ def create_app(
             return JSONResponse(status_code=202,
                                 content=json_safe({**err.state, "detail": str(err)}))
 
+    @app.get("/api/scenarios/{name}/forecast", tags=["scenarios"],
+             responses={404: {"model": Message}, 422: {"model": Message}})
+    def forecast(name: str, request: Request,
+                 mode: Literal["hil", "ideal"] | None = None) -> dict[str, Any]:
+        """Before Start: the pre-flight of the scenario as it would start, with the
+        restitution's forecast spread for its contact and sensing chain
+        (``collision_forecast``: restitution_sd, peak_force_N, noise_force_N,
+        peak_to_noise; null without a contact or in ideal mode) and how long it took
+        (``wall_s``, a few seconds; cached until another scenario's is asked for).
+
+        404: unknown scenario; 422: the pre-flight refuses it (as Start would).
+        """
+        try:
+            return json_safe(service(request).forecast(name, mode=mode))
+        except UnknownScenario as err:
+            raise _http(404, err) from None
+        except InvalidRequest as err:
+            raise _http(422, err) from None
+
     @app.post("/api/stop", tags=["control"], responses=queued_202)
     def stop(request: Request) -> dict[str, Any]:
         """Stop the running scenario (no-op when none runs). 202 while the loop process is

@@ -122,6 +122,8 @@ class EmulatorService:
             "collision" if "collision" in names else names[0]
         )
         self._build_lock = threading.Lock()
+        self._forecast_lock = threading.Lock()
+        self._forecasts: dict = {}
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
         self._last_run: tuple[str, EmulatorConfig, str | None] = (
@@ -221,15 +223,55 @@ class EmulatorService:
         return config, mode
 
     @staticmethod
-    def preflight(config: EmulatorConfig, mode: str | None) -> None:
+    def preflight(config: EmulatorConfig, mode: str | None) -> float | None:
         """Refuse a hil start whose predicted course leaves an arm's reach, safety volume
-        or speed (app/preflight.py; InvalidRequest naming the robot, time and limit)."""
+        or speed (app/preflight.py; InvalidRequest naming the robot, time and limit); else
+        when the run keeps its snapshot for the restitution's interval (before the
+        contact the prediction has; None: none)."""
         if (mode or config.loop.mode) != "hil":
-            return
+            return None
         try:
-            preflight(config, config.loop.duration_s)
+            prediction = preflight(config, config.loop.duration_s)
         except PreflightRefused as err:
             raise InvalidRequest(str(err)) from None
+        if prediction is None or prediction.n_sat < 2:
+            return None
+        from app.headless import collision_of
+        from app.uncertainty import snapshot_time_s
+
+        return snapshot_time_s(config, collision_of(prediction))
+
+    def forecast(self, name: str, overrides: dict | None = None,
+                 mode: str | None = None) -> dict[str, Any]:
+        """Before Start: the pre-flight of scenario ``name`` as it would start, with the
+        restitution's forecast spread (app/uncertainty.py; ``collision_forecast`` None
+        without a contact, or in ideal mode); refused as a start would be. Cached per
+        configuration: the forecast takes seconds."""
+        config, mode = self.build(name, overrides, mode)
+        key = (config.model_dump_json(), mode)
+        with self._forecast_lock:
+            if key not in self._forecasts:
+                self._forecasts.clear()  # one scenario's at a time
+                self._forecasts[key] = self._compute_forecast(name, config, mode)
+            return self._forecasts[key]
+
+    @staticmethod
+    def _compute_forecast(name: str, config: EmulatorConfig, mode: str | None) -> dict:
+        import time
+
+        from app.headless import checked_reference, headless_config
+
+        t0 = time.perf_counter()
+        forecast = None
+        if (mode or config.loop.mode) == "hil" and len(config.satellites) >= 2:
+            duration = config.loop.duration_s
+            try:
+                reference = checked_reference(headless_config(config, duration), duration)
+            except PreflightRefused as err:
+                raise InvalidRequest(str(err)) from None
+            forecast = (reference or {}).get("forecast")
+        return {"scenario": name, "mode": mode or config.loop.mode,
+                "collision_forecast": forecast, "wall_s": time.perf_counter() - t0}
 
     # --- commands ---------------------------------------------------------------------
 
@@ -246,9 +288,9 @@ class EmulatorService:
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._refuse_if_busy()  # 409 before a pre-flight's seconds
-            self.preflight(config, mode)
+            snapshot_at_s = self.preflight(config, mode)
             self._revive(config, name, mode)
-            gen = self.runner.request_start(name, config, mode)
+            gen = self.runner.request_start(name, config, mode, snapshot_at_s)
             self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
@@ -457,7 +499,13 @@ class EmulatorService:
             error=fault if fault is not None else (
                 snap.get("reason") if status == "error" else None))
         index = {name: k for k, name in enumerate(columns)}
-        return metrics_of(config, rows, index, facts)
+        metrics = metrics_of(config, rows, index, facts)
+        interval, coll = snap.get("interval"), metrics.get("collision")
+        if interval and coll and coll["pair"] == interval["pair"] \
+                and coll["restitution"] == interval["restitution"]:  # the loop's, after the run
+            for key in ("restitution_sd", "restitution_interval_95", "uncertainty"):
+                coll[key] = interval[key]
+        return metrics
 
     def run_archive(self) -> Path:
         """The current (or last) run to take home, as a zip file (the caller deletes it):

@@ -19,6 +19,7 @@ pair (a < b); body b is pushed along +normal, body a along −normal.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -106,6 +107,15 @@ def _point_velocity(v: np.ndarray, w: np.ndarray, r: np.ndarray) -> np.ndarray:
     return v + _cross(w, r)
 
 
+def _holds_coal(value) -> bool:
+    """Whether a value is a coal object or a list/dict of them."""
+    if isinstance(value, dict):
+        value = list(value.values())
+    if isinstance(value, (list, tuple)):
+        return any(_holds_coal(v) for v in value)
+    return type(value).__module__.split(".")[0] in ("coal", "hppfcl")
+
+
 class BoxContactModel:
     """Contacts among N box-shaped mockups, reusing coal objects between calls.
 
@@ -122,25 +132,43 @@ class BoxContactModel:
         if len(sizes_m) != len(materials):
             raise ValueError("one material per box is needed")
         self.n = len(sizes_m)
-        self._shapes = [coal.Box(*map(float, s)) for s in sizes_m]
+        self._sizes_m = [tuple(map(float, s)) for s in sizes_m]
         self._radii = [0.5 * math.sqrt(sum(x * x for x in s)) for s in sizes_m]
-        self._tf = [coal.Transform3s() for _ in sizes_m]
         if pairs is None:
             pairs = list(combinations(range(self.n), 2))
         self.pairs = [(min(a, b), max(a, b)) for a, b in pairs]
-        self._solvers = {
-            (a, b): coal.ComputeCollision(self._shapes[a], self._shapes[b]) for a, b in self.pairs
-        }
         self._law = {(a, b): combine_materials(materials[a], materials[b]) for a, b in self.pairs}
+        self._build_coal()
+
+    def _build_coal(self) -> None:
+        """The coal objects (shapes, poses, solvers, requests, results): scratch state,
+        rebuilt from the sizes whenever the model is copied."""
+        self._shapes = [coal.Box(*s) for s in self._sizes_m]
+        self._tf = [coal.Transform3s() for _ in self._sizes_m]
+        every = list(combinations(range(self.n), 2))  # a copy may still be asked any pair
+        self._solvers = {
+            (a, b): coal.ComputeCollision(self._shapes[a], self._shapes[b]) for a, b in every
+        }
         self._request = coal.CollisionRequest()
         self._request.enable_contact = True
         self._request.num_max_contacts = 1
         self._result = coal.CollisionResult()
         self._distance = {
-            (a, b): coal.ComputeDistance(self._shapes[a], self._shapes[b]) for a, b in self.pairs
+            (a, b): coal.ComputeDistance(self._shapes[a], self._shapes[b]) for a, b in every
         }
         self._distance_request = coal.DistanceRequest()
         self._distance_result = coal.DistanceResult()
+
+    def __deepcopy__(self, memo: dict) -> BoxContactModel:
+        """A copy with its own coal objects (coal's solvers cannot be copied; they hold no
+        state between calls): what an Emulator snapshot needs (app/uncertainty.py)."""
+        new = BoxContactModel.__new__(BoxContactModel)
+        memo[id(self)] = new
+        for key, value in self.__dict__.items():
+            if not _holds_coal(value):
+                new.__dict__[key] = copy.deepcopy(value, memo)
+        new._build_coal()
+        return new
 
     @classmethod
     def from_satellites(

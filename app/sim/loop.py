@@ -21,6 +21,7 @@ through :meth:`Emulator.post` and is consumed at the start of the next cycle.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import replace
 
@@ -124,6 +125,10 @@ class Emulator:
         """Each satellite's own GNC wrench of the cycle, orbit units: force in R, torque in
         body axes (zeros without a GNC)."""
         self._final_recorded_at = -1
+        self.snapshot_at_s: float | None = None
+        """When set: at the first cycle that starts at or after this time, the loop keeps a
+        copy of its whole state in ``snapshot`` (app/uncertainty.py replays from it)."""
+        self.snapshot: Emulator | None = None
         self._load_kernels()
 
     # --- the cycle ------------------------------------------------------------------------
@@ -134,6 +139,9 @@ class Emulator:
             self.prepare()
         if self.status != "running":
             return
+        if (self.snapshot_at_s is not None and self.snapshot is None
+                and self.ods.t_s >= self.snapshot_at_s - 1e-9):
+            self.snapshot = self.copy_state()
         t0 = time.perf_counter_ns()
         t_s = self.ods.t_s
         self.hand.update(t_s)
@@ -362,6 +370,21 @@ class Emulator:
     def _safety_stop(self, arm: ArmRig, reason: str) -> None:
         self.status = "safety_stop"
         self.safety_stop = {"robot": arm.index + 1, "t_s": self.ods.t_s, "reason": reason}
+
+    def copy_state(self, capacity: int = 100) -> Emulator:
+        """A deep copy of the loop's whole state (arms, sensors and their random generators,
+        filters, gate, coupling, ODS, hand) that steps on exactly as this one would, with a
+        fresh telemetry recorder of ``capacity`` rows instead of this one's (and no
+        snapshot of its own)."""
+        recorder = Recorder(self.n_sat, len(self.arms), capacity, self.T_R_W,
+                            self.ods.params.orbit_rate_radps)
+        memo = {id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
+                id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
+                id(self.snapshot): None}
+        twin = copy.deepcopy(self, memo)
+        twin.columns = recorder.buffer.columns
+        twin.snapshot_at_s = None
+        return twin
 
     # --- commands -------------------------------------------------------------------------
 

@@ -60,6 +60,11 @@ class ArmRig:
     """The raw F/T reading of the last cycle, in S."""
     last_processed: np.ndarray = field(default_factory=lambda: np.zeros(6))
     """The processed wrench of the last cycle: force in R, torque about the COM in B."""
+    rest_sd_S: np.ndarray | None = None
+    """(6,) the sample standard deviation of each axis of the raw readings at rest, at the
+    start-up calibration (the noise the lab measures; None before it)."""
+    rest_count: int = 0
+    """How many rest readings the calibration averaged."""
     _state_key: tuple | None = field(default=None, repr=False)
     _state: tuple = field(default=(), repr=False)
 
@@ -163,9 +168,12 @@ class ArmRig:
         return self.sensor.measure(np.zeros(6), T_W_C, T_W_F)
 
     def calibrate(self, readings_S: np.ndarray) -> None:
-        """Payload calibration at rest with the mockup's known mass and COM; the VFDM
-        starts from where the arm is."""
+        """Payload calibration at rest with the mockup's known mass and COM, and the noise
+        the readings show (``rest_sd_S``); the VFDM starts from where the arm is."""
         T_W_F = self.mockup_state_W()[0]
+        if len(readings_S) > 1:
+            self.rest_sd_S = np.std(readings_S, axis=0, ddof=1)
+        self.rest_count = len(readings_S)
         self.processor.calibrate(readings_S, T_W_F[:3, :3], mass_kg=self.mockup_mass_kg,
                                  com_F_m=self.T_F_C[:3, 3])
         self.processor.reset()

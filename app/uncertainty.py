@@ -1,0 +1,266 @@
+"""The restitution's uncertainty, from what the lab measures (docs/fidelity-uncertainty.md).
+
+A closed-loop Monte Carlo of the contact window. A hil run keeps a copy of its whole loop
+(:meth:`app.sim.loop.Emulator.copy_state`) ``[uncertainty] lead_s`` before the contact
+its ideal run predicts. After the run, each replicate steps a copy of it through the very
+same :meth:`~app.sim.loop.Emulator.step` (arms, sensors, processing, gate, fusion,
+passivity, ODS) until its contact has ended and the velocities after it can be read, with
+
+* fresh sensor noise of the standard deviation each arm's sensor showed at rest during
+  the start-up calibration (``ArmRig.rest_sd_S``: measured, not the configured value);
+* a fresh draw of the calibration's own bias-estimate error, σ / sqrt(n_rest) per axis;
+
+and its restitution is read by the run's own code (:func:`app.metrics.collision_metrics`).
+The replicates' standard deviation is the restitution's, ``restitution_sd``; the 95 %
+interval is the run's e ± 1.96 sd. The contact in a replicate is the configured contact
+law: the lab's model of its own mockups (their digital twin), not the mockups themselves.
+
+The forecast (:func:`forecast`) is the same Monte Carlo before the arms move: a hil twin
+of the run with the sensor's noise off up to the snapshot, replicates with the configured
+noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from app.config import EmulatorConfig, merge_overrides
+from app.metrics import collision_metrics
+from app.sim.loop import Emulator, StartPoseError
+
+__all__ = ["SensorNoise", "configured_noise", "forecast", "measured_noise", "replicate",
+           "restitution_spread", "run_interval", "snapshot_time_s", "spread_of_run"]
+
+QUIET_S = 0.05
+"""A contact ends once the bodies have been apart this long (app/metrics.py)."""
+WAIT_S = 0.02
+"""The velocities after a contact are read this long past its window (app/metrics.py)."""
+Z95 = 1.959963984540054
+"""The two-sided 95 % quantile of the normal distribution."""
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """One arm's sensor noise as a replicate draws it."""
+
+    sd_S: np.ndarray
+    """(6,) per-axis standard deviation of one reading [N, N·m]."""
+    bias_sd_S: np.ndarray
+    """(6,) standard deviation of the calibration's bias estimate (sd / sqrt(n_rest))."""
+
+
+def measured_noise(em: Emulator) -> list[SensorNoise] | None:
+    """Per arm, the noise its sensor showed at rest during the start-up calibration (None
+    before a calibration of two or more readings)."""
+    out = []
+    for arm in em.arms:
+        if arm.rest_sd_S is None or arm.rest_count < 2:
+            return None
+        sd = np.array(arm.rest_sd_S, dtype=float)
+        out.append(SensorNoise(sd, sd / math.sqrt(arm.rest_count)))
+    return out
+
+
+def configured_noise(config: EmulatorConfig) -> list[SensorNoise]:
+    """Per arm, the configured sensor noise and the bias error its calibration would leave
+    (the forecast's noise: nothing is measured yet)."""
+    s = config.sensor
+    sd = np.array([s.noise_force_N] * 3 + [s.noise_torque_Nm] * 3, dtype=float)
+    n = max(1, int(round(config.wrench.calibration_s * config.loop.rate_hz)))
+    return [SensorNoise(sd, sd / math.sqrt(n)) for _ in config.robots]
+
+
+def snapshot_time_s(config: EmulatorConfig, ideal: dict | None) -> float | None:
+    """When a hil run keeps its snapshot: ``[uncertainty] lead_s`` before the ideal run's
+    first touch (None without one, or with ``enabled`` off)."""
+    if not config.uncertainty.enabled or not ideal or ideal.get("contact_start_s") is None:
+        return None
+    return max(0.0, float(ideal["contact_start_s"]) - config.uncertainty.lead_s)
+
+
+def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
+              noise: list[SensorNoise] | None = None,
+              rng: np.random.Generator | None = None) -> dict | None:
+    """One replicate of the contact window from ``snapshot`` (left untouched): its
+    collision metrics (app/metrics.collision_metrics; None if the pair never touched).
+
+    It steps until the pair's contact has ended (apart for QUIET_S) and WAIT_S more, a
+    stop, or ``until_s``. ``noise``: per arm, draw fresh noise of this size with ``rng``
+    and shift each calibration's bias by a fresh draw of its error; None: the snapshot's
+    own noise sequence and calibration (the replicate then is the run itself).
+    """
+    dt_s = snapshot.dt_s
+    cycles = int(math.ceil((until_s - snapshot.t_s) / dt_s)) + 3
+    em = snapshot.copy_state(capacity=max(100, cycles))
+    if noise is not None:
+        _redraw(em, noise, rng)
+    a, b = pair[0] - 1, pair[1] - 1
+    after = int(round((QUIET_S + WAIT_S) / dt_s)) + 2
+    last_touch = None
+    while em.status == "running" and em.t_s < until_s - 1e-9:
+        em.step()
+        if np.any(em.true_force_R[a]) and np.any(em.true_force_R[b]):
+            last_touch = em.cycles
+        elif last_touch is not None and em.cycles - last_touch > after:
+            break
+    em.record_final()
+    bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
+    return collision_metrics(em.telemetry.rows(), em.telemetry.index, dt_s, *pair,
+                             bodies=bodies)
+
+
+def _redraw(em: Emulator, noise: list[SensorNoise], rng: np.random.Generator) -> None:
+    """Give each arm's sensor a new noise generator and standard deviation, and its
+    calibration a new draw of the bias estimate's error."""
+    for arm, nz in zip(em.arms, noise, strict=True):
+        arm.sensor.rng = np.random.default_rng(rng.integers(2**63))
+        arm.sensor.noise_std_S = np.array(nz.sd_S, dtype=float)
+        cal = arm.processor.calibration
+        arm.processor.calibration = replace(
+            cal, bias_S=cal.bias_S + nz.bias_sd_S * rng.standard_normal(6))
+
+
+def restitution_spread(snapshot: Emulator, pair: tuple[int, int], until_s: float,
+                       noise: list[SensorNoise], replicates: int,
+                       rng: np.random.Generator, tick=None) -> dict:
+    """{"restitution_sd", "replicates", "replicates_with_restitution", "restitutions"}:
+    the standard deviation (ddof 1) of the replicates' restitutions (None with fewer than
+    two). ``tick``: called before each replicate (a supervisor's heartbeat)."""
+    values = []
+    for _ in range(replicates):
+        if tick is not None:
+            tick()
+        coll = replicate(snapshot, pair, until_s, noise, rng)
+        values.append(None if coll is None else coll["restitution"])
+    got = [v for v in values if v is not None]
+    return {"restitution_sd": float(np.std(got, ddof=1)) if len(got) > 1 else None,
+            "replicates": replicates, "replicates_with_restitution": len(got),
+            "restitutions": values}
+
+
+def _rng(config: EmulatorConfig, stream: int) -> np.random.Generator:
+    """The replicates' generator: a run's from its seed, apart from the sensors' streams
+    (equal runs give equal intervals); the forecast's (``stream`` 2) the same for every
+    seed (it is the configuration's, computed before any run: a sweep computes it once
+    for all the seeds of a setting)."""
+    seed = config.loop.seed if stream != 2 else 0
+    return np.random.default_rng([seed, 28, stream])
+
+
+def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
+    """After a hil run (its ``snapshot`` kept): add ``restitution_sd`` and
+    ``restitution_interval_95`` ([e − 1.96 sd, e + 1.96 sd]) to its collision metrics
+    ``coll`` (in place; both None where there is no snapshot, no noise measured, or no
+    restitution), and ``uncertainty`` (how they were found). ``tick``: called before each
+    replicate."""
+    if coll is None:
+        return
+    coll["restitution_sd"] = coll["restitution_interval_95"] = None
+    coll["uncertainty"] = None
+    noise = measured_noise(em)
+    snap = em.snapshot
+    if snap is None or noise is None or coll.get("restitution") is None:
+        return
+    if snap.t_s > coll["window_s"][0] + 1e-9:
+        coll["warnings"].append(
+            f"the uncertainty's snapshot (t = {snap.t_s:.3f} s) came after the contact window "
+            f"opened (t = {coll['window_s'][0]:.3f} s): no interval (raise "
+            f"uncertainty.lead_s)")
+        return
+    pair = tuple(int(p[3:]) for p in coll["pair"])
+    until_s = min(max(em.t_s, em.config.loop.duration_s),
+                  coll["window_s"][1] + 0.5 + 2 * coll["contact_duration_s"])
+    cfg = em.config.uncertainty
+    spread = restitution_spread(snap, pair, until_s, noise, cfg.replicates,
+                                _rng(em.config, 1), tick)
+    sd, e = spread["restitution_sd"], coll["restitution"]
+    coll["restitution_sd"] = sd
+    if sd is not None:
+        coll["restitution_interval_95"] = [e - Z95 * sd, e + Z95 * sd]
+    coll["uncertainty"] = {
+        "method": "closed-loop Monte Carlo of the contact window from a snapshot at "
+                  f"t = {snap.t_s:.3f} s, sensor noise as measured at the calibration",
+        "noise_force_N": [float(np.mean(n.sd_S[:3])) for n in noise],
+        "replicates": spread["replicates"],
+        "replicates_with_restitution": spread["replicates_with_restitution"]}
+    if spread["replicates_with_restitution"] < spread["replicates"]:
+        coll["warnings"].append(
+            f"{spread['replicates'] - spread['replicates_with_restitution']} of "
+            f"{spread['replicates']} replicates of the contact gave no restitution: the "
+            f"interval covers those that did")
+
+
+def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
+    """Before the arms move: the restitution's predicted standard deviation for this
+    contact and this sensing chain, ``collision_forecast`` in metrics.json (None without
+    arms, a contact in the ideal run ``ideal`` (its collision metrics), or with
+    ``[uncertainty] enabled`` off).
+
+    A hil twin of the run with the sensor's noise off (and its calibration exact) runs
+    to the snapshot; ``[uncertainty] forecast_replicates`` replicates of the window then
+    run with the configured noise and calibration error. {"restitution_sd",
+    "peak_force_N" (the ideal contact's), "noise_force_N" (σ per sample), and
+    "peak_to_noise" (their ratio), "restitution_mean" and "restitution_error_mean" (the
+    replicates' mean and its error against the ideal: the chain's predicted bias)}.
+    """
+    at_s = snapshot_time_s(config, ideal)
+    if at_s is None or not config.robots or ideal.get("restitution") is None:
+        return None
+    quiet = merge_overrides(config, {"sensor": {"noise_force_N": 0.0, "noise_torque_Nm": 0.0},
+                                     "loop": {"telemetry_capacity": 100}})
+    sigma = config.sensor.noise_force_N
+    out = {"restitution_sd": None, "restitution_mean": None, "restitution_error_mean": None,
+           "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
+           "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
+           "replicates": config.uncertainty.forecast_replicates}
+    twin = Emulator(quiet, mode="hil")
+    try:
+        twin.prepare()
+    except StartPoseError as err:  # the run itself will say so, and stop there
+        out["note"] = f"the noise-free twin could not start: {err}"
+        return out
+    while twin.status == "running" and twin.t_s < at_s - 1e-9:
+        twin.step()
+    if twin.status != "running":
+        out["note"] = (f"the noise-free twin stopped before the contact ({twin.status}: "
+                       f"{(twin.safety_stop or {}).get('reason')})")
+        return out
+    pair = tuple(int(p[3:]) for p in ideal["pair"])
+    until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
+    snap = twin.copy_state()
+    spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
+                                configured_noise(config),
+                                config.uncertainty.forecast_replicates, _rng(config, 2))
+    out["restitution_sd"] = spread["restitution_sd"]
+    out["replicates_with_restitution"] = spread["replicates_with_restitution"]
+    got = [e for e in spread["restitutions"] if e is not None]
+    if got:  # the chain's own error on the configured contact, noise included
+        mean = float(np.mean(got))
+        out["restitution_mean"] = mean
+        out["restitution_error_mean"] = (mean - ideal["restitution"]) / ideal["restitution"]
+    return out
+
+
+def run_interval(em: Emulator, tick=None) -> dict | None:
+    """After a run that kept a snapshot (the web app's loop, which has no ideal run of its
+    own): its first collision's restitution and the interval around it, {"restitution",
+    "restitution_sd", "restitution_interval_95", "uncertainty"}; None without a snapshot
+    or a collision."""
+    from app.metrics import contact_pair
+
+    if em.snapshot is None or em.n_sat < 2:
+        return None
+    rows, index = em.telemetry.rows(), em.telemetry.index
+    pair = contact_pair(rows, index, em.n_sat) if len(rows) else None
+    if pair is None:
+        return None
+    bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
+    coll = collision_metrics(rows, index, em.dt_s, *pair, bodies=bodies)
+    if coll is None:
+        return None
+    spread_of_run(em, coll, tick)
+    return {key: coll.get(key) for key in ("pair", "restitution", "restitution_sd",
+                                           "restitution_interval_95", "uncertainty")}

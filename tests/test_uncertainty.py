@@ -1,0 +1,143 @@
+"""The restitution's uncertainty (app/uncertainty.py): the snapshot replays the run
+exactly, the interval and the forecast match the spread over seeds, settings are checked."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from app.config import ConfigError, assignment_override, merge_overrides
+from app.headless import checked_reference, headless_config, run_scenario
+from app.scenarios import load_scenario
+from app.sim.loop import Emulator
+from app.uncertainty import Z95, measured_noise, replicate, snapshot_time_s
+
+SHORT = ["satellites.0.position_m=[-0.16,0,0]", "satellites.1.position_m=[0.16,0,0]",
+         "loop.duration_s=1.2"]
+"""The shipped collision, started closer: the same contact (at 0.74 s) in a 1.2 s run."""
+
+
+def short_collision(*extra: str):
+    config = load_scenario("collision")
+    for a in [*SHORT, *extra]:
+        config = merge_overrides(config, assignment_override(a))
+    return headless_config(config, config.loop.duration_s)
+
+
+@pytest.fixture(scope="module")
+def reference():
+    config = short_collision("uncertainty.replicates=8", "uncertainty.forecast_replicates=12")
+    return checked_reference(config, config.loop.duration_s)
+
+
+def test_a_replicate_with_the_runs_own_noise_is_the_run_itself(reference):
+    """From the snapshot, with the snapshot's own generators and calibration, the loop
+    replays the run bit for bit: every telemetry column of every cycle."""
+    config = short_collision()
+    em = Emulator(config)
+    em.snapshot_at_s = snapshot_time_s(config, reference)
+    em.run(config.loop.duration_s)
+    snap = em.snapshot
+    lead_s = config.uncertainty.lead_s
+    assert snap is not None and snap.t_s == pytest.approx(
+        reference["contact_start_s"] - lead_s, abs=em.dt_s)
+    kept = copy.deepcopy(snap.ods.y)
+    coll = replicate(snap, (1, 2), em.t_s)
+    assert np.array_equal(snap.ods.y, kept)  # the snapshot itself is left as it was
+    rows = em.telemetry.rows()
+    twin = snap.copy_state(capacity=1000)
+    while twin.t_s < em.t_s - 1e-9:
+        twin.step()
+    twin.record_final()
+    mine = twin.telemetry.rows()
+    start = int(np.searchsorted(rows[:, 0], mine[0, 0]))
+    assert np.array_equal(rows[start:start + len(mine)], mine)
+    assert coll["restitution"] is not None
+    assert coll["window_s"][0] > snap.t_s  # the approach speed is read inside the replay
+
+
+def test_the_noise_is_the_one_measured_at_calibration():
+    """Each arm's rest readings give its noise: the configured 1.67 N per axis to within
+    the sampling error of 1000 readings (~2.2 %), and the bias error σ / sqrt(1000)."""
+    em = Emulator(short_collision())
+    em.prepare()
+    noise = measured_noise(em)
+    assert len(noise) == 2
+    for n in noise:
+        np.testing.assert_allclose(n.sd_S[:3], 5.0 / 3.0, rtol=0.08)
+        np.testing.assert_allclose(n.bias_sd_S, n.sd_S / np.sqrt(1000))
+
+
+def test_interval_and_forecast_match_the_spread_over_seeds(reference):
+    """Six seeds of the short collision (8 replicates each): each run's interval is e ±
+    1.96 sd of its replicates, five or more of six hold the ideal restitution (0.95 each
+    if calibrated), the median half-width is within a factor 2 of 1.96 x the sd across
+    the seeds, and so is the forecast (six seeds know that sd to about ±30 %; the
+    benchmark's 30 seeds are in docs/fidelity-uncertainty.md)."""
+    config = short_collision("uncertainty.replicates=8")
+    ei = reference["restitution"]
+    runs = [run_scenario(merge_overrides(config, {"loop": {"seed": s}}), ideal=reference,
+                         preflight_done=True).metrics["collision"] for s in range(6)]
+    e = np.array([c["restitution"] for c in runs])
+    for c in runs:
+        assert c["restitution_interval_95"] == pytest.approx(
+            [c["restitution"] - Z95 * c["restitution_sd"],
+             c["restitution"] + Z95 * c["restitution_sd"]])
+        assert c["uncertainty"]["replicates_with_restitution"] == 8
+    holds = sum(lo <= ei <= hi for lo, hi in (c["restitution_interval_95"] for c in runs))
+    assert holds >= 5
+    spread = np.std(e, ddof=1)
+    half = np.median([Z95 * c["restitution_sd"] for c in runs])
+    assert 0.5 < half / (Z95 * spread) < 2.0
+    forecast = reference["forecast"]
+    assert 0.5 < forecast["restitution_sd"] / spread < 2.0
+    assert forecast["peak_force_N"] == reference["peak_force_N"]
+    assert forecast["noise_force_N"] == pytest.approx(5.0 / 3.0)
+    assert forecast["peak_to_noise"] == pytest.approx(reference["peak_force_N"] / (5.0 / 3.0))
+    # the replicates' mean error predicts the runs' (sd of the mean over six seeds: ~0.05)
+    assert forecast["restitution_error_mean"] == pytest.approx(
+        (forecast["restitution_mean"] - ei) / ei)
+    assert abs(forecast["restitution_mean"] - e.mean()) < 3 * spread / np.sqrt(6) + 0.03
+
+
+def test_without_noise_the_forecast_is_zero_spread():
+    """No sensor noise: every replicate is the same contact (no calibration error
+    either), so the forecast sd is 0 — the spread is the noise's, nothing else's."""
+    config = short_collision("sensor.noise_force_N=0", "sensor.noise_torque_Nm=0",
+                             "uncertainty.forecast_replicates=3")
+    reference = checked_reference(config, config.loop.duration_s)
+    assert reference["forecast"]["restitution_sd"] == 0.0
+    assert reference["forecast"]["peak_to_noise"] is None
+
+
+def test_fields_are_null_where_there_is_no_restitution_or_no_collision(reference):
+    """A run that ends during its contact has no restitution: no sd, no interval; a run
+    of one satellite has no collision and no forecast; uncertainty off: no interval."""
+    config = short_collision("loop.duration_s=0.8", "uncertainty.replicates=2")
+    ref = checked_reference(config, 0.8)
+    coll = run_scenario(config, ideal=ref, preflight_done=True).metrics["collision"]
+    assert coll["restitution"] is None and coll["contact_open_at_end"]
+    assert coll["restitution_sd"] is None and coll["restitution_interval_95"] is None
+    off = short_collision("uncertainty.enabled=false")
+    metrics = run_scenario(off, ideal=reference, preflight_done=True).metrics
+    assert metrics["collision"]["restitution"] is not None
+    assert metrics["collision"]["restitution_sd"] is None
+    assert metrics["collision"]["restitution_interval_95"] is None
+    single = run_scenario(load_scenario("free-floating-scripted"), mode="ideal",
+                          duration_s=0.1).metrics
+    assert single["collision"] is None and single["collision_forecast"] is None
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("replicates", 1, "uncertainty.replicates: must be 2 or more (a standard deviation "
+                      "needs two replicates), got 1"),
+    ("forecast_replicates", 0, "uncertainty.forecast_replicates: must be 2 or more (a "
+                               "standard deviation needs two replicates), got 0"),
+    ("lead_s", 0.01, "uncertainty.lead_s: Input should be greater than or equal to 0.1"),
+])
+def test_bad_settings_are_refused_by_name(key, value, message):
+    with pytest.raises(ConfigError) as err:
+        merge_overrides(load_scenario("collision"), {"uncertainty": {key: value}})
+    assert message in str(err.value)
