@@ -24,7 +24,7 @@ chain one call of :func:`process_step` (numba); the calibration, run once at res
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -260,6 +260,9 @@ class Calibration:
     mass_kg: float
     com_F_m: np.ndarray
     """(3,) payload COM in the flange frame."""
+    force_noise_cov_S: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    """(3, 3) [N²] covariance of the force readings about the fit, in S: the sensor's
+    noise as the calibration measured it (not as configured)."""
 
 
 @dataclass(frozen=True)
@@ -345,9 +348,19 @@ class WrenchProcessor:
         g_F = np.einsum("nji,j->ni", R, self.gravity_W_mps2)  # R_W_Fᵀ g per sample
         mass, bias_f = self._fit_force(readings_S[:, :3], g_F, mass_kg)
         com, bias_t = self._fit_torque(readings_S[:, 3:], mass * g_F, com_F_m)
-        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com)
+        residual = readings_S[:, :3] - mass * g_F - bias_f
+        cov = (residual.T @ residual / (len(residual) - 1) if len(residual) > 1
+               else np.zeros((3, 3)))
+        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com, cov)
         self.reset()
         return self.calibration
+
+    def filtered_force_cov(self, R_X_S: np.ndarray) -> np.ndarray:
+        """(3, 3) [N²] covariance of the noise on the chain's filtered force, in the axes
+        X with R_X_S the sensor's orientation in them: the calibration's estimate of the
+        reading noise through the low-pass (white noise: variance × α / (2 − α))."""
+        cov = self.calibration.force_noise_cov_S * (self.alpha / (2.0 - self.alpha))
+        return R_X_S @ cov @ R_X_S.T
 
     @staticmethod
     def _fit_force(
