@@ -393,6 +393,11 @@ class WrenchProcessingConfig(_Model):
     payload_compensation: StrictBool = True
     inertial_compensation: StrictBool = True
     lowpass_hz: Positive = 30.0
+    contact_lowpass_hz: Positive | None = None
+    """The low-pass's cut-off while the contact gate is open (None: ``lowpass_hz``). A
+    contact's force reaches the ODS sooner through a faster filter, and the lag
+    compensation's lead, which holds the input over it, shrinks with it (its miss grows
+    as lead³: app/sim/compensation.py). Without the contact gate it has no effect."""
     calibration_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=60.0)] = 2.0
     """Seconds of readings at rest averaged for the bias calibration at start-up. What is
     left of the bias is about noise_force_N / sqrt(calibration_s · rate_hz) per axis

@@ -4,6 +4,8 @@
     .venv/bin/python -m benchmarks.contact_fidelity --map       # + the fidelity map (PNG)
     .venv/bin/python -m benchmarks.contact_fidelity --quick     # seed 0 only
     .venv/bin/python -m benchmarks.contact_fidelity --calibration 30   # bias calibration
+    .venv/bin/python -m benchmarks.contact_fidelity --seeds            # per-seed figures
+    .venv/bin/python -m benchmarks.contact_fidelity --seeds --factors  # + bias factors
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -27,6 +29,14 @@ delays, servo bandwidth and limits):
 
 Free-floating: tracking, each push's Δv against impulse × force_scale / mass, and the
 spin left after the force-only pushes.
+
+``--seeds``: the shipped collision chain over many seeds (sponge vs rigid on seeds 0-29,
+rigid vs rigid on 0-19; ``--first-seed 1000`` for the tuning seeds 1000-1029), without
+noise (one run: without noise every seed is the same run) and with the data sheet's:
+mean restitution error, its standard deviation, the worst run, the median off-normal
+share, stops; with ``--factors`` each bias factor's share: the mean error with that
+part of the chain as it was (``FACTORS``) minus the shipped chain's, same seeds. The
+table is one function per column (``SEED_COLUMNS``), so that columns can be added.
 """
 
 from __future__ import annotations
@@ -138,6 +148,108 @@ def collision_table(pool, seeds: list[int]) -> list[str]:
                 + (f"{(1e3 * statistics.fmean(removed)):.2f} mJ |" if removed else "— |"))
             print(lines[-1], flush=True)
     return lines
+
+
+SEED_CASES = {"sponge vs rigid": ([], 30), "rigid vs rigid": (RIGID, 20)}
+"""Each case's assignments and how many seeds it runs."""
+NOISES = {"no noise": NO_NOISE, "default noise": []}
+FACTORS = {
+    "no-pull clamp": ["wrench.contact_no_pull=true"],
+    "30 Hz filter in contact": ["wrench.contact_lowpass_hz=30"],
+    "tank 1 mJ": ["passivity.tank_max_J=0.001"],
+    "no estimator": ["wrench.contact_estimator=false"],
+}
+"""The parts of the chain that turned the noise or the loop's lag into a bias, each as
+it was before issue 28: what each contributes (its mean error minus the shipped one)."""
+
+
+def seed_run(args: tuple) -> dict:
+    """One run's figures for the per-seed table: the collision metrics and the status."""
+    run = collision_run(args)
+    coll = run["collision"]
+    off = (max(v for v in coll["off_normal_ratio"].values() if v is not None)
+           if coll and any(v is not None for v in coll["off_normal_ratio"].values()) else None)
+    return {"error": coll["restitution_error"] if coll else None, "off_normal": off,
+            "status": run["status"]}
+
+
+def _errors(runs: list[dict]) -> list[float]:
+    return [r["error"] for r in runs if r["error"] is not None]
+
+
+def col_mean(runs: list[dict]) -> str:
+    e = _errors(runs)
+    if not e:
+        return "—"
+    se = statistics.stdev(e) / math.sqrt(len(e)) if len(e) > 1 else 0.0
+    return f"{100 * statistics.fmean(e):+.1f} % (SE {100 * se:.1f})"
+
+
+def col_sd(runs: list[dict]) -> str:
+    e = _errors(runs)
+    return f"{100 * statistics.stdev(e):.1f} %" if len(e) > 1 else "—"
+
+
+def col_worst(runs: list[dict]) -> str:
+    e = _errors(runs)
+    return f"{100 * max(e, key=abs):+.1f} %" if e else "—"
+
+
+def col_off_normal(runs: list[dict]) -> str:
+    v = [r["off_normal"] for r in runs if r["off_normal"] is not None]
+    return f"{100 * statistics.median(v):.2f} %" if v else "—"
+
+
+def col_finished(runs: list[dict]) -> str:
+    return f"{sum(r['status'] == 'finished' for r in runs)}/{len(runs)}"
+
+
+SEED_COLUMNS = {
+    "mean error (SE)": col_mean,
+    "sd": col_sd,
+    "worst": col_worst,
+    "off-normal share (median)": col_off_normal,
+    "finished": col_finished,
+}
+"""The per-seed table's columns: name → function of the case's runs."""
+
+
+def _seed_runs(pool, extra: list[str], seeds: list[int], ideal: dict) -> list[dict]:
+    return pool.map(seed_run, [(extra, s, ideal) for s in seeds])
+
+
+def seeds_table(pool, first_seed: int, factors: bool) -> None:
+    """The shipped chain over SEED_CASES' seeds from ``first_seed``, without noise and
+    with the data sheet's, and (``factors``) each bias factor's share."""
+    names = list(SEED_COLUMNS)
+    print("| case | noise | runs | " + " | ".join(names) + " |")
+    print("|---" * (len(names) + 3) + "|")
+    shipped = {}
+    for case, (extra, n) in SEED_CASES.items():
+        ideal = _ideal(extra)
+        for noise, assignments in NOISES.items():
+            seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
+            runs = _seed_runs(pool, extra + assignments, seeds, ideal)
+            shipped[(case, noise)] = runs
+            print(f"| {case} (e_ideal {ideal['restitution']:.3f}) | {noise} | "
+                  f"{'1 (every seed alike)' if len(seeds) == 1 else len(seeds)} | "
+                  + " | ".join(f(runs) for f in SEED_COLUMNS.values()) + " |", flush=True)
+    if not factors:
+        return
+    print("\n| case | noise | factor as it was | mean error with it | its share |")
+    print("|---|---|---|---|---|")
+    for case, (extra, n) in SEED_CASES.items():
+        ideal = _ideal(extra)
+        for noise, assignments in NOISES.items():
+            seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
+            base = statistics.fmean(_errors(shipped[(case, noise)]))
+            for factor, change in FACTORS.items():
+                runs = _seed_runs(pool, extra + assignments + change, seeds, ideal)
+                e = _errors(runs)
+                share = (f"{100 * (statistics.fmean(e) - base):+.1f} points"
+                         if e else "—")
+                print(f"| {case} | {noise} | {factor} | {col_mean(runs)} | {share} |",
+                      flush=True)
 
 
 def calibration_table(pool, seeds: list[int]) -> None:
@@ -289,10 +401,21 @@ def main() -> None:
     parser.add_argument("--calibration", type=int, metavar="SEEDS", default=None,
                         help="instead: the compensated sponge over SEEDS seeds with the bias "
                              "calibration averaged over 0.5 s and over 2 s (the default)")
+    parser.add_argument("--seeds", action="store_true",
+                        help="instead: the shipped collision over 30 (sponge) and 20 (rigid) "
+                             "seeds, without and with noise")
+    parser.add_argument("--factors", action="store_true",
+                        help="with --seeds: each bias factor's share")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="with --seeds: the first seed (1000: the tuning seeds)")
     args = parser.parse_args()
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
+        if args.seeds:
+            seeds_table(pool, args.first_seed, args.factors)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
         if args.calibration:
             calibration_table(pool, list(range(args.calibration)))
             print(f"\n({time.perf_counter() - t0:.0f} s)")

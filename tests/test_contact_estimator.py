@@ -85,11 +85,13 @@ def _spin_gained(run, sat: int) -> float:
 
 
 def test_a_head_on_contact_through_the_coms_does_not_spin_the_cubesat(head_on):
-    """The cubesat (arm 1) gains the ideal run's spin (6e-6 rad/s, gravity gradient) to
-    within 5e-6 with the estimator, 2.8e-4 rad/s without (the torque noise through the
-    open gate)."""
+    """Over the 4.5 s the ideal cubesat gains 6e-6 rad/s of spin (gravity gradient); in
+    hil it gains no more than 1e-5 with the estimator (the contact's torque is the
+    moment of the estimated force at the contact point: none, through the COMs), and
+    over 1e-4 rad/s without it (the torque noise through the open gate)."""
     ideal = run_scenario(_collision(), mode="ideal", duration_s=4.5, with_ideal=False)
-    assert abs(_spin_gained(head_on["noise"], 1) - _spin_gained(ideal, 1)) < 5e-6
+    assert _spin_gained(ideal, 1) < 1e-5
+    assert _spin_gained(head_on["noise"], 1) < 1e-5
     assert _spin_gained(head_on["noise, no estimator"], 1) > 1e-4
 
 

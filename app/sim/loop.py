@@ -28,7 +28,7 @@ import numpy as np
 
 from app.config import EmulatorConfig
 from app.sim.capture import Compound, compound_wrench, join, relative_state, spread
-from app.sim.compensation import force_lag_s, lag_model, predicted_state
+from app.sim.compensation import contact_cutoff_hz, force_lag_s, lag_model, predicted_state
 from app.sim.contact import BoxContactModel
 from app.sim.contact_estimator import contact_wrench_W
 from app.sim.contact_gate import (
@@ -109,7 +109,7 @@ class Emulator:
             int(round(force_lag_s(config, hold=False) / self.dt_s)))
         self.gate = None
         if config.wrench.contact_gate:
-            alpha = lowpass_alpha(config.wrench.lowpass_hz, config.loop.rate_hz)
+            alpha = lowpass_alpha(contact_cutoff_hz(config), config.loop.rate_hz)
             self.gate = ContactGate(self.n_sat, config.wrench.contact_gate_margin_m,
                                     hold_cycles_for(config.sensor.delay_cycles, alpha))
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
