@@ -21,13 +21,13 @@ measured force projected on that cone:
 c the mockup's COM (from the same kinematics).
 
 The no-pull clamp rectifies the noise: where the true normal force is near zero (the
-gate open just before the touch, the hold while the last of the filtered force arrives,
-the sponge's soft end) it passes the noise's positive half only, a push of about
-0.4 σ per cycle (σ the filtered, fused noise, 0.5 N). Measured over 30 tuning seeds of
-the sponge collision it adds +29 % to the mean restitution (+43 % against +14 %): an
-unbiased estimate of a force that is near zero must sometimes be negative. So
-``[wrench] contact_no_pull`` (default off) chooses it; without it, F_n = F·n as measured,
-and the tangential clamp uses |F_n|. The torque about the COM is the moment
+gate open just before the touch, the hold while the last of the delayed force arrives,
+the sponge's soft end) it passes the noise's positive half only, a push of about 0.4 σ
+per cycle. Measured (benchmarks/contact_fidelity.py ``--seeds --factors``, seeds 0–29 and
+0–19) it moves the mean restitution error by +57 points for the sponge and −10 points for
+rigid on rigid: an unbiased estimate of a force that is near zero must sometimes be
+negative. So ``[wrench] contact_no_pull`` (default off) chooses it; without it,
+F_n = F·n as measured, and the tangential clamp uses |F_n|. The torque about the COM is the moment
 of the estimated force at the contact point: a head-on contact through the COMs hands
 the ODS no torque, as the contact itself exerts none. Nothing here reads the simulated
 contact's force or its material law (stiffness, damping): only the geometry and μ.
