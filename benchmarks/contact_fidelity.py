@@ -36,7 +36,9 @@ noise (one run: without noise every seed is the same run) and with the data shee
 mean restitution error, its standard deviation, the worst run, the median off-normal
 share, stops; with ``--factors`` each bias factor's share: the mean error with that
 part of the chain as it was (``FACTORS``) minus the shipped chain's, same seeds. The
-table is one function per column (``SEED_COLUMNS``), so that columns can be added.
+table is one function per column (``SEED_COLUMNS``), so that columns can be added. Then
+the ideal run with the chain's noise acting on the pair during the contact
+(``NoisyIdeal``, ten times the seeds): what the noise does to a perfect emulator.
 """
 
 from __future__ import annotations
@@ -51,9 +53,10 @@ from pathlib import Path
 import numpy as np
 
 from app.config import EmulatorConfig, assignment_override, merge_overrides
-from app.headless import ideal_collision, run_scenario
+from app.headless import collision_of, ideal_collision, run_scenario
 from app.metrics import compare_with_ideal, sensing_limits
 from app.scenarios import load_scenario
+from app.sim.loop import Emulator
 
 SEEDS = list(range(10))
 """Ten seeds: the sponge's single-run spread is ±40 %, so the mean of ten is known to about
@@ -216,6 +219,59 @@ SEED_COLUMNS = {
 
 def _seed_runs(pool, extra: list[str], seeds: list[int], ideal: dict) -> list[dict]:
     return pool.map(seed_run, [(extra, s, ideal) for s in seeds])
+
+
+class NoisyIdeal(Emulator):
+    """The ideal run (contact integrated within the step) with the force noise the hil
+    chain hands the ODS during a contact acting on the pair: per cycle, while the bodies
+    touch and 3 cycles after (the gate's hold), ±n with n ~ N(0, σ²/2 per axis) on the two
+    satellites (the fused estimate of two sensors of σ each, the low-pass bypassed). What
+    a perfect emulator with this sensor would give: the noise's own effect on the
+    contact, which no processing of the force removes."""
+
+    def __init__(self, config: EmulatorConfig, seed: int) -> None:
+        super().__init__(config, mode="ideal")
+        self.rng = np.random.default_rng(seed)
+        self.sigma_N = config.sensor.noise_force_N / math.sqrt(2.0)
+        self._hold = 0
+
+    def ods_advance(self, force_R, torque_B, own=None):
+        if self.interaction.contact_active or self._overlap(self.ods.y):
+            self._hold = 3
+        if self._hold > 0:
+            self._hold -= 1
+            n = self.sigma_N * self.rng.standard_normal(3)
+            noise = np.zeros_like(force_R)
+            noise[0], noise[1] = -n, n
+            own = (noise, np.zeros_like(torque_B)) if own is None else (own[0] + noise,
+                                                                          own[1])
+        return super().ods_advance(force_R, torque_B, own)
+
+
+def noisy_ideal_error(args: tuple) -> float | None:
+    """One NoisyIdeal run's restitution error against the noise-free ideal."""
+    assignments, seed, ideal = args
+    config = configure(load_scenario("collision"), assignments)
+    em = NoisyIdeal(config, seed)
+    em.run(config.loop.duration_s)
+    e = collision_of(em).get("restitution")
+    return None if e is None else (e - ideal["restitution"]) / ideal["restitution"]
+
+
+def noisy_ideal_table(pool, first_seed: int, repeat: int = 10) -> None:
+    """Per case, NoisyIdeal over ``repeat`` times the case's seeds: the bias and spread the
+    sensor's noise gives a perfect emulator."""
+    print("\n| case | perfect emulator + the chain's noise: mean error (SE) | sd | runs |")
+    print("|---|---|---|---|")
+    for case, (extra, n) in SEED_CASES.items():
+        ideal = _ideal(extra)
+        seeds = range(first_seed, first_seed + repeat * n)
+        e = [x for x in pool.map(noisy_ideal_error, [(extra, s, ideal) for s in seeds])
+             if x is not None]
+        sd = statistics.stdev(e)
+        print(f"| {case} | {100 * statistics.fmean(e):+.1f} % (SE "
+              f"{100 * sd / math.sqrt(len(e)):.1f}) | {100 * sd:.1f} % | "
+              f"{len(e)}/{len(seeds)} |", flush=True)
 
 
 def seeds_table(pool, first_seed: int, factors: bool) -> None:
@@ -414,6 +470,7 @@ def main() -> None:
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
         if args.seeds:
             seeds_table(pool, args.first_seed, args.factors)
+            noisy_ideal_table(pool, args.first_seed)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.calibration:
