@@ -101,7 +101,7 @@ class Emulator:
         self._is_carried[self._carried] = True
         self._arm_of = {arm.satellite: k for k, arm in enumerate(self.arms)}
         self.consistent_pairs: list[tuple[int, int]] = []
-        """The pairs of carried mockups the last open gate took as one contact."""
+        """The pairs of carried mockups this cycle's open gates took as one contact."""
         self._tracking_out = np.zeros((len(self.arms), 2))
         self.coupling = OdsCoupling(
             config.passivity, self.dt_s, [arm.satellite for arm in self.arms],
@@ -231,6 +231,7 @@ class Emulator:
                                  self.dt_s, first_cycle=self.cycles == 0,
                                  gate_open=bool(near[s]))
             force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
+        self.consistent_pairs = []
         if near.any():
             self._contact_estimate(force_R, torque_B, near, nearest, bodies)
         return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
