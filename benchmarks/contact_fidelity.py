@@ -14,7 +14,8 @@ delays, servo bandwidth and limits):
 
 * ``paper``: the paper's chain (payload + inertial compensation, 30 Hz low-pass, 4 N
   deadband), nothing else;
-* ``passivity``: + the passivity layer alone (the landed default before lag compensation);
+* ``passivity``: + the passivity layer alone (the landed default before lag compensation,
+  its tank of 1 mJ);
 * ``compensated``: the collision scenario's chain: lag compensation + contact gate + pair
   fusion + passivity layer (README "Fidelity");
 * ``comp. without the lead``: the compensated chain with ``[compensation] enabled = false``
@@ -66,7 +67,7 @@ RIGID = ['satellites.1.material="rigid"', "loop.duration_s=7"]
 by 12 s they would be at the arms' bases (a workspace stop, not a fidelity figure)."""
 PAPER = ["compensation.enabled=false", "wrench.contact_gate=false",
          "wrench.fuse_pair_contact=false", "passivity.enabled=false"]
-PASSIVITY = PAPER[:-1] + ["passivity.enabled=true"]
+PASSIVITY = PAPER[:-1] + ["passivity.enabled=true", "passivity.tank_max_J=0.001"]
 NOISE_10 = ["sensor.noise_force_N=0.16667", "sensor.noise_torque_Nm=0.006667"]
 NO_NOISE = ["sensor.noise_force_N=0", "sensor.noise_torque_Nm=0"]
 CHAINS = {
