@@ -312,6 +312,7 @@ class WrenchProcessor:
         self.delay_cycles = int(delay_cycles)
         self._state_S = np.zeros(6)
         self._contact_state_S = np.zeros(6)
+        self._gate_was_open = False
         self._scratch = np.empty(12)
         self._ring: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
@@ -320,6 +321,7 @@ class WrenchProcessor:
         forget the poses of past readings."""
         self._state_S = np.zeros(6)
         self._contact_state_S = np.zeros(6)
+        self._gate_was_open = False
         self._ring = []
 
     def _aligned(self, T_W_F: np.ndarray, T_W_C: np.ndarray,
@@ -429,7 +431,14 @@ class WrenchProcessor:
                 cal.mass_kg, cal.com_F_m)
         soft = cfg.deadband_mode == "soft"
         # the filter at lowpass_hz always runs, so that the chain returns to it without a
-        # step when the gate closes; the contact's filter starts from it when it opens
+        # step when the gate closes; the contact's filter starts from it when it opens.
+        # When the gate closes after a contact the contact's force has been delivered
+        # whole by the contact's filter: the slow filter restarts from rest, so that its
+        # lagging copy of the contact (up to several N after a rigid one) is not handed
+        # over a second time
+        if self._gate_was_open and not gate_open and self.contact_alpha != self.alpha:
+            self._state_S[:] = 0.0
+        self._gate_was_open = gate_open
         process_step(*args, self.alpha, self._state_S, db_force, db_torque, soft,
                      self._scratch if gate_open and self.contact_alpha != self.alpha else out)
         if not gate_open:
