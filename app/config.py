@@ -395,6 +395,11 @@ class WrenchProcessingConfig(_Model):
     payload_compensation: StrictBool = True
     inertial_compensation: StrictBool = True
     lowpass_hz: Positive = 30.0
+    contact_lowpass_hz: Positive | None = None
+    """The low-pass's cut-off while the contact gate is open (None: ``lowpass_hz``). A
+    contact's force reaches the ODS sooner through a faster filter, and the lag
+    compensation's lead, which holds the input over it, shrinks with it (its miss grows
+    as lead³: app/sim/compensation.py). Without the contact gate it has no effect."""
     calibration_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=60.0)] = 2.0
     """Seconds of readings at rest averaged for the bias calibration at start-up. What is
     left of the bias is about noise_force_N / sqrt(calibration_s · rate_hz) per axis
@@ -423,7 +428,20 @@ class WrenchProcessingConfig(_Model):
     fuse_pair_contact: StrictBool = False
     """With the contact gate: while two carried mockups touch only each other, hand both
     satellites the one estimate ±(F_b − F_a)/2 of the two sensors (app/sim/contact_gate.py):
-    the exchanged momentum balances exactly, the noise per satellite drops by √2."""
+    the exchanged momentum balances exactly, the noise per satellite drops by √2. Only
+    while the two sensors agree with Newton's third law within their measured noise (a
+    push on either is passed as measured)."""
+    contact_estimator: StrictBool = False
+    """With the contact gate: while the gate is open for a mockup in one contact, hand its
+    satellite the measured force projected on the contact's friction cone (tangential part
+    at most μ times the normal part, a pull zeroed with ``contact_no_pull``; the normal and
+    point from the
+    mockups' known boxes at their measured poses, μ from the materials) and the moment of
+    that force at the contact point as its torque (app/sim/contact_estimator.py)."""
+    contact_no_pull: StrictBool = False
+    """With the contact estimator: a measured normal force that pulls becomes zero. Off:
+    it passes as measured (the clamp rectifies the noise where the true force is near zero
+    and biases the restitution: app/sim/contact_estimator.py)."""
 
 
 class CompensationConfig(_Model):
@@ -505,6 +523,10 @@ class ContactMaterial(_Model):
     stiffness_Npm: Positive
     damping_spm: NonNegative
     """Hunt-Crossley damping (s/m): F = k d (1 + c d_dot), no pull."""
+    friction: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=2.0)] = 0.0
+    """Coulomb friction coefficient μ of the surface (0: frictionless). Two surfaces in
+    contact slide with √(μ_a μ_b), regularised near zero sliding speed
+    (app/sim/contact.py)."""
 
 
 DEFAULT_MATERIALS = {

@@ -105,6 +105,7 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
     window = slice(max(0, first - quiet), min(len(rows), last + quiet + 1))
     impulse = {s_: applied[s_][window].sum(axis=0) * dt_s for s_ in (a, b)}
     ja, jb = impulse[a], impulse[b]
+    normal = _contact_normal(true[b][window].sum(axis=0) * dt_s, rows, index, a, b, first)
     biggest = max(np.linalg.norm(ja), np.linalg.norm(jb))
     balance = float(np.linalg.norm(ja + jb) / biggest) if biggest > 0 else None
     warnings = []
@@ -156,6 +157,8 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         "pair": [f"sat{a}", f"sat{b}"],
         "impulse_Ns": {f"sat{a}": ja.tolist(), f"sat{b}": jb.tolist()},
         "impulse_balance": balance,
+        "normal": normal.tolist(),
+        "off_normal_ratio": {f"sat{s_}": _off_normal(impulse[s_], normal) for s_ in (a, b)},
         "true_impulse_Ns": {f"sat{s_}": (true[s_][window].sum(axis=0) * dt_s).tolist()
                             for s_ in (a, b)},
         "peak_force_N": float(np.linalg.norm(true[a][window], axis=1).max()),
@@ -171,6 +174,28 @@ def collision_metrics(rows: np.ndarray, index: dict, dt_s: float, a: int = 1, b:
         "window_s": [float(rows[window.start, 0]), float(rows[window.stop - 1, 0])],
         "warnings": warnings,
     }
+
+
+def _contact_normal(true_impulse_b: np.ndarray, rows: np.ndarray, index: dict, a: int,
+                    b: int, k: int) -> np.ndarray:
+    """(3,) R axes: the direction of the impulse the bodies exchanged (on b), the
+    contact's normal for a frictionless contact (with friction, the true impulse's own
+    direction: what the ODS's should follow); without one, the line of centres at row k.
+    (The line of centres is off a face's normal by the satellites' drift: 0.8 % in the
+    collision scenario.)"""
+    norm = float(np.linalg.norm(true_impulse_b))
+    if norm > 0.0:
+        return true_impulse_b / norm
+    pos = {s: _cols(rows[k:k + 1], index, f"sat{s}", ("x_m", "y_m", "z_m"))[0] for s in (a, b)}
+    n = pos[b] - pos[a]
+    return n / np.linalg.norm(n)
+
+
+def _off_normal(impulse: np.ndarray, normal: np.ndarray) -> float | None:
+    """|impulse across the normal| / |impulse along it| (None without an impulse along)."""
+    along = float(impulse @ normal)
+    across = float(np.linalg.norm(impulse - along * normal))
+    return across / abs(along) if along != 0.0 else None
 
 
 def _restitution(rows: np.ndarray, index: dict, a: int, b: int, first: int, window: slice,
@@ -273,6 +298,34 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float) -> Non
     coll["warnings"] = warnings
 
 
+OFF_NORMAL_QUANTILE = 2.45
+"""√(−2 ln 0.05): the 95 % quantile of the magnitude of a 2-D Gaussian vector (Rayleigh) in
+units of its per-axis standard deviation."""
+
+
+def _off_normal_warnings(coll: dict, noise: tuple[float, float] | None) -> list[str]:
+    """A satellite whose impulse across the contact's normal (the true impulse's
+    direction) exceeds what the sensor noise explains: the noise's impulse over the
+    contact window, σ·sqrt(T·dt) per axis, its 95 % magnitude across the normal
+    (OFF_NORMAL_QUANTILE), plus 1 % (ideal and noiseless runs)."""
+    out = []
+    window_s = coll["window_s"][1] - coll["window_s"][0] + coll["dt_s"]
+    for name, ratio in coll.get("off_normal_ratio", {}).items():
+        if ratio is None:
+            continue
+        j = np.asarray(coll["impulse_Ns"][name])
+        along = abs(float(j @ np.asarray(coll["normal"])))
+        explained = 0.01
+        if noise is not None and noise[0] > 0:
+            explained += OFF_NORMAL_QUANTILE * noise[0] * np.sqrt(window_s * noise[1]) / along
+        if ratio > explained:
+            out.append(f"{name} received {100 * ratio:.0f} % of its normal impulse across "
+                       f"the contact's normal, more than the sensor's noise explains"
+                       f" ({100 * explained:.0f} %): the satellites leave off the "
+                       f"collision's line")
+    return out
+
+
 def passivity_metrics(em: Emulator) -> dict | None:
     """Energy each arm's passivity controller removed (None when it is off)."""
     removed = em.coupling.dissipated_J()
@@ -321,6 +374,14 @@ def sensing_limits(em: Emulator) -> float:
     """The F/T force deadband a contact of a run meets, for compare_with_ideal: 0 where
     the contact gate lifts it, or without arms (an ideal run has no sensor)."""
     return _contact_deadband(em.config, bool(em.arms))
+
+
+def _sensor_noise(cfg: EmulatorConfig, with_arms: bool) -> tuple[float, float] | None:
+    """(σ per sample, N; the time between samples, s) of the F/T noise a contact meets;
+    None without arms (an ideal run has no sensor)."""
+    if not with_arms:
+        return None
+    return cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz
 
 
 def _contact_deadband(cfg: EmulatorConfig, with_arms: bool) -> float:
@@ -390,6 +451,8 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                        if ideal else "") + ": nothing to compare this one with")
                 ideal = None
             compare_with_ideal(coll, ideal, _contact_deadband(config, bool(facts.arm_of)))
+            coll["warnings"] += _off_normal_warnings(
+                coll, _sensor_noise(config, bool(facts.arm_of)))
             coll["restitution_sd"] = coll["restitution_interval_95"] = None  # hil: filled
             coll["uncertainty"] = None  # by app/uncertainty.py after the run
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:

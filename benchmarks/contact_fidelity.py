@@ -5,6 +5,8 @@
     .venv/bin/python -m benchmarks.contact_fidelity --quick     # seed 0 only
     .venv/bin/python -m benchmarks.contact_fidelity --calibration 30   # bias calibration
     .venv/bin/python -m benchmarks.contact_fidelity --calibration-check  # the interval
+    .venv/bin/python -m benchmarks.contact_fidelity --seeds            # per-seed figures
+    .venv/bin/python -m benchmarks.contact_fidelity --seeds --factors  # + bias factors
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -13,7 +15,8 @@ delays, servo bandwidth and limits):
 
 * ``paper``: the paper's chain (payload + inertial compensation, 30 Hz low-pass, 4 N
   deadband), nothing else;
-* ``passivity``: + the passivity layer alone (the landed default before lag compensation);
+* ``passivity``: + the passivity layer alone (the landed default before lag compensation,
+  its tank of 1 mJ);
 * ``compensated``: the collision scenario's chain: lag compensation + contact gate + pair
   fusion + passivity layer (README "Fidelity");
 * ``comp. without the lead``: the compensated chain with ``[compensation] enabled = false``
@@ -28,6 +31,16 @@ delays, servo bandwidth and limits):
 
 Free-floating: tracking, each push's Δv against impulse × force_scale / mass, and the
 spin left after the force-only pushes.
+
+``--seeds``: the shipped collision chain over many seeds (sponge vs rigid on seeds 0-29,
+rigid vs rigid on 0-19; ``--first-seed 1000`` for the tuning seeds 1000-1029), without
+noise (one run: without noise every seed is the same run) and with the data sheet's:
+mean restitution error, its standard deviation, the worst run, the median off-normal
+share, stops; with ``--factors`` each bias factor's share: the mean error with that
+part of the chain as it was (``FACTORS``) minus the shipped chain's, same seeds. The
+table is one function per column (``SEED_COLUMNS``), so that columns can be added. Then
+the ideal run with the chain's noise acting on the pair during the contact
+(``NoisyIdeal``, ten times the seeds): what the noise does to a perfect emulator.
 """
 
 from __future__ import annotations
@@ -42,9 +55,16 @@ from pathlib import Path
 import numpy as np
 
 from app.config import EmulatorConfig, assignment_override, merge_overrides
-from app.headless import checked_reference, headless_config, ideal_collision, run_scenario
+from app.headless import (
+    checked_reference,
+    collision_of,
+    headless_config,
+    ideal_collision,
+    run_scenario,
+)
 from app.metrics import compare_with_ideal, sensing_limits
 from app.scenarios import load_scenario
+from app.sim.loop import Emulator
 
 SEEDS = list(range(10))
 """Ten seeds: the sponge's single-run spread is ±40 %, so the mean of ten is known to about
@@ -54,7 +74,7 @@ RIGID = ['satellites.1.material="rigid"', "loop.duration_s=7"]
 by 12 s they would be at the arms' bases (a workspace stop, not a fidelity figure)."""
 PAPER = ["compensation.enabled=false", "wrench.contact_gate=false",
          "wrench.fuse_pair_contact=false", "passivity.enabled=false"]
-PASSIVITY = PAPER[:-1] + ["passivity.enabled=true"]
+PASSIVITY = PAPER[:-1] + ["passivity.enabled=true", "passivity.tank_max_J=0.001"]
 NOISE_10 = ["sensor.noise_force_N=0.16667", "sensor.noise_torque_Nm=0.006667"]
 NO_NOISE = ["sensor.noise_force_N=0", "sensor.noise_torque_Nm=0"]
 CHAINS = {
@@ -139,6 +159,161 @@ def collision_table(pool, seeds: list[int]) -> list[str]:
                 + (f"{(1e3 * statistics.fmean(removed)):.2f} mJ |" if removed else "— |"))
             print(lines[-1], flush=True)
     return lines
+
+
+SEED_CASES = {"sponge vs rigid": ([], 30), "rigid vs rigid": (RIGID, 20)}
+"""Each case's assignments and how many seeds it runs."""
+NOISES = {"no noise": NO_NOISE, "default noise": []}
+FACTORS = {
+    "no-pull clamp": ["wrench.contact_no_pull=true"],
+    "30 Hz filter in contact": ["wrench.contact_lowpass_hz=30"],
+    "tank 1 mJ": ["passivity.tank_max_J=0.001"],
+    "no estimator": ["wrench.contact_estimator=false"],
+}
+"""The parts of the chain that turned the noise or the loop's lag into a bias, each as
+it was before issue 28: what each contributes (its mean error minus the shipped one)."""
+
+
+def seed_run(args: tuple) -> dict:
+    """One run's figures for the per-seed table: the collision metrics and the status."""
+    run = collision_run(args)
+    coll = run["collision"]
+    off = (max(v for v in coll["off_normal_ratio"].values() if v is not None)
+           if coll and any(v is not None for v in coll["off_normal_ratio"].values()) else None)
+    return {"error": coll["restitution_error"] if coll else None, "off_normal": off,
+            "status": run["status"]}
+
+
+def _errors(runs: list[dict]) -> list[float]:
+    return [r["error"] for r in runs if r["error"] is not None]
+
+
+def col_mean(runs: list[dict]) -> str:
+    e = _errors(runs)
+    if not e:
+        return "—"
+    se = statistics.stdev(e) / math.sqrt(len(e)) if len(e) > 1 else 0.0
+    return f"{100 * statistics.fmean(e):+.1f} % (SE {100 * se:.1f})"
+
+
+def col_sd(runs: list[dict]) -> str:
+    e = _errors(runs)
+    return f"{100 * statistics.stdev(e):.1f} %" if len(e) > 1 else "—"
+
+
+def col_worst(runs: list[dict]) -> str:
+    e = _errors(runs)
+    return f"{100 * max(e, key=abs):+.1f} %" if e else "—"
+
+
+def col_off_normal(runs: list[dict]) -> str:
+    v = [r["off_normal"] for r in runs if r["off_normal"] is not None]
+    return f"{100 * statistics.median(v):.2f} %" if v else "—"
+
+
+def col_finished(runs: list[dict]) -> str:
+    return f"{sum(r['status'] == 'finished' for r in runs)}/{len(runs)}"
+
+
+SEED_COLUMNS = {
+    "mean error (SE)": col_mean,
+    "sd": col_sd,
+    "worst": col_worst,
+    "off-normal share (median)": col_off_normal,
+    "finished": col_finished,
+}
+"""The per-seed table's columns: name → function of the case's runs."""
+
+
+def _seed_runs(pool, extra: list[str], seeds: list[int], ideal: dict) -> list[dict]:
+    return pool.map(seed_run, [(extra, s, ideal) for s in seeds])
+
+
+class NoisyIdeal(Emulator):
+    """The ideal run (contact integrated within the step) with the force noise the hil
+    chain hands the ODS during a contact acting on the pair: per cycle, while the bodies
+    touch and 3 cycles after (the gate's hold), ±n with n ~ N(0, σ²/2 per axis) on the two
+    satellites (the fused estimate of two sensors of σ each, the low-pass bypassed). What
+    a perfect emulator with this sensor would give: the noise's own effect on the
+    contact, which no processing of the force removes."""
+
+    def __init__(self, config: EmulatorConfig, seed: int) -> None:
+        super().__init__(config, mode="ideal")
+        self.rng = np.random.default_rng(seed)
+        self.sigma_N = config.sensor.noise_force_N / math.sqrt(2.0)
+        self._hold = 0
+
+    def ods_advance(self, force_R, torque_B, own=None):
+        if self.interaction.contact_active or self._overlap(self.ods.y):
+            self._hold = 3
+        if self._hold > 0:
+            self._hold -= 1
+            n = self.sigma_N * self.rng.standard_normal(3)
+            noise = np.zeros_like(force_R)
+            noise[0], noise[1] = -n, n
+            own = (noise, np.zeros_like(torque_B)) if own is None else (own[0] + noise,
+                                                                          own[1])
+        return super().ods_advance(force_R, torque_B, own)
+
+
+def noisy_ideal_error(args: tuple) -> float | None:
+    """One NoisyIdeal run's restitution error against the noise-free ideal."""
+    assignments, seed, ideal = args
+    config = configure(load_scenario("collision"), assignments)
+    em = NoisyIdeal(config, seed)
+    em.run(config.loop.duration_s)
+    e = collision_of(em).get("restitution")
+    return None if e is None else (e - ideal["restitution"]) / ideal["restitution"]
+
+
+def noisy_ideal_table(pool, first_seed: int, repeat: int = 10) -> None:
+    """Per case, NoisyIdeal over ``repeat`` times the case's seeds: the bias and spread the
+    sensor's noise gives a perfect emulator."""
+    print("\n| case | perfect emulator + the chain's noise: mean error (SE) | sd | runs |")
+    print("|---|---|---|---|")
+    for case, (extra, n) in SEED_CASES.items():
+        ideal = _ideal(extra)
+        seeds = range(first_seed, first_seed + repeat * n)
+        e = [x for x in pool.map(noisy_ideal_error, [(extra, s, ideal) for s in seeds])
+             if x is not None]
+        sd = statistics.stdev(e)
+        print(f"| {case} | {100 * statistics.fmean(e):+.1f} % (SE "
+              f"{100 * sd / math.sqrt(len(e)):.1f}) | {100 * sd:.1f} % | "
+              f"{len(e)}/{len(seeds)} |", flush=True)
+
+
+def seeds_table(pool, first_seed: int, factors: bool) -> None:
+    """The shipped chain over SEED_CASES' seeds from ``first_seed``, without noise and
+    with the data sheet's, and (``factors``) each bias factor's share."""
+    names = list(SEED_COLUMNS)
+    print("| case | noise | runs | " + " | ".join(names) + " |")
+    print("|---" * (len(names) + 3) + "|")
+    shipped = {}
+    for case, (extra, n) in SEED_CASES.items():
+        ideal = _ideal(extra)
+        for noise, assignments in NOISES.items():
+            seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
+            runs = _seed_runs(pool, extra + assignments, seeds, ideal)
+            shipped[(case, noise)] = runs
+            print(f"| {case} (e_ideal {ideal['restitution']:.3f}) | {noise} | "
+                  f"{'1 (every seed alike)' if len(seeds) == 1 else len(seeds)} | "
+                  + " | ".join(f(runs) for f in SEED_COLUMNS.values()) + " |", flush=True)
+    if not factors:
+        return
+    print("\n| case | noise | factor as it was | mean error with it | its share |")
+    print("|---|---|---|---|---|")
+    for case, (extra, n) in SEED_CASES.items():
+        ideal = _ideal(extra)
+        for noise, assignments in NOISES.items():
+            seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
+            base = statistics.fmean(_errors(shipped[(case, noise)]))
+            for factor, change in FACTORS.items():
+                runs = _seed_runs(pool, extra + assignments + change, seeds, ideal)
+                e = _errors(runs)
+                share = (f"{100 * (statistics.fmean(e) - base):+.1f} points"
+                         if e else "—")
+                print(f"| {case} | {noise} | {factor} | {col_mean(runs)} | {share} |",
+                      flush=True)
 
 
 def calibration_table(pool, seeds: list[int]) -> None:
@@ -367,12 +542,23 @@ def main() -> None:
                              "0-19)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="with --calibration-check: a setting for every run")
+    parser.add_argument("--seeds", action="store_true",
+                        help="instead: the shipped collision over 30 (sponge) and 20 (rigid) "
+                             "seeds, without and with noise")
+    parser.add_argument("--factors", action="store_true",
+                        help="with --seeds: each bias factor's share")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="with --seeds: the first seed (1000: the tuning seeds)")
     args = parser.parse_args()
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
-        if args.calibration_check:
-            calibration_check(pool, assignments=args.set)
+        if args.calibration_check or args.seeds:
+            if args.calibration_check:
+                calibration_check(pool, assignments=args.set)
+            else:
+                seeds_table(pool, args.first_seed, args.factors)
+                noisy_ideal_table(pool, args.first_seed)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.calibration:

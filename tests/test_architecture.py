@@ -159,3 +159,76 @@ def test_one_implementation_per_stage_and_pinocchio_only_in_the_tests():
             assert word not in text, f"{name} mentions {word}"
         imported = imported_names(name, path, modules)
         assert not [m for m in imported if m == "pinocchio" or m.startswith("pinocchio.")], name
+
+
+#: The lab-side stages of the contact chain (docs/contact-chain.md): what a lab's loop
+#: runs. None may import the simulated world's interaction (the contact law's forces, the
+#: operator's hand).
+LAB_SIDE = ("app.sim.ft_sensor", "app.sim.contact_gate", "app.sim.contact_estimator",
+            "app.sim.coupling", "app.sim.passivity", "app.sim.compensation", "app.sim.vfdm",
+            "app.sim.orbital")
+SIMULATED_WORLD = ("app.sim.interaction", "app.sim.hand", "app.sim.reference")
+
+
+def test_the_lab_side_stages_do_not_import_the_simulated_world():
+    modules = app_modules()
+    offending = [f"{name} imports {m}" for name in LAB_SIDE
+                 for m in sorted(imported_names(name, modules[name], modules))
+                 if m in SIMULATED_WORLD]
+    assert not offending, "\n".join(offending)
+
+
+class _Sealed:
+    """A stand-in for a simulated-world object: the names in ``allowed`` pass through, any
+    other read fails the test (the loop's lab side read it)."""
+
+    def __init__(self, real, allowed: set[str], what: str) -> None:
+        object.__setattr__(self, "_real", real)
+        object.__setattr__(self, "_allowed", allowed)
+        object.__setattr__(self, "_what", what)
+
+    def __getattr__(self, name: str):
+        if name in self._allowed:
+            return getattr(self._real, name)
+        raise AssertionError(f"the loop's lab side read {self._what}.{name}")
+
+    def __setattr__(self, name: str, value) -> None:
+        raise AssertionError(f"the loop's lab side wrote {self._what}.{name}")
+
+
+def _sealed_run(seal: bool, seconds: float = 3.5):
+    """The collision (seed 0, hil) with, when ``seal``, the simulated world made
+    unreadable to the loop's lab side: of the interaction only the physics' own call
+    (wrenches_W: the contact law and the hand acting on the mockups, which the sensors
+    then measure), of the contact model only its geometry (the mockups' boxes at their
+    measured poses: clearances, frames) and the materials' friction setting."""
+    import numpy as np
+
+    from app.config import merge_overrides
+    from app.scenarios import load_scenario
+    from app.sim.loop import Emulator
+
+    em = Emulator(merge_overrides(load_scenario("collision"), {"loop": {"seed": 0}}))
+    if seal:
+        contact = _Sealed(em.interaction.contact, {"clearances", "frames", "friction"},
+                          "contact")
+        interaction = em.interaction
+        em.interaction = _Sealed(interaction, {"wrenches_W"}, "interaction")
+        object.__setattr__(em.interaction, "contact", contact)  # for the gate's query
+        em.interaction._allowed.add("contact")
+        em.hand = _Sealed(em.hand, {"update", "post"}, "hand")  # the world moves the hand
+    em.run(seconds)
+    return em.status, np.array(em.telemetry.rows())
+
+
+def test_no_lab_side_stage_reads_the_simulated_contact_or_hand():
+    """The collision runs through its contact (3.1-3.3 s) with the simulated contact and
+    hand sealed (nothing but the physics' own call, the boxes' geometry and μ readable):
+    no stage of the lab's chain (processing, gate, fusion, estimator, coupling, passivity,
+    compensation, VFDM) reads them, and the run is bit for bit the unsealed one."""
+    import numpy as np
+
+    status, sealed = _sealed_run(True)
+    assert status == "finished"
+    _, free = _sealed_run(False)
+    np.testing.assert_array_equal(sealed, free)

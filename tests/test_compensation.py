@@ -51,24 +51,33 @@ def test_the_position_lag_model_is_the_lag_the_loop_shows(rate_hz):
 
 def test_a_lag_that_cannot_be_identified_or_made_up_is_refused():
     """At 125 Hz the arm's tracking oscillates (no steady lag to lead by); a 1 Hz
-    low-pass lags 160 ms, beyond what a prediction can make up: each says so before the
-    clock starts, and names the way out."""
+    low-pass on the contact's force lags 160 ms, beyond what a prediction can make up:
+    each says so before the clock starts, and names the way out."""
     with pytest.raises(LagModelError,
                        match=r"did not settle .* at loop.rate_hz = 125 Hz .* raise loop.rate_hz"):
         Emulator(_collision("loop.rate_hz=125")).prepare()
     with pytest.raises(LagModelError,
+                       match=r"wrench.contact_lowpass_hz = 1 Hz.*beyond the 100 ms a lead "
+                             r"can make up"):
+        Emulator(_collision("wrench.contact_lowpass_hz=1")).prepare()
+    with pytest.raises(LagModelError,  # without the gate, the contact's force is filtered at
+                       # lowpass_hz
                        match=r"wrench.lowpass_hz = 1 Hz.*beyond the 100 ms a lead can make up"):
-        Emulator(_collision("wrench.lowpass_hz=1")).prepare()
+        Emulator(_collision("wrench.lowpass_hz=1", "wrench.contact_gate=false")).prepare()
 
 
-@pytest.mark.parametrize(("rate_hz", "delay_cycles", "lowpass_hz"),
-                         [(500.0, 1, 30.0), (1000.0, 3, 12.0)])
-def test_the_force_lag_is_the_lag_the_sensor_chain_shows(rate_hz, delay_cycles, lowpass_hz):
-    """A force ramp on a mockup at rest, through the real sensor and processing chain:
-    the output trails the ramp by the model's force lag (delay + filter; the ODS's
-    zero-order hold adds its half cycle on top)."""
+@pytest.mark.parametrize(("rate_hz", "delay_cycles", "lowpass_hz", "contact_hz"),
+                         [(500.0, 1, 30.0, 30.0), (1000.0, 3, 12.0, 12.0),
+                          (500.0, 1, 30.0, 100.0), (500.0, 2, 30.0, 1000.0)])
+def test_the_force_lag_is_the_lag_the_sensor_chain_shows(rate_hz, delay_cycles, lowpass_hz,
+                                                         contact_hz):
+    """A force ramp on a mockup at rest, through the real sensor and processing chain
+    with the contact gate open (the path a contact's force takes: its filter at
+    contact_lowpass_hz): the output trails the ramp by the model's force lag (delay +
+    filter; the ODS's zero-order hold adds its half cycle on top)."""
     cfg = _collision(*NO_NOISE, f"loop.rate_hz={rate_hz}",
                      f"sensor.delay_cycles={delay_cycles}", f"wrench.lowpass_hz={lowpass_hz}",
+                     f"wrench.contact_lowpass_hz={contact_hz}",
                      "wrench.deadband_force_N=0", "wrench.inertial_compensation=false")
     dt = 1.0 / rate_hz
     g_W = np.array([0.0, 0.0, -9.81])
@@ -81,7 +90,7 @@ def test_the_force_lag_is_the_lag_the_sensor_chain_shows(rate_hz, delay_cycles, 
     for k in range(int(round(0.5 / dt))):
         f_in = slope_Nps * k * dt
         out = proc.process(sensor.measure(np.array([f_in, 0, 0, 0, 0, 0]), T, T),
-                           T, T, np.eye(3))
+                           T, T, np.eye(3), gate_open=True)
     lag_s = (f_in - out.force_R_N[0]) / slope_Nps
     assert lag_s == pytest.approx(force_lag_s(cfg, hold=False), rel=1e-6)
     assert force_lag_s(cfg) - force_lag_s(cfg, hold=False) == pytest.approx(0.5 * dt)

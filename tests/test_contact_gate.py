@@ -7,10 +7,20 @@ import math
 import numpy as np
 import pytest
 
-from app.config import DEFAULT_MATERIALS
+from app.config import DEFAULT_MATERIALS, merge_overrides
+from app.scenarios import load_scenario
 from app.sim.contact import BoxContactModel
-from app.sim.contact_gate import ContactGate, fuse_pair_forces, hold_cycles_for
+from app.sim.contact_gate import (
+    CHI2_THRESHOLD,
+    ContactGate,
+    contact_pairs,
+    fuse_pair_forces,
+    hold_cycles_for,
+    newton_consistent,
+)
 from app.sim.ft_sensor import lowpass_alpha
+from app.sim.hand import Push
+from app.sim.loop import Emulator
 
 INF = math.inf
 
@@ -56,37 +66,49 @@ def _forces():
 
 def test_two_carried_mockups_touching_each_other_get_one_estimate():
     f = _forces()
-    fused = fuse_pair_forces(f, np.array([True, True, False]), np.array([1, 0, -1]),
-                             np.ones(3, dtype=bool), np.array([True, True, True]),
-                             np.zeros(3, dtype=bool))
-    assert fused == [(0, 1)]
+    pairs = contact_pairs(np.array([True, True, False]), np.array([1, 0, -1]),
+                          np.ones(3, dtype=bool), np.array([True, True, True]))
+    assert pairs == [(0, 1)]
+    fuse_pair_forces(f, pairs)
     est = 0.5 * (_forces()[1] - _forces()[0])
     np.testing.assert_allclose(f[1], est)
     np.testing.assert_allclose(f[0], -est)
     np.testing.assert_array_equal(f[2], _forces()[2])  # not touching: untouched
 
 
-@pytest.mark.parametrize("case", ["hand on one", "one not carried", "partners differ",
+@pytest.mark.parametrize("case", ["one not carried", "partners differ",
                                   "one gate closed", "a third body near one"])
-def test_no_fusion_when_the_pair_is_not_alone(case):
+def test_no_pair_when_the_two_are_not_alone(case):
     open_ = np.array([True, True, True])
     nearest = np.array([1, 0, 1])
     alone = np.ones(3, dtype=bool)
     carried = np.array([True, True, True])
-    hand = np.zeros(3, dtype=bool)
     if case == "a third body near one":
         alone[1] = False
-    elif case == "hand on one":
-        hand[1] = True
     elif case == "one not carried":
         carried[0] = False
     elif case == "partners differ":
         nearest = np.array([1, 2, 0])  # a ring: no two are each other's nearest
     else:
         open_[1] = False
-    f = _forces()
-    assert fuse_pair_forces(f, open_, nearest, alone, carried, hand) == []
-    np.testing.assert_array_equal(f, _forces())
+    assert contact_pairs(open_, nearest, alone, carried) == []
+
+
+def test_newton_consistency_is_a_chi_square_test_against_the_noise():
+    """F_a + F_b against Σ_a + Σ_b: equal and opposite within the noise passes, a push
+    on one does not; the threshold is the χ²(3) quantile."""
+    cov = np.diag([0.25, 0.25, 1.0])  # σ 0.5, 0.5, 1 N
+    f_a = np.array([-3.0, 0.1, 0.2])
+    assert newton_consistent(f_a, -f_a, cov)
+    # just inside / outside the threshold along z (σ 1 N): χ² = s²
+    inside, outside = math.sqrt(CHI2_THRESHOLD) - 0.01, math.sqrt(CHI2_THRESHOLD) + 0.01
+    assert newton_consistent(f_a, -f_a + [0.0, 0.0, inside], cov)
+    assert not newton_consistent(f_a, -f_a + [0.0, 0.0, outside], cov)
+    # the same sum along x, where the noise is half as large: refused
+    assert not newton_consistent(f_a, -f_a + [inside, 0.0, 0.0], cov)
+    # a noiseless pair: trusted to 1 mN (COV_FLOOR_N2), no better
+    assert newton_consistent(f_a, -f_a + [1e-3, 0.0, 0.0], np.zeros((3, 3)))
+    assert not newton_consistent(f_a, -f_a + [1e-2, 0.0, 0.0], np.zeros((3, 3)))
 
 
 def _boxes_in_a_row(gap_m: float):
@@ -111,14 +133,53 @@ def test_a_body_pressed_between_two_others_is_not_fused():
     open_ = gate.update(clearance, nearest, crowd)
     assert open_.all()
     np.testing.assert_array_equal(gate.alone, [True, False, True])  # 1 is near two bodies
-    f = _forces()
-    assert fuse_pair_forces(f, open_, gate.partner, gate.alone, np.ones(3, dtype=bool),
-                            np.zeros(3, dtype=bool)) == []
-    np.testing.assert_array_equal(f, _forces())
+    assert contact_pairs(open_, gate.partner, gate.alone, np.ones(3, dtype=bool)) == []
     # 1.5 mm apart on one side (beyond the margin): the other pair is alone and fused again
     poses[2][0, 3] += 0.002
     clearance, nearest, crowd = model.clearances(poses, 0.001)
     np.testing.assert_array_equal(crowd, [1, 1, 0])
     open_ = gate.update(clearance, nearest, crowd)
-    assert fuse_pair_forces(f, open_, gate.partner, gate.alone, np.ones(3, dtype=bool),
-                            np.zeros(3, dtype=bool)) == [(0, 1)]
+    assert contact_pairs(open_, gate.partner, gate.alone, np.ones(3, dtype=bool)) == [(0, 1)]
+
+
+def _push_while_touching(noise: bool) -> tuple[dict, list[bool]]:
+    """The collision (passivity layer off: it treats the environment as passive and would
+    spread an operator's push over both satellites), 20 ms into the contact the operator
+    pushes the sponge's mockup sideways, 15 N for 10 ms. (The ODS y impulse of each
+    satellite from the push on, whether the loop fused the pair each cycle.)"""
+    cfg = merge_overrides(load_scenario("collision"), {"passivity": {"enabled": False}})
+    if not noise:
+        cfg = merge_overrides(cfg, {"sensor": {"noise_force_N": 0.0, "noise_torque_Nm": 0.0}})
+    em = Emulator(cfg)
+    em.prepare()
+    while not em.interaction.contact_active:  # the test may look; the loop does not
+        em.step()
+    for _ in range(10):
+        em.step()
+    start = em.cycles
+    em.post(Push(satellite=1, force_R_N=(0.0, 15.0, 0.0), duration_s=0.01))
+    fused = []
+    for _ in range(40):
+        em.step()
+        fused.append(bool(em.consistent_pairs))
+    assert em.status == "running"
+    rows, ix = em.telemetry.rows(), em.telemetry.index
+    return {s: rows[start:, ix[f"sat{s}_fy_N"]].sum() * em.dt_s for s in (1, 2)}, fused
+
+
+@pytest.mark.parametrize("noise", [False, True])
+def test_a_push_on_one_mockup_during_the_contact_reaches_its_satellite(noise):
+    """The sensors disagree with Newton's third law by the push: the pair is not fused,
+    nor projected on the (frictionless) contact's normal, and the pushed satellite gets
+    the 0.15 N s sideways (with the data sheet's noise, within what the noise of the
+    unfused cycles explains); the other one nothing. Fusing
+    regardless would have split it between the two; the projection would have dropped
+    it."""
+    impulse_y, fused = _push_while_touching(noise)
+    assert fused[0] and not any(fused[1:6])  # the push arrives a cycle late (sensor delay)
+    if noise:  # each satellite's own noise over the 5 unfused cycles: σ 0.0075 N s
+        assert impulse_y[2] == pytest.approx(0.15, abs=3 * 0.0075)
+        assert abs(impulse_y[1]) < 3 * 0.0075
+    else:
+        assert impulse_y[2] == pytest.approx(0.15, rel=1e-3)
+        assert abs(impulse_y[1]) < 1e-6

@@ -437,3 +437,22 @@ def test_inertial_compensation_without_an_acceleration_is_refused():
     proc = WrenchProcessor(WrenchProcessingConfig(inertial_compensation=True), RATE_HZ, G_W)
     with pytest.raises(ValueError, match="acceleration"):
         proc.process(np.zeros(6), T_W_F, T_W_C, R_W_R)
+
+
+def test_the_calibration_measures_the_noise_the_gate_open_chain_passes():
+    """The rest readings' scatter is the sensor's noise (σ 1.67 N per axis: within the
+    sampling error of 500 readings); the covariance of the filtered force it predicts
+    (α/(2 − α) of it, rotated) is what the chain puts out with the gate open, at the
+    30 Hz filter and with the filter bypassed in contact."""
+    sigma = DEFAULT_SENSOR.noise_force_N
+    for contact_hz in (None, 1000.0):
+        cfg = WrenchProcessingConfig(inertial_compensation=False, contact_lowpass_hz=contact_hz)
+        sensor = _sensor(seed=5)
+        proc = _calibrated(sensor, cfg)
+        cov = proc.calibration.force_noise_cov_S
+        np.testing.assert_allclose(np.diag(cov), sigma**2, rtol=4 * np.sqrt(2 / 500))
+        predicted_R = proc.filtered_force_cov(R_W_R.T @ T_W_F[:3, :3])
+        out = np.array([proc.process(sensor.measure(np.zeros(6), T_W_C, T_W_F), T_W_F, T_W_C,
+                                     R_W_R, gate_open=True).force_R_N for _ in range(20000)])
+        measured = np.cov(out[100:].T)
+        np.testing.assert_allclose(np.diag(measured), np.diag(predicted_R), rtol=0.1)

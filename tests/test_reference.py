@@ -101,3 +101,27 @@ def test_cycles_without_contact_are_not_substepped():
                          mode="ideal", duration_s=2.5).emulator for n in (1, 50)]
     assert runs[0].telemetry.rows().tobytes() == runs[1].telemetry.rows().tobytes()
     assert runs[0].telemetry.column("sat1_true_fx_N").max() == 0.0  # no contact yet
+
+
+def test_a_sliding_contact_exchanges_mu_times_its_normal_impulse():
+    """Coulomb friction (app/sim/contact.py): two surfaces of μ = 0.4 meet head-on while
+    sliding past each other at 0.1 m/s, and still slide when they part (friction takes
+    0.08 m/s of it): the tangential impulse is μ times the normal one (the regularisation
+    takes 0.05 % at the end's 0.02 m/s), opposing the slip; the normal impulse is the
+    frictionless one's."""
+    def run(mu):
+        cfg = load_scenario("collision")
+        sats = [s.model_copy(update={"position_m": (s.position_m[0], -sign * 0.155, 0.0),
+                                     "velocity_mps": (s.velocity_mps[0], sign * 0.05, 0.0)})
+                for s, sign in zip(cfg.satellites, (1, -1), strict=True)]
+        mats = {k: m.model_copy(update={"friction": mu}) for k, m in cfg.materials.items()}
+        cfg = cfg.model_copy(update={"satellites": sats, "materials": mats})
+        return run_scenario(cfg, mode="ideal", duration_s=4.0).metrics["collision"]
+
+    j = np.array(run(0.4)["true_impulse_Ns"]["sat2"])
+    # sat2 moves at −0.05 m/s in y, sat1 at +0.05: friction drags sat2 along +y
+    assert j[1] > 0.0
+    assert j[1] == pytest.approx(0.4 * j[0], rel=1e-3)
+    frictionless = np.array(run(0.0)["true_impulse_Ns"]["sat2"])
+    assert abs(frictionless[1]) < 1e-6 * frictionless[0]
+    assert j[0] == pytest.approx(frictionless[0], rel=1e-3)

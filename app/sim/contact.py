@@ -2,8 +2,19 @@
 
 Implements DESIGN.md, "Contact between mockups": penetration depth, normal and point from
 coal (boxes of each satellite's size_m at their COM poses T_W_C), a Hunt–Crossley law
-F_n = max(0, k d (1 + c ḋ)) with per-mockup materials, and equal and opposite forces at the
-contact point. Works for any number of bodies (all pairs, or a chosen list).
+F_n = max(0, k d (1 + c ḋ)) with per-mockup materials, Coulomb friction in the tangent
+plane, and equal and opposite forces at the contact point. Works for any number of bodies
+(all pairs, or a chosen list).
+
+Friction: a regularised Coulomb law (the smooth approximation of the sign function used
+for stiff contact integration, e.g. in MuJoCo's and Drake's compliant friction models),
+
+    F_t = μ F_n v_t / sqrt(|v_t|² + v_ε²),                                    (Coulomb)
+
+v_t the tangential sliding velocity at the contact point, v_ε = FRICTION_SLIP_MPS: while
+the surfaces slide faster than a few v_ε the tangential force is μ F_n against the slip
+(Coulomb's law); at v_t = 0 it is zero and it grows continuously, so the ideal run's
+sub-stepped integration stays smooth. μ of two surfaces: √(μ_a μ_b).
 
 Material combination for two surfaces pressed against each other:
 
@@ -35,7 +46,9 @@ __all__ = [
     "ContactGeometry",
     "ContactResult",
     "PairContact",
+    "combine_friction",
     "combine_materials",
+    "coulomb_friction",
     "hunt_crossley_force",
 ]
 
@@ -46,6 +59,26 @@ def combine_materials(a: ContactMaterial, b: ContactMaterial) -> tuple[float, fl
     k = 1.0 / (ca + cb)
     c = (a.damping_spm * ca + b.damping_spm * cb) / (ca + cb)
     return k, c
+
+
+FRICTION_SLIP_MPS = 1e-3
+"""v_ε of the regularised Coulomb law: below about this sliding speed friction fades to 0."""
+
+
+def combine_friction(a: ContactMaterial, b: ContactMaterial) -> float:
+    """μ of two surfaces in contact: the geometric mean √(μ_a μ_b) (a frictionless surface
+    slides on anything)."""
+    return math.sqrt(a.friction * b.friction)
+
+
+def coulomb_friction(normal_force_N: float, slip_W_mps: np.ndarray, mu: float) -> np.ndarray:
+    """(3,) regularised Coulomb friction (module doc, Coulomb) on the body that the other
+    slides past at ``slip_W_mps`` (the other body's tangential velocity relative to it at
+    the contact point): μ F_n along the slip, faded out below FRICTION_SLIP_MPS."""
+    if mu == 0.0 or normal_force_N == 0.0:
+        return np.zeros(3)
+    speed_sq = float(slip_W_mps @ slip_W_mps)
+    return (mu * normal_force_N / math.sqrt(speed_sq + FRICTION_SLIP_MPS**2)) * slip_W_mps
 
 
 def hunt_crossley_force(
@@ -83,7 +116,9 @@ class PairContact:
     depth_rate_mps: float
     """ḋ: rate of approach of the two bodies at the contact point along the normal."""
     normal_force_N: float
-    """F_n ≥ 0; force on b is +F_n·normal, on a −F_n·normal."""
+    """F_n ≥ 0; force on b is +F_n·normal + friction_W, on a the opposite."""
+    friction_W: np.ndarray | None = None
+    """(3,) the tangential (friction) force on b, W axes; None: frictionless pair."""
 
 
 @dataclass(frozen=True)
@@ -138,6 +173,10 @@ class BoxContactModel:
             pairs = list(combinations(range(self.n), 2))
         self.pairs = [(min(a, b), max(a, b)) for a, b in pairs]
         self._law = {(a, b): combine_materials(materials[a], materials[b]) for a, b in self.pairs}
+        self._mu = {(a, b): combine_friction(materials[a], materials[b]) for a, b in self.pairs}
+        self.frames: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        """Per pair (a < b), the last contact frame :meth:`clearances` measured within its
+        margin: (unit normal from a towards b, contact point), W; kept once they part."""
         self._build_coal()
 
     def _build_coal(self) -> None:
@@ -188,6 +227,10 @@ class BoxContactModel:
         """(k_eff, c_eff) used for the pair (a, b)."""
         return self._law[(min(a, b), max(a, b))]
 
+    def friction(self, a: int, b: int) -> float:
+        """μ of the pair (a, b) (its materials' setting: configuration, not measurement)."""
+        return self._mu[(min(a, b), max(a, b))]
+
     def _set_pose(self, i: int, T_W_C: np.ndarray) -> None:
         self._tf[i].setRotation(T_W_C[:3, :3])
         self._tf[i].setTranslation(T_W_C[:3, 3])
@@ -217,7 +260,9 @@ class BoxContactModel:
         """((N,) clearance, (N,) nearest, (N,) crowd): per body, the signed distance (m,
         < 0 when overlapping) to the nearest body it may touch and that body's index, if
         nearer than ``within_m`` (inf and -1 otherwise), and how many bodies are nearer
-        than ``within_m`` (bounding spheres further apart than that are not measured)."""
+        than ``within_m`` (bounding spheres further apart than that are not measured).
+        Each pair within ``within_m`` also has its contact frame in :attr:`frames`
+        (:meth:`_frame`)."""
         out = np.full(self.n, math.inf)
         nearest = np.full(self.n, -1, dtype=np.int64)
         crowd = np.zeros(self.n, dtype=np.int64)
@@ -233,6 +278,7 @@ class BoxContactModel:
             d = float(self._distance[(a, b)](self._tf[a], self._tf[b],
                                               self._distance_request, res))
             if d < within_m:
+                self.frames[(a, b)] = self._frame(a, b, T_W_C, d, res)
                 crowd[a] += 1
                 crowd[b] += 1
                 if d < out[a]:
@@ -240,6 +286,19 @@ class BoxContactModel:
                 if d < out[b]:
                     out[b], nearest[b] = d, a
         return out, nearest, crowd
+
+    def _frame(self, a: int, b: int, T_W_C: Sequence[np.ndarray], distance_m: float,
+               res) -> tuple[np.ndarray, np.ndarray]:
+        """(normal a → b, contact point) of a pair within the margin. The normal is the
+        signed-distance query's; the point lies on the contact plane (through the
+        midpoint of the query's two nearest points) under the midpoint of the two COMs:
+        the centre of the overlap of two equal faces, however they are offset. (The
+        query's own points are any of the face's: for two parallel faces GJK and EPA
+        return a corner, a lever arm of half the face the contact does not have.)"""
+        normal = np.array(res.normal, dtype=float)
+        on_plane = 0.5 * (res.getNearestPoint1() + res.getNearestPoint2())
+        mid = 0.5 * (T_W_C[a][:3, 3] + T_W_C[b][:3, 3])
+        return normal, mid + float((on_plane - mid) @ normal) * normal
 
     def compute(
         self,
@@ -267,10 +326,13 @@ class BoxContactModel:
             v_rel = _point_velocity(v[a], w[a], r_a) - _point_velocity(v[b], w[b], r_b)
             depth_rate = float(v_rel @ n)  # > 0 while approaching
             f_n = hunt_crossley_force(geo.depth_m, depth_rate, *self._law[(a, b)])
-            contacts.append(PairContact(a, b, geo, depth_rate, f_n))
+            mu = self._mu[(a, b)]
+            friction = (None if mu == 0.0
+                        else coulomb_friction(f_n, v_rel - depth_rate * n, mu))
+            contacts.append(PairContact(a, b, geo, depth_rate, f_n, friction))
             if f_n == 0.0:
                 continue
-            f_b = f_n * n
+            f_b = f_n * n if friction is None else f_n * n + friction
             wrench[b, :3] += f_b
             wrench[a, :3] -= f_b
             wrench[b, 3:] += _cross(r_b, f_b)

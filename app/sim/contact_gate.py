@@ -14,12 +14,22 @@ grows as σ·sqrt(open time · dt)); a tight margin and a short hold keep that w
 the contact itself.
 
 Two sensors, one contact: while two carried mockups touch only each other (each the
-other's partner, no third body within the margin of either, the gate open for both, no
-hand on either), both sensors measure the
-same contact force, equal and opposite (Newton's third law). With ``fuse`` the gate hands
-both satellites the one estimate ``F = (F_b − F_a) / 2``: its noise is 1/√2 of either
-sensor's, and the momentum the contact exchanges balances exactly. (The relative velocity,
-hence the restitution, sees the same noise either way: the two sensors' noises add.)
+other's partner, no third body within the margin of either, the gate open for both), both
+sensors measure the same contact force, equal and opposite (Newton's third law), unless
+something else pushes one of them (an operator's hand). The loop cannot see a hand; it
+sees the two sensors. It decides from them: their sum F_a + F_b is the sensors' noise
+alone while only the contact acts, so the pair is taken as one contact while
+
+    χ² = (F_a + F_b)ᵀ (Σ_a + Σ_b)⁻¹ (F_a + F_b) ≤ CHI2_THRESHOLD                    (Newton)
+
+Σ_i the covariance of sensor i's filtered force noise, estimated from its rest readings
+at the start-up calibration (:meth:`app.sim.ft_sensor.WrenchProcessor.filtered_force_cov`).
+With ``fuse`` the gate then hands both satellites the one estimate
+``F = (F_b − F_a) / 2``: its noise is 1/√2 of either sensor's, and the momentum the
+contact exchanges balances exactly. (The relative velocity, hence the restitution, sees
+the same noise either way: the two sensors' noises add.) A pair whose sum is beyond what
+the noise explains is passed as each sensor measured it: the push reaches the pushed
+satellite, as a lab's sensors would report it.
 """
 
 from __future__ import annotations
@@ -28,7 +38,16 @@ import math
 
 import numpy as np
 
-__all__ = ["ContactGate", "fuse_pair_forces", "hold_cycles_for"]
+__all__ = ["CHI2_THRESHOLD", "ContactGate", "contact_pairs", "fuse_pair_forces",
+           "hold_cycles_for", "newton_consistent"]
+
+CHI2_THRESHOLD = 21.11
+"""The χ² quantile of 3 degrees of freedom at 1 − 1e-4: a pair that only touches fails the
+test (Newton) once in 10,000 cycles (then it is passed unfused for that cycle)."""
+COV_FLOOR_N2 = 1e-6
+"""Added to the covariance's diagonal (N²): a noiseless sensor's is zero, and two
+noiseless chains still differ by up to 1e-6 N in contact (the compensation's rounding):
+no sensor is trusted beyond 1 mN."""
 
 
 def hold_cycles_for(sensor_delay_cycles: int, lowpass_alpha: float) -> int:
@@ -75,19 +94,31 @@ class ContactGate:
         return open_
 
 
-def fuse_pair_forces(force_R: np.ndarray, open_: np.ndarray, partner: np.ndarray,
-                     alone: np.ndarray, carried: np.ndarray,
-                     hand_acting: np.ndarray) -> list[tuple[int, int]]:
-    """Replace, in place, the measured forces of each pair of carried bodies whose gates
-    are open for each other (``partner``: the gate's partners) and near nothing else
-    (``alone``) by their common estimate ±(F_b − F_a)/2 (module doc); the fused pairs.
-    A body that touches two others measures the sum of two contacts: it is not fused."""
-    fused = []
-    for a in np.nonzero(open_ & carried & alone & ~hand_acting)[0]:
+def contact_pairs(open_: np.ndarray, partner: np.ndarray, alone: np.ndarray,
+                  carried: np.ndarray) -> list[tuple[int, int]]:
+    """The pairs (a < b) of carried bodies whose gates are open for each other
+    (``partner``: the gate's partners) and that are near nothing else (``alone``). A body
+    that touches two others measures the sum of two contacts: it is in no pair."""
+    pairs = []
+    for a in np.nonzero(open_ & carried & alone)[0]:
         b = int(partner[a])
-        if (b > a and open_[b] and carried[b] and alone[b] and not hand_acting[b]
-                and partner[b] == a):
-            f = 0.5 * (force_R[b] - force_R[a])
-            force_R[b], force_R[a] = f, -f
-            fused.append((int(a), b))
-    return fused
+        if b > a and open_[b] and carried[b] and alone[b] and partner[b] == a:
+            pairs.append((int(a), b))
+    return pairs
+
+
+def newton_consistent(force_a: np.ndarray, force_b: np.ndarray,
+                      noise_cov_sum: np.ndarray) -> bool:
+    """Whether two measured forces are equal and opposite within the noise (module doc,
+    Newton); noise_cov_sum: Σ_a + Σ_b (3, 3), in the forces' axes."""
+    s = force_a + force_b
+    chi2 = float(s @ np.linalg.solve(noise_cov_sum + COV_FLOOR_N2 * np.eye(3), s))
+    return chi2 <= CHI2_THRESHOLD
+
+
+def fuse_pair_forces(force_R: np.ndarray, pairs: list[tuple[int, int]]) -> None:
+    """Replace, in place, the measured forces of each pair (a, b) by their common
+    estimate ±(F_b − F_a)/2 (module doc)."""
+    for a, b in pairs:
+        f = 0.5 * (force_R[b] - force_R[a])
+        force_R[b], force_R[a] = f, -f

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from app.config import PassivityConfig
-from app.sim.interaction import Bodies
+from app.sim.frames import Bodies
 from app.sim.orbital import OrbitalSimulator
 from app.sim.passivity import PassivityController, TankPassivity, is_zero
 

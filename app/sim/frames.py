@@ -10,11 +10,13 @@ The rotation formulas are those of :mod:`app.sim.rotations`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 __all__ = [
+    "Bodies",
     "matrix_to_quat_into",
     "ods_states_W",
     "pose_distance",
@@ -22,6 +24,18 @@ __all__ = [
     "tracking_error",
     "tracking_errors",
 ]
+
+
+class Bodies(NamedTuple):
+    """Pose and velocity of every body (mockup or satellite) in the lab W: the lab's
+    forward kinematics of the arms (hil), or the ODS's satellites (ideal)."""
+
+    T_W_C: np.ndarray
+    """(N, 4, 4) COM poses."""
+    v_W: np.ndarray
+    """(N, 3) COM velocities."""
+    w_W: np.ndarray
+    """(N, 3) angular velocities."""
 
 
 @njit(cache=True, fastmath=False)

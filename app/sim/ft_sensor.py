@@ -24,7 +24,7 @@ chain one call of :func:`process_step` (numba); the calibration, run once at res
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -260,6 +260,9 @@ class Calibration:
     mass_kg: float
     com_F_m: np.ndarray
     """(3,) payload COM in the flange frame."""
+    force_noise_cov_S: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    """(3, 3) [N²] covariance of the force readings about the fit, in S: the sensor's
+    noise as the calibration measured it (not as configured)."""
 
 
 @dataclass(frozen=True)
@@ -303,15 +306,22 @@ class WrenchProcessor:
         self.config = config
         self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
         self.alpha = lowpass_alpha(config.lowpass_hz, rate_hz)
+        self.contact_alpha = (self.alpha if config.contact_lowpass_hz is None
+                              else lowpass_alpha(config.contact_lowpass_hz, rate_hz))
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
         self.delay_cycles = int(delay_cycles)
         self._state_S = np.zeros(6)
+        self._contact_state_S = np.zeros(6)
+        self._gate_was_open = False
+        self._scratch = np.empty(12)
         self._ring: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def reset(self) -> None:
-        """Reset the filter state to zero (the expected compensated wrench at rest) and
+        """Reset the filter states to zero (the expected compensated wrench at rest) and
         forget the poses of past readings."""
         self._state_S = np.zeros(6)
+        self._contact_state_S = np.zeros(6)
+        self._gate_was_open = False
         self._ring = []
 
     def _aligned(self, T_W_F: np.ndarray, T_W_C: np.ndarray,
@@ -345,9 +355,21 @@ class WrenchProcessor:
         g_F = np.einsum("nji,j->ni", R, self.gravity_W_mps2)  # R_W_Fᵀ g per sample
         mass, bias_f = self._fit_force(readings_S[:, :3], g_F, mass_kg)
         com, bias_t = self._fit_torque(readings_S[:, 3:], mass * g_F, com_F_m)
-        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com)
+        residual = readings_S[:, :3] - mass * g_F - bias_f
+        cov = (residual.T @ residual / (len(residual) - 1) if len(residual) > 1
+               else np.zeros((3, 3)))
+        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com, cov)
         self.reset()
         return self.calibration
+
+    def filtered_force_cov(self, R_X_S: np.ndarray) -> np.ndarray:
+        """(3, 3) [N²] covariance of the noise on the chain's filtered force while the
+        contact gate is open, in the axes X with R_X_S the sensor's orientation in them:
+        the calibration's estimate of the reading noise through the low-pass at
+        ``contact_lowpass_hz`` (white noise: variance × α / (2 − α))."""
+        alpha = self.contact_alpha
+        cov = self.calibration.force_noise_cov_S * (alpha / (2.0 - alpha))
+        return R_X_S @ cov @ R_X_S.T
 
     @staticmethod
     def _fit_force(
@@ -393,7 +415,8 @@ class WrenchProcessor:
         T_W_F: flange (= sensor) pose now; T_W_C: mockup COM pose now (its axes are the
         body axes B); R_W_R: orientation of the CW frame R in W; accel_W_mps2: the lab's
         estimate of the mockup's acceleration now, in W (used only with
-        inertial_compensation); gate_open: lift the deadbands (a contact is near).
+        inertial_compensation); gate_open: lift the deadbands (a contact is near) and
+        filter at ``contact_lowpass_hz``.
         """
         cfg, cal = self.config, self.calibration
         if cfg.inertial_compensation and accel_W_mps2 is None:
@@ -403,10 +426,24 @@ class WrenchProcessor:
         db_force, db_torque = ((0.0, 0.0) if gate_open
                                else (cfg.deadband_force_N, cfg.deadband_torque_Nm))
         out = np.empty(12)
-        process_step(
-            np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R, self.gravity_W_mps2,
-            cfg.payload_compensation, accel, cfg.inertial_compensation, cal.bias_S,
-            cal.mass_kg, cal.com_F_m, self.alpha, self._state_S, db_force, db_torque,
-            cfg.deadband_mode == "soft", out,
-        )
+        args = (np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R, self.gravity_W_mps2,
+                cfg.payload_compensation, accel, cfg.inertial_compensation, cal.bias_S,
+                cal.mass_kg, cal.com_F_m)
+        soft = cfg.deadband_mode == "soft"
+        # the filter at lowpass_hz always runs, so that the chain returns to it without a
+        # step when the gate closes; the contact's filter starts from it when it opens.
+        # When the gate closes after a contact the contact's force has been delivered
+        # whole by the contact's filter: the slow filter restarts from rest, so that its
+        # lagging copy of the contact (up to several N after a rigid one) is not handed
+        # over a second time
+        if self._gate_was_open and not gate_open and self.contact_alpha != self.alpha:
+            self._state_S[:] = 0.0
+        self._gate_was_open = gate_open
+        process_step(*args, self.alpha, self._state_S, db_force, db_torque, soft,
+                     self._scratch if gate_open and self.contact_alpha != self.alpha else out)
+        if not gate_open:
+            self._contact_state_S[:] = self._state_S
+        elif self.contact_alpha != self.alpha:
+            process_step(*args, self.contact_alpha, self._contact_state_S, db_force,
+                         db_torque, soft, out)
         return ProcessedWrench(force_R_N=out[0:3], torque_B_Nm=out[3:6], wrench_S=out[6:12])

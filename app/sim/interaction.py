@@ -10,27 +10,15 @@ the F/T sensors then measure, or, in an ideal run, what the ODS receives exactly
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
 
 import numpy as np
 
 from app.sim.contact import BoxContactModel
-from app.sim.frames import ods_states_W
+from app.sim.frames import Bodies, ods_states_W
 from app.sim.hand import OperatorHand
 from app.sim.orbital import OrbitalSimulator
 
 __all__ = ["Bodies", "PhysicalInteraction", "actual_bodies", "body_torque_B", "ods_bodies"]
-
-
-class Bodies(NamedTuple):
-    """Pose and velocity of every body (mockup or satellite) in the lab W."""
-
-    T_W_C: np.ndarray
-    """(N, 4, 4) COM poses."""
-    v_W: np.ndarray
-    """(N, 3) COM velocities."""
-    w_W: np.ndarray
-    """(N, 3) angular velocities."""
 
 
 def ods_bodies(T_W_R: np.ndarray, ods: OrbitalSimulator) -> Bodies:

@@ -29,9 +29,16 @@ import numpy as np
 
 from app.config import EmulatorConfig
 from app.sim.capture import Compound, compound_wrench, join, relative_state, spread
-from app.sim.compensation import force_lag_s, lag_model, predicted_state
+from app.sim.compensation import contact_cutoff_hz, force_lag_s, lag_model, predicted_state
 from app.sim.contact import BoxContactModel
-from app.sim.contact_gate import ContactGate, fuse_pair_forces, hold_cycles_for
+from app.sim.contact_estimator import contact_wrench_W
+from app.sim.contact_gate import (
+    ContactGate,
+    contact_pairs,
+    fuse_pair_forces,
+    hold_cycles_for,
+    newton_consistent,
+)
 from app.sim.coupling import OdsCoupling
 from app.sim.frames import satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
@@ -93,6 +100,9 @@ class Emulator:
         self._carried = np.array([arm.satellite for arm in self.arms], dtype=np.int64)
         self._is_carried = np.zeros(self.n_sat, dtype=bool)
         self._is_carried[self._carried] = True
+        self._arm_of = {arm.satellite: k for k, arm in enumerate(self.arms)}
+        self.consistent_pairs: list[tuple[int, int]] = []
+        """The pairs of carried mockups this cycle's open gates took as one contact."""
         self._tracking_out = np.zeros((len(self.arms), 2))
         self.coupling = OdsCoupling(
             config.passivity, self.dt_s, [arm.satellite for arm in self.arms],
@@ -100,7 +110,7 @@ class Emulator:
             int(round(force_lag_s(config, hold=False) / self.dt_s)))
         self.gate = None
         if config.wrench.contact_gate:
-            alpha = lowpass_alpha(config.wrench.lowpass_hz, config.loop.rate_hz)
+            alpha = lowpass_alpha(contact_cutoff_hz(config), config.loop.rate_hz)
             self.gate = ContactGate(self.n_sat, config.wrench.contact_gate_margin_m,
                                     hold_cycles_for(config.sensor.delay_cycles, alpha))
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
@@ -229,10 +239,56 @@ class Emulator:
                                  self.dt_s, first_cycle=self.cycles == 0,
                                  gate_open=bool(near[s]))
             force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
-        if self.config.wrench.fuse_pair_contact and near.any():
-            fuse_pair_forces(force_R, near, nearest, self.gate.alone, self._is_carried,
-                             self.interaction.hand_acting)
+        self.consistent_pairs = []
+        if near.any():
+            self._contact_estimate(force_R, torque_B, near, nearest, bodies)
         return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
+
+    def _contact_estimate(self, force_R: np.ndarray, torque_B: np.ndarray, near: np.ndarray,
+                          partner: np.ndarray, bodies: Bodies) -> None:
+        """While gates are open, in place: the pairs of carried mockups that touch only
+        each other and whose sensors agree with Newton's third law (app/sim/contact_gate.py)
+        are fused (``[wrench] fuse_pair_contact``); with ``contact_estimator``, each
+        mockup in one contact (such a pair, or alone with a body no arm carries) gets the
+        contact-aware estimate (app/sim/contact_estimator.py). Reads the measured forces,
+        the mockups' poses (forward kinematics), their known boxes and the configuration."""
+        wrench = self.config.wrench
+        if not (wrench.fuse_pair_contact or wrench.contact_estimator):
+            return
+        alone = self.gate.alone
+        pairs = [(a, b) for a, b in contact_pairs(near, partner, alone, self._is_carried)
+                 if newton_consistent(force_R[a], force_R[b],
+                                      self._force_cov_R(a) + self._force_cov_R(b))]
+        self.consistent_pairs = pairs
+        if wrench.fuse_pair_contact:
+            fuse_pair_forces(force_R, pairs)
+        if not wrench.contact_estimator:
+            return
+        single = [s for s in np.nonzero(near & self._is_carried & alone)[0]
+                  if partner[s] >= 0 and not self._is_carried[partner[s]]]
+        contact = self.interaction.contact
+        for s in [s for pair in pairs for s in pair] + single:
+            p = int(partner[s])
+            a, b = min(s, p), max(s, p)
+            frame = contact.frames.get((a, b))
+            if frame is None:
+                continue
+            normal_W, point_W = frame
+            if s == a:
+                normal_W = -normal_W  # the contact pushes a along −n, b along +n
+            T_W_C = bodies.T_W_C[s]
+            f_W, t_W = contact_wrench_W(self.R_W_R @ force_R[s], normal_W, point_W,
+                                        T_W_C[:3, 3], contact.friction(a, b),
+                                        wrench.contact_no_pull)
+            force_R[s] = f_W @ self.R_W_R
+            torque_B[s] = t_W @ T_W_C[:3, :3]
+
+    def _force_cov_R(self, s: int) -> np.ndarray:
+        """(3, 3) the filtered force noise covariance of satellite s's chain, in R (the
+        calibration's estimate)."""
+        arm = self.arms[self._arm_of[s]]
+        R_R_S = self.R_W_R.T @ arm.mockup_state_W()[0][:3, :3]
+        return arm.processor.filtered_force_cov(R_R_S)
 
     def _gate_open(self, bodies: Bodies) -> tuple[np.ndarray, np.ndarray]:
         """((N,) whether each body's chain lets a contact below the deadband through,
