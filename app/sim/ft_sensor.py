@@ -11,7 +11,9 @@ Conventions
 * An external wrench on a mockup, ``wrench_ext_W``, is given in lab axes W with its moment
   taken **about the mockup COM C**. Contributions (contact, operator's hand, …) add up as
   plain arrays; :func:`point_force_wrench_W` turns a force at a point into that form.
-* The sensor frame S is the flange frame F (the UR10e sensor sits in the tool flange).
+* The sensor frame S is the flange frame F (the UR10e sensor sits in the tool flange), or,
+  with ``[sensor] placement = "mockup"``, a frame at the contact face fixed in the mockup
+  body (app/sim/rig.py): the functions here take S's pose wherever they say T_W_F.
 * The raw reading is the wrench the mockup exerts **on the sensor**, in S, moments about the
   origin of S: ``F_ext + m (g − a)`` and its moment. Processing removes ``m (g − a)`` and so
   returns ``F_ext``, the push acting on the satellite, which is what the ODS needs.
@@ -257,7 +259,7 @@ class VirtualFTSensor:
         """
         normals = self.rng.standard_normal(6)
         fill = self._head < 0
-        held = None if fill else self._ring[self._head].copy()
+        held = None if fill or self.every_cycles == 1.0 else self._ring[self._head].copy()
         self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
         n = self._ring.shape[0]
         oldest = (self._head + 1) % n
