@@ -53,19 +53,24 @@ SENSOR_MODELS: dict[str, SensorModel] = {
     # 1/800 N·m (one sigma: 0.025 N, 0.00125 N·m). Net F/T: RDT streaming up to 7000 Hz
     # (above any loop here), latency from the event to the Ethernet output 288 µs (ATI,
     # "F/T system interfaces": Net F/T) — well under a 2 ms cycle: the reading the loop
-    # takes is this cycle's (delay 0).
+    # takes is this cycle's (delay 0). Checked against a copy: the Net F/T rate and latency
+    # (ati-ia.com, F/T system interfaces); the calibration's range and resolution are
+    # ATI's published SI-130-10 figures as quoted, to check against the current sheet.
     "ati-gamma": SensorModel(130.0, 10.0, 1.0 / 40.0, 1.0 / 800.0, None, 0,
                              "ATI Gamma SI-130-10 with Net F/T"),
     # ATI Mini45 SI-145-5 calibration (F/T sensor catalogue, Mini45 page): F_xy 145 N
     # (F_z 290 N), T_xyz 5 N·m; resolution with Net F/T 1/16 N and 1/752 N·m (one sigma).
-    # Same Net F/T interface as the Gamma: 7000 Hz, 288 µs (delay 0).
+    # Same Net F/T interface as the Gamma: 7000 Hz, 288 µs (delay 0). The range and
+    # resolution are ATI's published SI-145-5 figures as recalled, not checked against a
+    # copy of the sheet here: check them before relying on the Mini45's row.
     "ati-mini45": SensorModel(145.0, 5.0, 1.0 / 16.0, 1.0 / 752.0, None, 0,
                               "ATI Mini45 SI-145-5 with Net F/T"),
     # Robotiq FT 300-S Force Torque Sensor, instruction manual (specifications and section
     # 4.4 "Serial communication"): range ±300 N / ±30 N·m, signal noise 0.1 N and
     # 0.005 N·m (one sigma), data stream of 16-byte frames at 100 Hz over RS-485 at
     # 19200 bps: a frame takes 16 x 10 bits / 19200 bps = 8.3 ms on the wire after it was
-    # sampled, 4 cycles at 500 Hz.
+    # sampled, 4 cycles at 500 Hz. Checked against a copy: the 100 Hz stream and the 19200
+    # bps link (manual, section 4.4); the range and noise as quoted from the data sheet.
     "robotiq-ft300s": SensorModel(300.0, 30.0, 0.1, 0.005, 100.0, 4,
                                   "Robotiq FT 300-S instruction manual"),
 }
