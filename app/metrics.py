@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -347,7 +348,9 @@ def _sensing_limits(cfg: EmulatorConfig, with_arms: bool, pair: tuple[int, int],
     deadband = 0.0 if cfg.wrench.contact_gate else cfg.wrench.deadband_force_N
     masses = [cfg.satellites[s - 1].mass_kg for s in pair]
     gain = scaling_of(cfg).force_scale * float(np.sqrt(sum(1.0 / m**2 for m in masses)))
-    return deadband, (cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz, gain)
+    # a sensor slower than the loop repeats each sample: its noise adds up per sample
+    sample_hz = min(cfg.loop.rate_hz, cfg.sensor.sample_rate_hz or math.inf)
+    return deadband, (cfg.sensor.noise_force_N, 1.0 / sample_hz, gain)
 
 
 def compute_metrics(em: Emulator, wall_s: float, ideal_collision: dict | None = None,
