@@ -26,6 +26,7 @@ from pydantic import (
 )
 
 from app.inputs import InputFileError, read_bounded_text
+from app.sim.sensor_models import SENSOR_MODELS
 
 __all__ = [
     "CaptureConfig",
@@ -363,9 +364,36 @@ UR10E_SPEED_LIMITS_RADPS = (
 )
 
 
-class ServoConfig(_Model):
-    """Simulated UR10e position servo."""
+SERVOJ_LOOKAHEAD_RANGE_S = (0.03, 0.2)
+"""UR's script manual, servoj: lookahead_time, range [0.03, 0.2] s."""
+SERVOJ_GAIN_RANGE = (100.0, 2000.0)
+"""UR's script manual, servoj: gain, range [100, 2000]."""
+SERVOJ_DEFAULT_LOOKAHEAD_S = 0.03
+SERVOJ_DEFAULT_GAIN = 1200.0
+"""servoj(q, t=0.002, lookahead_time=0.03, gain=1200): as a lab streaming over RTDE at 2 ms
+drives it (Universal_Robots_Client_Library issue #86)."""
 
+
+def _within(lo: float, hi: float, what: str):
+    def check(v: float | None) -> float | None:
+        if v is not None and not (math.isfinite(v) and lo <= v <= hi):
+            raise ValueError(f"{v!r} is outside servoj's {what} range [{lo:g}, {hi:g}] "
+                             f"(UR script manual)")
+        return v
+    return AfterValidator(check)
+
+
+class ServoConfig(_Model):
+    """Simulated UR10e position servo (app/sim/servo.py).
+
+    ``model``: "second-order" tracks each set-point with a response of ``bandwidth_hz``
+    and ``damping_ratio``; "servoj" answers as UR's servoj(q, t, lookahead_time, gain)
+    does (the acceleration is ``gain`` times the error between the target and the current
+    position projected ``lookahead_time_s`` ahead with the current velocity). Both keep
+    the transport delay, the speed and acceleration limits and the protective stops.
+    """
+
+    model: Literal["second-order", "servoj"] = "second-order"
     bandwidth_hz: Positive = 50.0
     damping_ratio: Positive = 1.0
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
@@ -374,19 +402,79 @@ class ServoConfig(_Model):
     )
     accel_limit_radps2: Positive = 40.0
     position_limit_rad: Positive = 2.0 * math.pi
+    lookahead_time_s: Annotated[float | None,
+                                _within(*SERVOJ_LOOKAHEAD_RANGE_S, "lookahead_time")] = None
+    """servoj only (None: 0.03 s)."""
+    gain: Annotated[float | None, _within(*SERVOJ_GAIN_RANGE, "gain")] = None
+    """servoj only (None: 1200)."""
+
+    @model_validator(mode="after")
+    def _servoj_only(self) -> ServoConfig:
+        if self.model != "servoj":
+            for key in ("lookahead_time_s", "gain"):
+                if getattr(self, key) is not None:
+                    raise ValueError(f"{key} is servoj's; it has no effect with model = "
+                                     f"{self.model!r} (set model = \"servoj\", or leave "
+                                     f"{key} out)")
+        return self
+
+    @property
+    def servoj_lookahead_s(self) -> float:
+        return SERVOJ_DEFAULT_LOOKAHEAD_S if self.lookahead_time_s is None \
+            else self.lookahead_time_s
+
+    @property
+    def servoj_gain(self) -> float:
+        return SERVOJ_DEFAULT_GAIN if self.gain is None else self.gain
+
+
+SENSOR_MODEL_FIELDS = ("range_force_N", "range_torque_Nm", "noise_force_N",
+                       "noise_torque_Nm", "sample_rate_hz", "delay_cycles")
+"""The [sensor] settings a model fills when they are not given."""
 
 
 class SensorConfig(_Model):
-    """Virtual UR10e F/T sensor at the flange."""
+    """Virtual F/T sensor (app/sim/ft_sensor.py).
 
+    ``model`` names a sensor whose data sheet fills range, noise, sample rate and delay
+    (app/sim/sensor_models.py, where each figure is cited); any of them given here
+    overrides the model's. The defaults are the UR10e's built-in sensor.
+
+    ``placement``: "flange", the sensor in the tool flange, carrying the whole mockup;
+    "mockup", between the mockup body and its contact face: it carries only the face
+    (``face_mass_kg``, centred at ``face_position_m`` in the body frame, where the sensor's
+    origin is, its axes the body's), so the chain compensates that small mass, not the
+    mockup's.
+    """
+
+    model: Literal["ur10e", "ati-gamma", "ati-mini45", "robotiq-ft300s"] = "ur10e"
     range_force_N: Positive = 100.0
     range_torque_Nm: Positive = 10.0
     noise_force_N: NonNegative = 5.0 / 3.0
     """Standard deviation; the data sheet's precision of ±5 N read as a 3-sigma bound."""
     noise_torque_Nm: NonNegative = 0.2 / 3.0
+    sample_rate_hz: Positive | None = None
+    """New readings per second; below the loop's rate each is held until the next. None:
+    one every loop cycle."""
     bias_force_N: Vec3 = (1.5, -0.8, 2.0)
     bias_torque_Nm: Vec3 = (0.05, -0.03, 0.02)
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    placement: Literal["flange", "mockup"] = "flange"
+    face_mass_kg: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 0.05
+    """placement "mockup" only: the contact face's mass behind the sensor."""
+    face_position_m: Vec3 = (0.0, 0.0, 0.0)
+    """placement "mockup" only: the sensor's origin (the face's centre of mass) in the
+    body frame."""
+
+    @model_validator(mode="after")
+    def _fill_from_model(self) -> SensorConfig:
+        """The model's figure for each of SENSOR_MODEL_FIELDS not given (the given ones
+        stay: they are not in model_fields_set's complement)."""
+        sheet = SENSOR_MODELS[self.model]
+        for key in SENSOR_MODEL_FIELDS:
+            if key not in self.model_fields_set:
+                object.__setattr__(self, key, getattr(sheet, key))
+        return self
 
 
 class WrenchProcessingConfig(_Model):
@@ -984,6 +1072,9 @@ def merge_overrides_all(base: EmulatorConfig, overrides: list[dict]) -> Emulator
     together (scaling.length and scaling.time, a satellite's name and the robot carrying
     it) may be given as separate patches (repeated --set, a sweep's [set] or linked axis)."""
     data = base.model_dump()
+    # the sensor's model-filled figures are not settings: a patch naming another model
+    # takes that model's (the ones given in [sensor] stay)
+    data["sensor"] = base.sensor.model_dump(exclude_unset=True)
     for patch in overrides:
         if not isinstance(patch, dict):
             raise ConfigError("overrides: expected an object of settings")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -381,7 +382,9 @@ def _sensor_noise(cfg: EmulatorConfig, with_arms: bool) -> tuple[float, float] |
     None without arms (an ideal run has no sensor)."""
     if not with_arms:
         return None
-    return cfg.sensor.noise_force_N, 1.0 / cfg.loop.rate_hz
+    # a sensor slower than the loop repeats each sample: its noise adds up per sample
+    sample_hz = min(cfg.loop.rate_hz, cfg.sensor.sample_rate_hz or math.inf)
+    return cfg.sensor.noise_force_N, 1.0 / sample_hz
 
 
 def _contact_deadband(cfg: EmulatorConfig, with_arms: bool) -> float:

@@ -7,6 +7,7 @@
     .venv/bin/python -m benchmarks.contact_fidelity --calibration-check  # the interval
     .venv/bin/python -m benchmarks.contact_fidelity --seeds            # per-seed figures
     .venv/bin/python -m benchmarks.contact_fidelity --seeds --factors  # + bias factors
+    .venv/bin/python -m benchmarks.contact_fidelity --rig-table --rig-seeds 10   # the lab's rig
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -406,6 +407,108 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
             f"{forecast_wall_s:.1f} s |")
 
 
+RIG_SENSORS = ["ur10e", "ati-gamma", "ati-mini45", "robotiq-ft300s"]
+RIG_PLACEMENTS = ["flange", "mockup"]
+RIG_SERVOS = ["second-order", "servoj"]
+RIG_MATERIALS = {"sponge vs rigid": [], "rigid vs rigid": RIGID}
+
+
+def rig_assignments(sensor: str, placement: str, servo: str) -> list[str]:
+    """The collision scenario's chain on the lab's rig: sensor model, placement, servo."""
+    return [f'sensor.model="{sensor}"', f'sensor.placement="{placement}"',
+            f'servo.model="{servo}"']
+
+
+def rig_run(args: tuple) -> dict:
+    """One hil run of the collision scenario as ``orbit-emulator run`` makes it (its
+    metrics.json), against the ideal run given; with ``preflight``, its pre-flight too
+    (where a forecast is made)."""
+    assignments, seed, ideal, preflight = args
+    config = configure(load_scenario("collision"), assignments + [f"loop.seed={seed}"])
+    try:
+        metrics = run_scenario(config, ideal=ideal, preflight_done=not preflight).metrics
+    except Exception as err:  # a refusal (e.g. the lead beyond 100 ms) is a table cell too
+        return {"error": f"{type(err).__name__}: {err}"}
+    return {"collision": metrics.get("collision"),
+            "forecast": metrics.get("collision_forecast"),
+            "status": metrics.get("status"), "safety_stop": metrics.get("safety_stop")}
+
+
+def _off_normal(coll: dict) -> float | None:
+    """The share of the received impulse off the contact normal, if the metrics have it
+    (the contact-measurement chain adds it)."""
+    for key in ("off_normal_share", "off_normal_fraction", "off_normal_impulse_share"):
+        if isinstance(coll.get(key), (int, float)):
+            return float(coll[key])
+    ratios = coll.get("off_normal_ratio") or {}
+    values = [v for v in ratios.values() if isinstance(v, (int, float))]
+    return max(values) if values else None
+
+
+def rig_cell(runs: list[dict], ideal: dict) -> dict:
+    """One row's figures over its seeds: restitution error, its sd, off-normal share,
+    interval coverage (ideal restitution inside ``restitution_interval_95``), forecast sd
+    against the across-seed sd of the restitution; None where the metric is absent."""
+    colls = [r.get("collision") or {} for r in runs]
+    errors = [c.get("restitution_error") for c in colls]
+    values = [c.get("restitution") for c in colls if c.get("restitution") is not None]
+    off = [x for x in (_off_normal(c) for c in colls) if x is not None]
+    intervals = [c.get("restitution_interval_95") for c in colls]
+    e_ideal = ideal.get("restitution")
+    covered = None
+    if any(i is not None for i in intervals) and e_ideal is not None:
+        covered = sum(i is not None and i[0] <= e_ideal <= i[1] for i in intervals)
+    forecasts = [f.get("restitution_sd") for f in (r.get("forecast") or {} for r in runs)
+                 if isinstance(f.get("restitution_sd"), (int, float))]
+    sd_seeds = statistics.stdev(values) if len(values) > 1 else None
+    return {"errors": errors, "off_normal": statistics.fmean(off) if off else None,
+            "covered": covered, "n": len(runs),
+            "stops": sum(r.get("status") == "safety_stop" for r in runs),
+            "refused": next((r["error"] for r in runs if "error" in r), None),
+            "forecast_ratio": (statistics.fmean(forecasts) / sd_seeds
+                               if forecasts and sd_seeds else None)}
+
+
+def rig_table(pool, seeds: list[int], sensors=RIG_SENSORS, placements=RIG_PLACEMENTS,
+              servos=RIG_SERVOS, materials=tuple(RIG_MATERIALS), preflight=False
+              ) -> list[str]:
+    """Sensor model x placement x servo model x material on the collision scenario's
+    chain: restitution error (mean, SE, sd, worst), off-normal share, interval coverage and
+    forecast / across-seed sd (columns "—" while the metrics lack them)."""
+    lines = ["| material | sensor | placement | servo | restitution error: mean % (SE) ± sd "
+             "(worst) | within ±5 % / ±10 % | stops | off-normal share | interval holds "
+             "the ideal | forecast sd / seeds' sd |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for material in materials:
+        extra = RIG_MATERIALS[material]
+        ideal = _ideal(extra)
+        for sensor in sensors:
+            for placement in placements:
+                for servo in servos:
+                    jobs = [(extra + rig_assignments(sensor, placement, servo), s, ideal,
+                             preflight) for s in seeds]
+                    cell = rig_cell(pool.map(rig_run, jobs), ideal)
+                    lines.append(_rig_line(material, ideal, sensor, placement, servo, cell))
+                    print(lines[-1], flush=True)
+    return lines
+
+
+def _rig_line(material, ideal, sensor, placement, servo, cell) -> str:
+    if cell["refused"]:
+        return (f"| {material} | {sensor} | {placement} | {servo} | refused: "
+                f"{cell['refused'][:120]} | | | | | |")
+    errs = [e for e in cell["errors"] if e is not None]
+    within = (f"{sum(abs(e) <= 0.05 for e in errs)} / {sum(abs(e) <= 0.10 for e in errs)}"
+              f" of {cell['n']}")
+    off = "—" if cell["off_normal"] is None else f"{100 * cell['off_normal']:.1f} %"
+    cov = "—" if cell["covered"] is None else f"{cell['covered']}/{cell['n']}"
+    fc = "—" if cell["forecast_ratio"] is None else f"{cell['forecast_ratio']:.2f}"
+    return (f"| {material} (e {ideal['restitution']:.3f}) | {sensor} | {placement} | {servo} "
+            f"| {_fmt(cell['errors'])} | {within} | {cell['stops']}/{cell['n']} | {off} | "
+            f"{cov} | {fc} |")
+
+
 def free_floating(assignments: list[str]) -> dict:
     """Tracking, Δv of each force push against impulse·scale/mass, spin after them."""
     config = configure(load_scenario("free-floating-scripted"), assignments)
@@ -533,6 +636,18 @@ def main() -> None:
     parser.add_argument("--map", action="store_true", help="also the fidelity map")
     parser.add_argument("--png", default="benchmarks/fidelity_map.png")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--rig-table", action="store_true",
+                        help="instead: sensor model x placement x servo model x material "
+                             "(docs/sensors.md)")
+    parser.add_argument("--rig-seeds", type=int, default=10,
+                        help="with --rig-table: seeds 0..N-1")
+    parser.add_argument("--sensor", action="append", choices=RIG_SENSORS,
+                        help="with --rig-table: only these sensor models (repeatable)")
+    parser.add_argument("--placement", action="append", choices=RIG_PLACEMENTS)
+    parser.add_argument("--servo", action="append", choices=RIG_SERVOS)
+    parser.add_argument("--material", action="append", choices=list(RIG_MATERIALS))
+    parser.add_argument("--preflight", action="store_true",
+                        help="with --rig-table: run each run's pre-flight too (its forecast)")
     parser.add_argument("--calibration", type=int, metavar="SEEDS", default=None,
                         help="instead: the compensated sponge over SEEDS seeds with the bias "
                              "calibration averaged over 0.5 s and over 2 s (the default)")
@@ -553,6 +668,13 @@ def main() -> None:
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
+        if args.rig_table:
+            print(f"## The lab's rig (collision scenario, seeds 0-{args.rig_seeds - 1})\n")
+            rig_table(pool, list(range(args.rig_seeds)), args.sensor or RIG_SENSORS,
+                      args.placement or RIG_PLACEMENTS, args.servo or RIG_SERVOS,
+                      args.material or list(RIG_MATERIALS), args.preflight)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
         if args.calibration_check or args.seeds:
             if args.calibration_check:
                 calibration_check(pool, assignments=args.set)

@@ -6,6 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -74,3 +77,27 @@ def test_push_follow_quick():
     followed = float(row.strip("|").split("|")[-1])
     assert followed >= MAX_PUSH_DV_MPS / MOTION_MARGIN, row
     assert f"the web app's MAX_PUSH_DV_MPS = {MAX_PUSH_DV_MPS:g} m/s" in out
+
+
+def test_the_rig_table_cell_reads_the_contact_measurement_metrics_when_present():
+    """benchmarks.contact_fidelity --rig-table: interval coverage counts the runs whose
+    restitution_interval_95 holds the ideal restitution, the forecast column is the mean
+    forecast sd over the across-seed sd, the off-normal share is found by its name; all
+    None while the metrics lack them (before the contact-measurement chain)."""
+    from benchmarks.contact_fidelity import rig_cell
+
+    ideal = {"restitution": 0.30}
+    runs = [{"collision": {"restitution": e, "restitution_error": e / 0.30 - 1.0,
+                           "restitution_interval_95": [e - 0.02, e + 0.02],
+                           "off_normal_share": 0.1},
+             "forecast": {"restitution_sd": 0.02}, "status": "finished"}
+            for e in (0.29, 0.31, 0.35)]
+    cell = rig_cell(runs, ideal)
+    assert cell["covered"] == 2  # 0.35 ± 0.02 misses 0.30
+    assert cell["forecast_ratio"] == pytest.approx(0.02 / np.std([0.29, 0.31, 0.35], ddof=1))
+    assert cell["off_normal"] == pytest.approx(0.1)
+    assert cell["stops"] == 0 and cell["refused"] is None
+    bare = rig_cell([{"collision": {"restitution": 0.3, "restitution_error": 0.0},
+                      "forecast": None, "status": "safety_stop"}], ideal)
+    assert bare["covered"] is None and bare["forecast_ratio"] is None
+    assert bare["off_normal"] is None and bare["stops"] == 1

@@ -288,3 +288,19 @@ def test_a_collision_run_prints_its_forecast_before_and_its_interval_after(tmp_p
     lo, hi = coll["restitution_interval_95"]
     assert (f"restitution 95 % interval [{lo:.3f}, {hi:.3f}] (sd {coll['restitution_sd']:.3f}, "
             f"4 replicates of the contact with the noise measured at calibration") in proc.stdout
+
+
+@pytest.mark.parametrize("setting", ['sensor.model="ati-gamma"', 'sensor.model="ati-mini45"',
+                                     'sensor.model="robotiq-ft300s"',
+                                     'sensor.placement="mockup"', 'servo.model="servoj"'])
+def test_the_collision_runs_on_each_rig_without_a_stop(setting, tmp_path):
+    """The shipped collision on the lab's rig of choice (docs/sensors.md), through the
+    contact (which starts at 3.1 s): exit 0, status finished."""
+    out = tmp_path / "out"
+    proc = subprocess.run([EXE, "run", "collision", "--quiet", "--duration", "3.5",
+                           "--set", setting, "--out", str(out)],
+                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "finished" and metrics["safety_stop"] is None
+    assert metrics["collision"]["contact_start_s"] < 3.3

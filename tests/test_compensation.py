@@ -169,3 +169,36 @@ def test_uncompensated_the_lagging_loop_makes_the_impact_gain_energy(ideal):
     without_ff = run_scenario(_collision(*PAPER, *NO_NOISE, "vfdm.velocity_feedforward=false"),
                               duration_s=4.0, with_ideal=False).metrics
     assert without_ff["collision"]["restitution"] > 1.0  # a longer lag: more energy still
+
+
+@pytest.mark.parametrize("lookahead_s", [0.03, 0.06])
+def test_the_lag_identification_finds_the_servoj_arm_s_lag(lookahead_s):
+    """The identification drives copies of the configured servo model: with servoj the
+    mockups trail the satellites by the identified lag (within 3 %), and the lag exceeds
+    the second-order servo's by T − 2ζ/ω (servoj trails a ramp by its lookahead T, the
+    50 Hz critically damped servo by 2/ω = 6.4 ms; the rest of the chain is the same),
+    to 0.1 ms."""
+    cfg = _collision(*PAPER, *NO_NOISE, 'servo.model="servoj"',
+                     f"servo.lookahead_time_s={lookahead_s}")
+    em = Emulator(cfg)
+    em.run(2.5)
+    assert em.status == "finished"
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    late = rows[rows[:, 0] > 2.0]
+    measured_s = float(np.mean((late[:, col["sat1_x_m"]] - late[:, col["rob1_x_m"]])
+                               / late[:, col["sat1_vx_mps"]]))
+    T_F_C, q = T_F_C_from_config(cfg.robots[0]), em.arms[0].q_start_rad
+    servoj = lag_model(cfg, T_F_C, q)
+    assert servoj.position_s == pytest.approx(measured_s, rel=0.03)
+    second_order = lag_model(_collision(*PAPER, *NO_NOISE), T_F_C, q)
+    w = 2.0 * np.pi * cfg.servo.bandwidth_hz
+    assert servoj.position_s - second_order.position_s == pytest.approx(
+        lookahead_s - 2.0 / w, abs=1e-4)
+
+
+def test_a_servoj_lookahead_beyond_what_a_lead_can_make_up_is_refused():
+    """servoj at lookahead 0.1 s trails by ~0.1 s: with the force lag, beyond the 100 ms
+    a lead makes up (102 ms with the contact path's 3 ms); the start is refused, naming it."""
+    cfg = _collision('servo.model="servoj"', "servo.lookahead_time_s=0.1")
+    with pytest.raises(LagModelError, match=r"the loop's lag is 102 ms \(99 ms to the mockup"):
+        lag_model(cfg, T_F_C_from_config(cfg.robots[0]), np.array(cfg.robots[0].q_home_rad))

@@ -354,3 +354,16 @@ def test_a_satellite_the_sensor_noise_can_spin_is_warned_about(tmp_path):
     for name in scenario_names():
         cfg = load_scenario(name)
         assert noise_spin_warnings(cfg, list(range(len(cfg.satellites)))) == [], name
+
+
+def test_the_off_normal_noise_bound_counts_the_samples_a_slower_sensor_takes():
+    """The off-normal warning's noise bound adds one independent sample per sample
+    interval: every 2 ms cycle for the UR10e's sensor, every 10 ms for the FT 300-S's
+    100 Hz stream (held in between), whatever the loop's rate; no sensor without arms."""
+    from app.metrics import _sensor_noise
+
+    cfg = load_scenario("collision")
+    assert _sensor_noise(cfg, True) == (cfg.sensor.noise_force_N, 1.0 / 500.0)
+    slow = merge_overrides(cfg, {"sensor": {"model": "robotiq-ft300s"}})
+    assert _sensor_noise(slow, True) == (0.1, 1.0 / 100.0)
+    assert _sensor_noise(cfg, False) is None

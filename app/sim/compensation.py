@@ -40,6 +40,7 @@ import numpy as np
 from app.config import EmulatorConfig
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.orbital import OrbitalSimulator
+from app.sim.sensor_models import hold_lag_cycles
 from app.sim.servo import UR10eServo
 from app.sim.ur10e import tcp_pose_B
 from app.sim.vfdm import JointLimits, Vfdm
@@ -152,11 +153,14 @@ def _cutoff_setting(config: EmulatorConfig) -> str:
 
 def force_lag_s(config: EmulatorConfig, hold: bool = True) -> float:
     """Sensor delay + the low-pass's ramp lag (1 − α)/α cycles (+ with ``hold``, the half
-    cycle by which the ODS's zero-order hold of the force lags the force itself); α of
-    the filter a contact's force passes (:func:`contact_cutoff_hz`)."""
+    cycle by which the ODS's zero-order hold of the force lags the force itself) + the
+    sensor's own hold when it samples slower than the loop ((N − 1)/2 cycles on average,
+    app/sim/sensor_models.py hold_lag_cycles); α of the filter a contact's force passes
+    (:func:`contact_cutoff_hz`)."""
     dt_s = 1.0 / config.loop.rate_hz
     alpha = lowpass_alpha(contact_cutoff_hz(config), config.loop.rate_hz)
-    return (config.sensor.delay_cycles + (1.0 - alpha) / alpha + 0.5 * hold) * dt_s
+    held = hold_lag_cycles(config.sensor.sample_rate_hz, config.loop.rate_hz)
+    return (config.sensor.delay_cycles + (1.0 - alpha) / alpha + 0.5 * hold + held) * dt_s
 
 
 def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,

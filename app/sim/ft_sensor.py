@@ -11,7 +11,9 @@ Conventions
 * An external wrench on a mockup, ``wrench_ext_W``, is given in lab axes W with its moment
   taken **about the mockup COM C**. Contributions (contact, operator's hand, …) add up as
   plain arrays; :func:`point_force_wrench_W` turns a force at a point into that form.
-* The sensor frame S is the flange frame F (the UR10e sensor sits in the tool flange).
+* The sensor frame S is the flange frame F (the UR10e sensor sits in the tool flange), or,
+  with ``[sensor] placement = "mockup"``, a frame at the contact face fixed in the mockup
+  body (app/sim/rig.py): the functions here take S's pose wherever they say T_W_F.
 * The raw reading is the wrench the mockup exerts **on the sensor**, in S, moments about the
   origin of S: ``F_ext + m (g − a)`` and its moment. Processing removes ``m (g − a)`` and so
   returns ``F_ext``, the push acting on the satellite, which is what the ODS needs.
@@ -31,6 +33,7 @@ from numba import njit
 
 from app.config import SensorConfig, WrenchProcessingConfig
 from app.sim.rotations import skew
+from app.sim.sensor_models import sample_every_cycles
 
 __all__ = [
     "Calibration",
@@ -185,11 +188,15 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
 
 
 class VirtualFTSensor:
-    """The UR10e built-in F/T sensor: true load + bias + Gaussian noise, saturated, delayed.
+    """An F/T sensor (by default the UR10e's built-in one; ``[sensor] model``): true load +
+    bias + Gaussian noise, saturated, held, delayed.
 
-    Per component, in this order: reading = clip(load + bias + noise, ±range), then the
-    reading handed out is the one taken ``delay_cycles`` calls ago. Until that many calls
-    have been made, the first reading is repeated (the ring starts full of it).
+    Per component, in this order: reading = clip(load + bias + noise, ±range); a sensor
+    slower than the loop (``sample_rate_hz`` below ``rate_hz``) takes a new reading only
+    when its sample clock ticks and repeats the last one in between; the reading handed
+    out is the one of ``delay_cycles`` calls ago. Until that many calls have been made, the
+    first reading is repeated (the ring starts full of it). The noise is drawn on every
+    call, so the generator's stream is the same whatever the sample rate.
     """
 
     def __init__(
@@ -198,8 +205,14 @@ class VirtualFTSensor:
         mass_kg: float,
         gravity_W_mps2: np.ndarray,
         rng: np.random.Generator,
+        rate_hz: float | None = None,
     ) -> None:
         self.config = config
+        self.every_cycles = (1.0 if rate_hz is None
+                            else sample_every_cycles(config.sample_rate_hz, rate_hz))
+        """Loop cycles per new reading (1: every call samples; more: the reading is held
+        between samples, the zero-order hold of a sensor slower than the loop; without the
+        loop's ``rate_hz``, every call samples)."""
         self.mass_kg = float(mass_kg)
         self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
         self.rng = rng
@@ -211,11 +224,25 @@ class VirtualFTSensor:
             [config.range_force_N] * 3 + [config.range_torque_Nm] * 3, dtype=float
         )
         self._ring = np.zeros((config.delay_cycles + 1, 6))
+        self._held_for = np.zeros(config.delay_cycles + 1, dtype=np.int64)
+        """Per ring row: for how many calls its reading had been held when written."""
         self._head = -1  # index of the newest reading; -1: ring not yet filled
+        self._calls = 0  # calls since the last reset (the hold's clock)
+        self.age_cycles = config.delay_cycles
+        """How many calls ago the reading last handed out was taken: the delay, plus the
+        cycles it had been held (a lab knows it from the sensor's sample counter)."""
 
     def reset(self) -> None:
         """Forget past readings (the next call refills the delay ring)."""
         self._head = -1
+        self._calls = 0
+
+    def _samples_now(self) -> bool:
+        """Whether this call takes a new reading: the first call, then each call in which
+        the sensor's sample clock (one sample every ``every_cycles`` calls) ticks."""
+        k, n = self._calls, self.every_cycles
+        self._calls += 1
+        return n == 1.0 or k == 0 or math.floor(k / n) > math.floor((k - 1) / n)
 
     def measure(
         self,
@@ -232,7 +259,20 @@ class VirtualFTSensor:
         """
         normals = self.rng.standard_normal(6)
         fill = self._head < 0
+        held = None if fill or self.every_cycles == 1.0 else self._ring[self._head].copy()
         self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
+        n = self._ring.shape[0]
+        oldest = (self._head + 1) % n
+        if held is not None and not self._samples_now():  # zero-order hold
+            self._held_for[self._head] = self._held_for[(self._head - 1) % n] + 1
+            self._ring[self._head] = held
+            self.age_cycles = self.config.delay_cycles + int(self._held_for[oldest])
+            return self._ring[oldest].copy()
+        if fill:
+            self._samples_now()
+            self._held_for[:] = 0
+        self._held_for[self._head] = 0
+        self.age_cycles = self.config.delay_cycles + int(self._held_for[oldest])
         accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
         out = np.empty(6)
         sensor_step(
@@ -288,8 +328,9 @@ class WrenchProcessor:
     applied by the ODS, the one place that owns them.
 
     Time alignment: a reading is ``delay_cycles`` old when it arrives (the sensor's known
-    latency), so the poses and the acceleration it is compensated, shifted and rotated with
-    are those of the cycle it was taken in, kept in a short ring.
+    latency; more for a held reading of a slower sensor: ``reading_age_cycles``), so the
+    poses and the acceleration it is compensated, shifted and rotated with are those of the
+    cycle it was taken in, kept in a short ring.
 
     Contact gate: with ``gate_open`` (the lab's geometry says the mockup is touching or
     about to touch another body), the deadbands are lifted, so that a contact force below
@@ -302,6 +343,7 @@ class WrenchProcessor:
         rate_hz: float,
         gravity_W_mps2: np.ndarray,
         delay_cycles: int = 0,
+        max_age_cycles: int | None = None,
     ) -> None:
         self.config = config
         self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
@@ -310,6 +352,13 @@ class WrenchProcessor:
                               else lowpass_alpha(config.contact_lowpass_hz, rate_hz))
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
         self.delay_cycles = int(delay_cycles)
+        self.max_age_cycles = self.delay_cycles if max_age_cycles is None \
+            else max(int(max_age_cycles), self.delay_cycles)
+        """The oldest a reading can be when it arrives: the delay, plus the hold of a
+        sensor slower than the loop."""
+        self.reading_age_cycles = self.delay_cycles
+        """How old the next reading is (set by the rig from the sensor's ``age_cycles``
+        before each :meth:`process`; the delay when the sensor samples every cycle)."""
         self._state_S = np.zeros(6)
         self._contact_state_S = np.zeros(6)
         self._gate_was_open = False
@@ -329,9 +378,9 @@ class WrenchProcessor:
         """(T_W_F, T_W_C, accel) of the cycle the arriving reading was taken in."""
         ring = self._ring
         ring.append((T_W_F, T_W_C, accel))
-        if len(ring) > self.delay_cycles + 1:
+        if len(ring) > self.max_age_cycles + 1:
             del ring[0]
-        return ring[0]
+        return ring[max(0, len(ring) - 1 - self.reading_age_cycles)]
 
     def calibrate(
         self,

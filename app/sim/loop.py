@@ -22,6 +22,7 @@ through :meth:`Emulator.post` and is consumed at the start of the next cycle.
 from __future__ import annotations
 
 import copy
+import math
 import time
 from dataclasses import replace
 
@@ -56,6 +57,7 @@ from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.scaling import scaling_of
+from app.sim.sensor_models import sample_every_cycles
 from app.sim.telemetry import Recorder
 
 __all__ = ["Emulator", "StartPoseError"]
@@ -111,8 +113,10 @@ class Emulator:
         self.gate = None
         if config.wrench.contact_gate:
             alpha = lowpass_alpha(contact_cutoff_hz(config), config.loop.rate_hz)
+            held = math.ceil(sample_every_cycles(config.sensor.sample_rate_hz,
+                                                 config.loop.rate_hz)) - 1
             self.gate = ContactGate(self.n_sat, config.wrench.contact_gate_margin_m,
-                                    hold_cycles_for(config.sensor.delay_cycles, alpha))
+                                    hold_cycles_for(config.sensor.delay_cycles + held, alpha))
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
                                  self.T_R_W, self.ods.params.orbit_rate_radps)
         self.telemetry = self.recorder.buffer

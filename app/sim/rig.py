@@ -1,4 +1,5 @@
-"""One arm rig: a UR10e with its servo, its flange F/T sensor and processing chain, its VFDM.
+"""One arm rig: a UR10e with its servo, its F/T sensor (at the flange, or between the mockup
+and its contact face) and processing chain, its VFDM.
 
 Per cycle (paper Fig. 3, one robot's share of it):
 
@@ -15,6 +16,7 @@ and calibrate the sensor at rest (as the paper's lab did).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +26,7 @@ from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
 from app.sim.rotations import invert_transform
 from app.sim.scaling import mockup_mass_kg
+from app.sim.sensor_models import sample_every_cycles
 from app.sim.servo import UR10eServo, safety_box_for_robot
 from app.sim.ur10e import (
     T_F_C_from_config,
@@ -51,6 +54,13 @@ class ArmRig:
     sensor: VirtualFTSensor
     processor: WrenchProcessor
     mockup_mass_kg: float
+    carried_mass_kg: float = 0.0
+    """What the F/T sensor carries: the whole mockup at the flange, only the contact face
+    with ``[sensor] placement = "mockup"`` (its weight and inertial load are what the chain
+    compensates)."""
+    T_C_S: np.ndarray | None = None
+    """(4, 4) the sensor frame S in the mockup body frame C with ``placement = "mockup"``
+    (S at the face's centre of mass, axes the body's); None: S is the flange frame F."""
     lead_s: float = 0.0
     """Lag compensation: the arm is sent where the ODS predicts its satellite this much
     later (app/sim/compensation.py); set at start-up."""
@@ -75,6 +85,25 @@ class ArmRig:
     @property
     def T_F_C(self) -> np.ndarray:
         return self.chain.T_F_C
+
+    def sensor_pose_W(self, T_W_F: np.ndarray, T_W_C: np.ndarray) -> np.ndarray:
+        """T_W_S: the flange pose (placement "flange") or the contact face's in the body
+        (placement "mockup": T_W_C · T_C_S)."""
+        return T_W_F if self.T_C_S is None else T_W_C @ self.T_C_S
+
+    def _read(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, T_W_S: np.ndarray,
+              accel_W: np.ndarray | None) -> np.ndarray:
+        """The sensor's raw reading. At the flange the whole mockup (its COM at C) hangs on
+        it. Between the body and its face only the face does, its mass at the sensor's
+        origin: the external wrench (about C) is shifted to S, [F, τ_C + (C − S) × F],
+        and the load model's lever arm is then zero (the face's acceleration is taken as
+        the COM's: the rotational terms α × r and ω × (ω × r) are left out)."""
+        if self.T_C_S is None:
+            return self.sensor.measure(wrench_ext_W, T_W_C, T_W_S, accel_W)
+        r_SC_W = T_W_C[:3, 3] - T_W_S[:3, 3]
+        f = wrench_ext_W[:3]
+        at_S = np.concatenate([f, wrench_ext_W[3:] + np.cross(r_SC_W, f)])
+        return self.sensor.measure(at_S, T_W_S, T_W_S, accel_W)
 
     # --- the cycle ----------------------------------------------------------------------
 
@@ -109,9 +138,10 @@ class ArmRig:
         """
         accel_W = (v_W - self.v_W_prev) / dt_s if not first_cycle else np.zeros(3)
         self.v_W_prev = v_W.copy()
-        T_W_F = self.mockup_state_W()[0]
-        raw = self.sensor.measure(wrench_ext_W, T_W_C, T_W_F, accel_W)
-        out = self.processor.process(raw, T_W_F, T_W_C, R_W_R, accel_W, gate_open)
+        T_W_S = self.sensor_pose_W(self.mockup_state_W()[0], T_W_C)
+        raw = self._read(wrench_ext_W, T_W_C, T_W_S, accel_W)
+        self.processor.reading_age_cycles = self.sensor.age_cycles
+        out = self.processor.process(raw, T_W_S, T_W_C, R_W_R, accel_W, gate_open)
         self.last_raw_S = raw
         self.last_processed = np.concatenate([out.force_R_N, out.torque_B_Nm])
         return out
@@ -165,17 +195,19 @@ class ArmRig:
         """One servo step at the start posture and a raw F/T reading with nothing touching."""
         self.servo.step(self.q_start_rad)
         T_W_F, T_W_C, _, _ = self.mockup_state_W()
-        return self.sensor.measure(np.zeros(6), T_W_C, T_W_F)
+        return self._read(np.zeros(6), T_W_C, self.sensor_pose_W(T_W_F, T_W_C), None)
 
     def calibrate(self, readings_S: np.ndarray) -> None:
-        """Payload calibration at rest with the mockup's known mass and COM, and the noise
-        the readings show (``rest_sd_S``); the VFDM starts from where the arm is."""
-        T_W_F = self.mockup_state_W()[0]
+        """Payload calibration at rest with the known mass and COM of what the sensor
+        carries (the mockup at the flange, the face on the body), and the noise the
+        readings show (``rest_sd_S``); the VFDM starts from where the arm is."""
+        T_W_F, T_W_C, _, _ = self.mockup_state_W()
         if len(readings_S) > 1:
             self.rest_sd_S = np.std(readings_S, axis=0, ddof=1)
         self.rest_count = len(readings_S)
-        self.processor.calibrate(readings_S, T_W_F[:3, :3], mass_kg=self.mockup_mass_kg,
-                                 com_F_m=self.T_F_C[:3, 3])
+        com_S = self.T_F_C[:3, 3] if self.T_C_S is None else np.zeros(3)
+        self.processor.calibrate(readings_S, self.sensor_pose_W(T_W_F, T_W_C)[:3, :3],
+                                 mass_kg=self.carried_mass_kg, com_F_m=com_S)
         self.processor.reset()
         self.vfdm.reset(self.servo.state.q_rad)
 
@@ -188,7 +220,13 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
     sat = config.satellite_index(robot.satellite)
     T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
     q_home = np.array(robot.q_home_rad)
-    mass = mockup_mass_kg(config.satellites[sat], config)  # what the sensor carries
+    mass = mockup_mass_kg(config.satellites[sat], config)
+    on_body = config.sensor.placement == "mockup"
+    carried = config.sensor.face_mass_kg if on_body else mass  # what the sensor carries
+    T_C_S = None
+    if on_body:
+        T_C_S = np.eye(4)
+        T_C_S[:3, 3] = config.sensor.face_position_m
     return ArmRig(
         index=index,
         satellite=sat,
@@ -196,8 +234,12 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
         T_B_R=invert_transform(T_W_B) @ T_W_R,
         vfdm=Vfdm(config.vfdm, T_F_C, q_home, JointLimits.of_servo(config.servo, dt_s)),
         servo=UR10eServo(config.servo, dt_s, q_home, safety_box_for_robot(robot)),
-        sensor=VirtualFTSensor(config.sensor, mass, gravity_W, rng),
-        processor=WrenchProcessor(config.wrench, config.loop.rate_hz, gravity_W,
-                                  config.sensor.delay_cycles),
+        sensor=VirtualFTSensor(config.sensor, carried, gravity_W, rng, config.loop.rate_hz),
+        processor=WrenchProcessor(
+            config.wrench, config.loop.rate_hz, gravity_W, config.sensor.delay_cycles,
+            config.sensor.delay_cycles + math.ceil(
+                sample_every_cycles(config.sensor.sample_rate_hz, config.loop.rate_hz)) - 1),
         mockup_mass_kg=mass,
+        carried_mass_kg=carried,
+        T_C_S=T_C_S,
     )

@@ -11,8 +11,10 @@ Each control cycle the caller hands over one joint set-point. The servo
    a TCP outside the safety box ("TCP left safety volume"); joints 1-based, checked in
    that order, first violation reported;
 3. tracks the accepted set-point with a critically damped (by default) second-order
-   response of ``bandwidth_hz``, ``q̈ = ω² (sp − q) − 2ζω q̇``, saturated at the
-   acceleration and speed limits (semi-implicit Euler, one step per cycle).
+   response of ``bandwidth_hz``, ``q̈ = ω² (sp − q) − 2ζω q̇``, or (``model = "servoj"``)
+   as UR's servoj does, ``q̈ = gain (sp − q − lookahead q̇)`` (:func:`tracking_gains`),
+   saturated at the acceleration and speed limits (semi-implicit Euler, one step per
+   cycle).
 
 When stopped, the arm ignores set-points and *decelerates* to rest at the acceleration
 limit (UR stop category 2 style: it stays on its path, joint by joint), then stays halted
@@ -38,7 +40,7 @@ from app.sim.ur10e import (
 )
 
 __all__ = ["SafetyBox", "ServoState", "UR10eServo", "reason_of", "safety_box_for_robot",
-           "seconds_until_beyond", "seconds_until_outside"]
+           "seconds_until_beyond", "seconds_until_outside", "tracking_gains"]
 
 BOX_CODE = 2 * N_JOINTS + 1
 """Stop code of "TCP left safety volume"; 1..6: joint position limit, 7..12: speed limit."""
@@ -196,6 +198,28 @@ def servo_step(sp_in, ring, slot, sp_prev, q, qd, q_new, qd_new, qdd_new, stoppe
 
 # --- the servo ----------------------------------------------------------------------------
 
+
+def tracking_gains(cfg: ServoConfig) -> tuple[float, float]:
+    """(k_p, k_d) of the tracking law q̈ = k_p (sp − q) − k_d q̇ for the configured model.
+
+    "second-order": k_p = ω², k_d = 2ζω with ω = 2π·bandwidth_hz.
+
+    "servoj" (UR script manual, servoj: "the gain parameter works the same way as the
+    P-term of a PID controller ... lookahead_time is used to project the current position
+    forward in time with the current velocity"): q̈ = gain·(sp − (q + T_la q̇)), so k_p =
+    gain and k_d = gain·T_la. Its natural frequency is √gain (34.6 rad/s at 1200), its
+    damping ratio T_la·√gain / 2 (0.52 at 0.03 s and 1200: a step overshoots, as the manual
+    warns a short lookahead does), and on a ramp it trails by exactly T_la (at rest in the
+    ramp's frame q̈ = 0, so sp − q = T_la q̇): with the 2-3 cycles of the link, the 34 ms
+    a UR10e shows at 0.03 s (Universal_Robots_Client_Library issue #86).
+    """
+    if cfg.model == "servoj":
+        gain = cfg.servoj_gain
+        return gain, gain * cfg.servoj_lookahead_s
+    w = 2.0 * math.pi * cfg.bandwidth_hz
+    return w * w, 2.0 * cfg.damping_ratio * w
+
+
 _NO_BOX = np.zeros(3)
 _NO_CHAIN = tcp_chain()
 
@@ -215,9 +239,7 @@ class UR10eServo:
         self.safety = safety
         self.speed_limits_radps = np.array(cfg.speed_limits_radps)
         self.accel_limit_radps2 = cfg.accel_limit_radps2
-        w = 2.0 * math.pi * cfg.bandwidth_hz
-        self._w2 = w * w
-        self._2zw = 2.0 * cfg.damping_ratio * w
+        self._w2, self._2zw = tracking_gains(cfg)
         self.reset(q0_rad)
 
     def reset(self, q_rad: np.ndarray | None = None) -> None:
