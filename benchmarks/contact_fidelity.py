@@ -663,7 +663,8 @@ def main() -> None:
     parser.add_argument("--factors", action="store_true",
                         help="with --seeds: each bias factor's share")
     parser.add_argument("--first-seed", type=int, default=0,
-                        help="with --seeds: the first seed (1000: the tuning seeds)")
+                        help="with --seeds or --calibration-check: the first seed (1000: "
+                             "the chain's tuning seeds)")
     args = parser.parse_args()
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
@@ -677,7 +678,9 @@ def main() -> None:
             return
         if args.calibration_check or args.seeds:
             if args.calibration_check:
-                calibration_check(pool, assignments=args.set)
+                cases = {case: (extra, [args.first_seed + s for s in seeds])
+                         for case, (extra, seeds) in CHECK_CASES.items()}
+                calibration_check(pool, cases, assignments=args.set)
             else:
                 seeds_table(pool, args.first_seed, args.factors)
                 noisy_ideal_table(pool, args.first_seed)
