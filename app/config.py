@@ -1037,6 +1037,9 @@ def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
         return data
     if not isinstance(base, str) or not base.strip():
         raise ConfigError(f"{path}: extends: must name a scenario, got {base!r}")
+    if len(base) > 255 or "\0" in base:  # (longer than any file name can be)
+        shown = base if len(base) <= 60 else f"{base[:60]!r}... ({len(base)} characters)"
+        raise ConfigError(f"{path}: extends: not a scenario's file name: {shown}")
     file_name = base if base.endswith(".toml") else f"{base}.toml"
     base_path = path.parent / file_name
     if not base_path.exists():  # (a FIFO or a device there is refused when read)

@@ -42,6 +42,12 @@ def _mib(n_bytes: int) -> str:
     return f"{n_bytes / 2**20:g} MiB"
 
 
+def _shown(path: Path, most: int = 80) -> str:
+    """A path as an error message shows it: whole, or its start and its length."""
+    text = str(path)
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
 def read_bounded_text(path: str | Path, cap: int = MAX_TOML_BYTES,
                       what: str = "a TOML file") -> str:
     """The text (UTF-8) of the regular file ``path``, of at most ``cap`` bytes; else
@@ -49,14 +55,22 @@ def read_bounded_text(path: str | Path, cap: int = MAX_TOML_BYTES,
     raised as such, for the caller's own words)."""
     path = Path(path)
     rule = f"{what} must be a regular file of at most {_mib(cap)}"
-    info = os.stat(path)  # follows links; never opens (a FIFO would wait for a writer)
+    try:
+        info = os.stat(path)  # follows links; never opens (a FIFO would wait for a writer)
+    except FileNotFoundError:
+        raise
+    except OSError as err:  # a name too long, a loop of links, no permission
+        raise InputFileError(f"{_shown(path)}: {err.strerror}; {rule}") from None
     if stat.S_ISDIR(info.st_mode):
         raise IsADirectoryError(21, "Is a directory", str(path))
     if not stat.S_ISREG(info.st_mode):
         raise InputFileError(f"{path}: is {_kind(info.st_mode)}; {rule}")
     if info.st_size > cap:
         raise InputFileError(f"{path}: is {info.st_size:,} bytes; {rule}")
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as err:  # e.g. no permission to read it
+        raise InputFileError(f"{_shown(path)}: {err.strerror}; {rule}") from None
     try:
         again = os.fstat(fd)  # what was opened, should the path have changed since
         if not stat.S_ISREG(again.st_mode):

@@ -50,7 +50,9 @@ def test_health_scenarios_and_page(live):
 
 
 def test_push_changes_velocity_by_impulse(live):
-    s = live.client.post("/api/scenarios/free-floating/start", json={}).json()
+    # (a 5 s run: a push whose course leaves the arm's reach before the run ends is refused)
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"loop": {"duration_s": 5.0}}).json()
     assert s["status"] == "running", s
     assert s["scenario"] == "free-floating"
     assert s["satellites"][0]["velocity_mps"] == [0.0, 0.0, 0.0]  # hand-driven: at rest
@@ -648,7 +650,8 @@ def test_a_push_at_the_limit_never_reaches_the_sensor_range(live):
     expected = (cfg.sensor.range_force_N - 1.0 * 9.81 - np.linalg.norm(cfg.sensor.bias_force_N)
                 - 6.0 * cfg.sensor.noise_force_N - cfg.hand.max_force_N)  # 1 kg mockup
     assert expected == pytest.approx(57.57, abs=0.01)
-    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "hil", "loop": {"duration_s": 3.0}}).json()
     assert s["status"] == "running", s
     limit = s["push_limits_N"][0]
     assert limit == pytest.approx(expected, abs=1e-3)
@@ -679,7 +682,8 @@ def test_concurrent_pushes_add_up_to_the_limit_at_most(live):
     from concurrent.futures import ThreadPoolExecutor
 
     live.client.post("/api/reset")
-    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "hil", "loop": {"duration_s": 2.5}}).json()
     assert s["status"] == "running", s
     limit = s["push_limits_N"][0]
     live.wait_for(lambda s: s["t_s"] >= 0.3)
@@ -779,26 +783,58 @@ def test_a_push_the_arm_cannot_follow_is_refused_and_the_largest_taken_leaves_th
         "change is force_scale x |force| x duration / mass)")}
     before = live.client.get("/api/state").json()["satellites"][0]["applied_force_N"]
     assert np.linalg.norm(before) < 1e-9  # nothing pushes
-    r = _push(live, [0.0, 5.0, 0.0], limit / 5.0)  # 1 kg, force scale 1: Δv = 5 N x T
+    r = _push(live, [-5.0, 0.0, 0.0], limit / 5.0)  # 1 kg, force scale 1: Δv = 5 N x T
+    # (against its motion: a push that brought its course's exit sooner would be refused)
     assert r.status_code == 200, r.text
     r2 = _push(live, [0.0, 0.0, 5.0], 0.01)  # on top of it: beyond the limit together
     assert r2.status_code == 422
     assert "velocity by 0.050 m/s with 0.100 m/s already under way" in r2.json()["detail"]
     _runs_on_after(live, r.json()["t_s"] + limit / 5.0)
+    # once it has ended, the same push again: the run's pushes add up (20 small pushes
+    # in a row once took a satellite to 0.63 m/s and the run to a stop); one against
+    # them is taken
+    r3 = _push(live, [-5.0, 0.0, 0.0], limit / 5.0)
+    assert r3.status_code == 422
+    assert r3.json()["detail"].startswith(
+        "force_N, duration_s: the pushes of this run would change satellite 1's velocity by "
+        "0.200 m/s together (their vector sum, 0.100 m/s before this one), beyond its "
+        "velocity-change limit 0.100 m/s"), r3.json()
+    assert _push(live, [5.0, 0.0, 0.0], 0.004).status_code == 200
     live.client.post("/api/stop")
+
+
+def test_a_push_while_the_run_starts_is_a_409(live):
+    """A push sent while a hil start calibrates (its checks need the running state) is
+    refused with 409: one once slipped through and ended the run within a second."""
+    import threading
+
+    live.client.post("/api/reset")
+    starter = threading.Thread(target=lambda: live.client.post(
+        "/api/scenarios/collision/start",
+        json={"mode": "hil", "wrench": {"calibration_s": 30.0}}, timeout=60))
+    starter.start()
+    live.wait_for(lambda s: s["status"] == "starting", timeout_s=20.0, poll_s=0.005)
+    r = _push(live, [0.0, 57.0, 0.0], 1.0)
+    assert r.status_code == 409, r.text
+    assert r.json() == {"detail": "the scenario is starting: push once it runs"}
+    live.client.post("/api/reset", timeout=30)
+    starter.join(timeout=60)
+    assert not starter.is_alive()
 
 
 def test_a_push_that_sends_the_course_out_of_reach_is_refused_a_braking_one_taken(live):
     """free-floating (at rest): pushes at the push limit down (-z), from the longest
-    velocity change allowed down, are refused while the satellite's course (CW, 5 s)
-    would leave the arm's reach or safety volume, with 422 saying where and when; the
+    velocity change allowed down, are refused while the satellite's course (CW, over
+    the run's time left) would leave the arm's reach or safety volume, with 422 saying
+    where and when; the
     largest taken leaves the run running 2 s after its end. Then, the satellite drifting
     out, a push against the drift (which its course already left before) is taken."""
     from app.backend.service import course_exit
     from app.scenarios import load_scenario
 
     live.client.post("/api/reset")
-    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "hil", "loop": {"duration_s": 6.0}}).json()
     assert s["status"] == "running", s
     force_N, per_N = s["push_limits_N"][0], 0.005 / 1.0  # force scale / mass
     live.wait_for(lambda s: s["t_s"] >= 0.2)
@@ -811,11 +847,12 @@ def test_a_push_that_sends_the_course_out_of_reach_is_refused_a_braking_one_take
         assert r.status_code == 422
         refused.append(r.json()["detail"])
     assert refused and taken, refused
-    assert all(m.startswith("force_N, duration_s: the push sends satellite 1 out of "
-                            "ceiling's reach (1.2 m from its shoulder) in ") and
-               m.endswith(" s on its course (CW, from its state now), within the 5.0 s "
-                          "horizon (5 s or the run's time left): the run would stop")
-               for m in refused), refused
+    import re
+
+    pattern = (r"force_N, duration_s: the push sends satellite 1 out of ceiling's reach "
+               r"\(1\.2 m from its shoulder\) in \d+\.\d s on its course \(CW, from its "
+               r"state now\), within the run's \d+\.\d s left: the run would stop")
+    assert all(re.fullmatch(pattern, m) for m in refused), refused
     print(f"\nfree-floating: the largest push taken down gives {taken[0]:.2f} m/s")
     _runs_on_after(live, taken[1])
     s = live.client.get("/api/state").json()

@@ -304,3 +304,13 @@ def test_the_collision_runs_on_each_rig_without_a_stop(setting, tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "finished" and metrics["safety_stop"] is None
     assert metrics["collision"]["contact_start_s"] < 3.3
+
+
+def test_an_extends_longer_than_a_file_name_is_an_error_line_not_a_traceback(tmp_path):
+    """A 5,000-character `extends` once ended in an OSError traceback (exit 1)."""
+    (tmp_path / "mine.toml").write_text(f'extends = "{"x" * 5000}"\n')
+    proc = subprocess.run([EXE, "run", "collision", "--config", "mine.toml", "--quiet"],
+                          capture_output=True, text=True, timeout=30, cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr == (f"error: mine.toml: extends: not a scenario's file name: "
+                           f"{'x' * 60!r}... (5000 characters)\n")

@@ -199,14 +199,15 @@ class Runner:
         :meth:`restart`; a stall (no heartbeat for STALL_S: a VM pause, a swap storm, a
         SIGSTOP) lasts until the next heartbeat, and control returns with it."""
         with self._state_lock:
-            if self._fault is not None or self._proc is None or self._shm is None:
+            proc, shm = self._proc, self._shm  # (a restart may let them go meanwhile)
+            if self._fault is not None or proc is None or shm is None:
                 return self._fault
-            if not self._proc.is_alive():
-                self._fault = exit_reason(self._proc.exitcode)
+            if not proc.is_alive():
+                self._fault = exit_reason(proc.exitcode)
                 return self._fault
             count, since = self._beat
             now = time.monotonic()
-            current = snapshots.heartbeat(self._shm.buf)
+            current = snapshots.heartbeat(shm.buf)
             if current != count:
                 if self._stalled:
                     self._stalled = False

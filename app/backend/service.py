@@ -42,9 +42,10 @@ CSV_CACHE_BYTES = 16 << 20
 """The formatted CSV kept for the next reader (:class:`CsvChunks`): a 30 s one-arm run's."""
 DEFAULT_TRACKING_ERROR_M = 0.05
 """``[loop] max_tracking_error_m``'s default, at which MAX_PUSH_DV_MPS was measured."""
-COURSE_HORIZON_S = 5.0
-"""A push may not send a satellite's course out of its arm's safety volume or reach this
-soon (or within the run's time left, if shorter): the scene warns at the same horizon."""
+MAX_COURSE_HORIZON_S = 600.0
+"""A push may not bring the moment a satellite's course leaves its arm's safety volume or
+reach any sooner within the run's time left (at most this long ahead): an accepted push
+never ends a run by itself."""
 COURSE_STEP_S = 0.01
 """The predicted course is checked at this spacing (a satellite at 0.1 m/s moves 1 mm)."""
 MOTION_MARGIN = 0.5
@@ -135,6 +136,8 @@ class EmulatorService:
         self._csv_chunks = CsvChunks(CSV_CACHE_BYTES)
         self._push_lock = threading.Lock()
         self._pushes: list[_PushRecord] = []
+        self._pushes_of_run: list[_PushRecord] = []
+        """Every push accepted in the current run (their velocity changes add up)."""
         """The pushes under way (until PUSH_END_MARGIN_S after their end)."""
         self._limits: tuple[Any, list[float]] = (None, [])
 
@@ -347,18 +350,24 @@ class EmulatorService:
         """A push on satellite `satellite` (1-based), force in R, at point_m (body axes,
         from the COM; the COM if None); validated here."""
         state = self.state()
+        if state["status"] == "starting":  # the checks below need the run's own state
+            raise RunnerBusy("the scenario is starting: push once it runs")
         force = validate_push(satellite, force_N, duration_s, state["n_satellites"])
         point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
             point_m, state["layout"]["satellites"][satellite - 1][1])
         with self._push_lock:  # the check and the record of a push, one at a time
+            self._pushes_of_run = [p for p in self._pushes_of_run
+                                   if p.generation == state["generation"]]
             self._drop_ended_pushes(state)
             self._within_push_limit(state, satellite, math.hypot(*force))
             dv_R = self._push_dv_R(satellite, force, duration_s)
             self._within_push_motion(state, satellite, dv_R)
             self.runner.post(Push(satellite=satellite - 1, force_R_N=force,
                                   duration_s=duration_s, point_B_m=point))
-            self._pushes.append(_PushRecord(state["generation"], satellite, state["t_s"],
-                                            duration_s, math.hypot(*force), dv_R))
+            record = _PushRecord(state["generation"], satellite, state["t_s"], duration_s,
+                                 math.hypot(*force), dv_R)
+            self._pushes.append(record)
+            self._pushes_of_run.append(record)
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
                 "point_m": list(point), "t_s": self.state()["t_s"]}
 
@@ -405,22 +414,32 @@ class EmulatorService:
                 f"force_N, duration_s: the push changes satellite {satellite}'s velocity by "
                 f"{dv:.3f} m/s{already}, beyond its velocity-change limit {limit:.3f} m/s "
                 f"({why})")
+        net_before = sum((p.dv_R for p in self._pushes_of_run if p.satellite == satellite),
+                         np.zeros(3))
+        net = float(np.linalg.norm(net_before + dv_R))
+        if net > limit * (1.0 + 1e-9) and net > float(np.linalg.norm(net_before)):
+            raise InvalidRequest(
+                f"force_N, duration_s: the pushes of this run would change satellite "
+                f"{satellite}'s velocity by {net:.3f} m/s together (their vector sum, "
+                f"{float(np.linalg.norm(net_before)):.3f} m/s before this one), beyond its "
+                f"velocity-change limit {limit:.3f} m/s ({why}); a push against them is "
+                f"taken")
         t_s = state["t_s"]
         left_R = sum((p.dv_R * min(1.0, max(0.0, (p.start_s + p.duration_s - t_s)
                                                  / p.duration_s)) for p in under_way),
                      np.zeros(3))  # the part of the pushes under way still to come
-        horizon_s = min(COURSE_HORIZON_S, state["duration_s"] - t_s)
+        horizon_s = min(MAX_COURSE_HORIZON_S, state["duration_s"] - t_s)
         if horizon_s <= 0.0:
             return
         before_s, _ = course_exit(state, self.last_config, satellite, left_R, horizon_s)
         after_s, where = course_exit(state, self.last_config, satellite, left_R + dv_R,
                                      horizon_s)
-        if after_s <= horizon_s < before_s:
+        if after_s <= horizon_s and after_s < before_s - 0.5 * COURSE_STEP_S:
+            sooner = "" if math.isinf(before_s) else f" (it left in {before_s:.1f} s before)"
             raise InvalidRequest(
                 f"force_N, duration_s: the push sends satellite {satellite} {where} in "
-                f"{after_s:.1f} s on its course (CW, from its state now), within the "
-                f"{horizon_s:.1f} s horizon ({COURSE_HORIZON_S:g} s or the run's time left): "
-                f"the run would stop")
+                f"{after_s:.1f} s on its course (CW, from its state now){sooner}, within the "
+                f"run's {horizon_s:.1f} s left: the run would stop")
 
     def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
         """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
