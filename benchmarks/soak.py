@@ -113,7 +113,7 @@ def push(url: str, stop: threading.Event, errors: list) -> None:
             sat = state["satellites"][0]
             dv = -np.array(sat["velocity_mps"]) - np.array(sat["position_m"]) / 20.0
             if np.linalg.norm(dv) < 2e-3:  # at rest near its start: an excursion
-                dv = 0.008 * next(directions)
+                dv = 0.004 * next(directions)  # (its course stays in reach 60 s)
             duration = float(np.clip(np.linalg.norm(dv) / (scale * force_N), 0.05, 1.0))
             r = client.post("/api/push", json={
                 "satellite": 1, "duration_s": duration,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 
 import httpx
@@ -851,7 +852,8 @@ def test_a_push_that_sends_the_course_out_of_reach_is_refused_a_braking_one_take
 
     pattern = (r"force_N, duration_s: the push sends satellite 1 out of ceiling's reach "
                r"\(1\.2 m from its shoulder\) in \d+\.\d s on its course \(CW, from its "
-               r"state now\), within the run's \d+\.\d s left: the run would stop")
+               r"state now\), within the \d+\.\d s horizon \(60 s or the run's time left\): "
+               r"the run would stop")
     assert all(re.fullmatch(pattern, m) for m in refused), refused
     print(f"\nfree-floating: the largest push taken down gives {taken[0]:.2f} m/s")
     _runs_on_after(live, taken[1])
@@ -905,3 +907,33 @@ def test_the_forecast_before_start_and_the_interval_after_the_run(live):
     coll = live.client.get("/api/metrics").json()["collision"]
     assert coll["restitution"] == i["restitution"]
     assert coll["restitution_interval_95"] == [lo, hi]
+
+
+def test_the_state_warns_of_a_course_that_leaves_the_arm_s_reach(live):
+    """free-floating, 100 s: a push down whose course (as the server predicts it) leaves
+    the arm's reach a little beyond the 60 s horizon is taken; as the run goes on the exit
+    comes within the horizon, and the state warns (an operator has that long to brake)."""
+    from app.backend.service import course_exit
+    from app.scenarios import load_scenario
+
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "hil", "loop": {"duration_s": 100.0}}).json()
+    assert s["status"] == "running", s
+    force_N, per_N = s["push_limits_N"][0], 0.005 / 1.0  # force scale / mass
+    s = live.wait_for(lambda s: s["t_s"] >= 0.2)
+    cfg = load_scenario("free-floating")
+    exits = {dv: course_exit(s, cfg, 1, np.array([0.0, 0.0, -dv]), 99.0)[0]
+             for dv in np.arange(0.001, 0.03, 0.0002)}
+    dv = max(dv for dv, t in exits.items() if t > 62.0)  # the exit a few s past 60 s
+    assert exits[dv] < 70.0, exits[dv]
+    r = _push(live, [0.0, 0.0, -force_N], dv / (per_N * force_N))
+    assert r.status_code == 200, r.text
+    assert not any("course leaves" in w for w in live.state()["warnings"])
+    s = live.wait_for(lambda s: any("course leaves" in w for w in s["warnings"]),
+                      timeout_s=60.0)
+    warning = next(w for w in s["warnings"] if "course leaves" in w)
+    assert re.fullmatch(r"satellite 1's course leaves ceiling's (reach \(1\.2 m from its "
+                        r"shoulder\)|safety volume) in \d+\.\d s: the run stops then unless "
+                        r"a push brakes it", warning), warning
+    live.client.post("/api/stop")

@@ -42,10 +42,10 @@ CSV_CACHE_BYTES = 16 << 20
 """The formatted CSV kept for the next reader (:class:`CsvChunks`): a 30 s one-arm run's."""
 DEFAULT_TRACKING_ERROR_M = 0.05
 """``[loop] max_tracking_error_m``'s default, at which MAX_PUSH_DV_MPS was measured."""
-MAX_COURSE_HORIZON_S = 600.0
+COURSE_HORIZON_S = 60.0
 """A push may not bring the moment a satellite's course leaves its arm's safety volume or
-reach any sooner within the run's time left (at most this long ahead): an accepted push
-never ends a run by itself."""
+reach any sooner within this long (or the run's time left, if shorter); the state warns
+of a course that leaves within it (the operator has that long to brake it)."""
 COURSE_STEP_S = 0.01
 """The predicted course is checked at this spacing (a satellite at 0.1 m/s moves 1 mm)."""
 MOTION_MARGIN = 0.5
@@ -164,7 +164,29 @@ class EmulatorService:
         fault = self.runner.fault()
         if fault is not None:
             snap.update(status="fault", reason=fault)
+        course = self._course_warnings(snap)
+        if course:
+            snap["warnings"] = [*snap.get("warnings", []), *course]
         return snap
+
+    def _course_warnings(self, state: dict) -> list[str]:
+        """A warning per carried satellite of a running hil run whose force-free course
+        leaves its arm's safety volume or reach within COURSE_HORIZON_S (or the run's time
+        left): the run would stop unless a push brakes it."""
+        if state.get("status") != "running" or state.get("mode") != "hil":
+            return []
+        horizon_s = min(COURSE_HORIZON_S, state["duration_s"] - state["t_s"])
+        out = []
+        for k in sorted({rob["satellite"] for rob in state.get("robots", [])}):
+            try:
+                exit_s, where = course_exit(state, self.last_config, k, np.zeros(3),
+                                            horizon_s)
+            except (KeyError, IndexError, ValueError):  # a state of another layout
+                continue
+            if exit_s <= horizon_s:
+                out.append(f"satellite {k}'s course leaves {where.removeprefix('out of ')} in "
+                           f"{exit_s:.1f} s: the run stops then unless a push brakes it")
+        return out
 
     def push_limits_N(self) -> list[float]:
         """Each satellite's push limit in the current run (:func:`push_limit`)."""
@@ -428,7 +450,7 @@ class EmulatorService:
         left_R = sum((p.dv_R * min(1.0, max(0.0, (p.start_s + p.duration_s - t_s)
                                                  / p.duration_s)) for p in under_way),
                      np.zeros(3))  # the part of the pushes under way still to come
-        horizon_s = min(MAX_COURSE_HORIZON_S, state["duration_s"] - t_s)
+        horizon_s = min(COURSE_HORIZON_S, state["duration_s"] - t_s)
         if horizon_s <= 0.0:
             return
         before_s, _ = course_exit(state, self.last_config, satellite, left_R, horizon_s)
@@ -439,7 +461,8 @@ class EmulatorService:
             raise InvalidRequest(
                 f"force_N, duration_s: the push sends satellite {satellite} {where} in "
                 f"{after_s:.1f} s on its course (CW, from its state now){sooner}, within the "
-                f"run's {horizon_s:.1f} s left: the run would stop")
+                f"{horizon_s:.1f} s horizon ({COURSE_HORIZON_S:g} s or the run's time left): "
+                f"the run would stop")
 
     def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
         """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
