@@ -5,7 +5,12 @@
 from __future__ import annotations
 
 import io
+import os
+import subprocess
+import sys
+import time
 import zipfile
+from pathlib import Path
 
 from benchmarks.download_memory import Serve, fill, measure_downloads
 
@@ -53,3 +58,48 @@ def test_a_download_worker_that_dies_is_an_error_and_the_next_download_gets_a_ne
         assert worker.run(len, [1, 2, 3]) == 3
     finally:
         worker.shutdown()
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = open(f"/proc/{entry}/stat").read()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_the_download_worker_exits_with_the_web_process():
+    """kill -9 of the process that owns the download worker (the web process) once left
+    the worker behind, and through it the run's shared memory: it now exits within a
+    few seconds, and so does what it kept alive."""
+    code = ("import os, time\n"
+            "from app.backend.downloads import DownloadWorker\n"
+            "w = DownloadWorker()\n"
+            "print(w.run(os.getpid), flush=True)\n"
+            "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              cwd=Path(__file__).resolve().parents[1])
+    try:
+        assert int(parent.stdout.readline()) != parent.pid  # the task ran in a worker
+        time.sleep(1.0)  # (the pool starts the next worker)
+        children = _children(parent.pid)
+        assert children, "no process of the pool to watch"
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10.0
+    while any(_alive(c) for c in children) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [c for c in children if _alive(c)], children

@@ -15,6 +15,7 @@ import multiprocessing as mp
 import os
 import tempfile
 import threading
+import time
 import zipfile
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -111,6 +112,17 @@ def bag_rows(ring: RingFile, snap: dict, rate_hz: float,
     return np.concatenate(kept), 1.0 / (step * dt_s)
 
 
+def _exit_with_parent(parent_pid: int) -> None:
+    """In the worker: exit as soon as the web process that started it is gone (a kill -9
+    of the server once left the worker, and through it the run's shared memory, behind)."""
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
+
+
 class DownloadWorker:
     """Runs :func:`build_archive` / :func:`build_bag` in a fresh spawned process each
     (one at a time: the caller holds the heavy reads' turn)."""
@@ -123,7 +135,8 @@ class DownloadWorker:
         with self._lock:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(
-                    max_workers=1, mp_context=mp.get_context("spawn"), max_tasks_per_child=1)
+                    max_workers=1, mp_context=mp.get_context("spawn"), max_tasks_per_child=1,
+                    initializer=_exit_with_parent, initargs=(os.getpid(),))
             pool = self._pool
         try:
             return pool.submit(fn, *args).result()
