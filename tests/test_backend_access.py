@@ -243,7 +243,8 @@ def test_no_log_line_ever_shows_the_token(tmp_path):
         assert httpx.get(f"http://{base}/?token={TOKEN}", headers=html).status_code == 303
         for query in [f"token={TOKEN}", f"TOKEN={TOKEN}", f"Token={TOKEN}&x=1",
                       f"%74oken={TOKEN}", f"token={encoded}", f"x=1;token={TOKEN}",
-                      f"other={TOKEN}"]:
+                      f"other={TOKEN}", f"q={encoded}", f"q={encoded.lower()}",
+                      f"q={TOKEN[:3]}{encoded[9:]}"]:  # under another name, (partly) encoded
             httpx.get(f"http://{base}/api/health?{query}")
             try:
                 _viewer_frames(f"ws://{base}/viewer?{query}")
@@ -258,6 +259,7 @@ def test_no_log_line_ever_shows_the_token(tmp_path):
     assert "WebSocket /viewer?token=<token>" in log, log[-3000:]
     assert "WebSocket /viewer?TOKEN=<token>" in log and "/api/health?%74oken=<token>" in log
     assert TOKEN not in log and encoded not in log and encoded.lower() not in log
+    assert encoded[9:] not in log and "/api/health?q=<token>" in log
 
 
 def test_serve_on_a_port_in_use_says_so_before_starting_anything():

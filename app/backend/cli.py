@@ -111,17 +111,21 @@ def bind_port(host: str, port: int) -> socket.socket:
 class RedactToken(logging.Filter):
     """Keeps the token out of every log line: the value of any URL query parameter named
     token in any case or percent-encoding (``?token=``, ``?TOKEN=``, ``?%74oken=``), and
-    the token itself wherever it appears (``token``: the server's). Installed on the log
+    the token itself wherever it appears, any of its characters percent-encoded or not
+    (``token``: the server's). Installed on the log
     handlers (:func:`redact_logs`), so that it sees every record, uvicorn's websocket lines
     (its error logger) and access lines alike."""
 
     def __init__(self, token: str | None = None) -> None:
         super().__init__()
         self.token = token
+        self._encoded = None if not token else re.compile(
+            "".join(f"(?:{re.escape(c)}|%{ord(c):02x})" for c in token), re.IGNORECASE)
+        """The token with any of its characters percent-encoded (``%61b…``), anywhere."""
 
     def clean(self, text: str) -> str:
         text = QUERY_PARAM.sub(self._redact_param, text)
-        return text.replace(self.token, "<token>") if self.token else text
+        return self._encoded.sub("<token>", text) if self._encoded else text
 
     @staticmethod
     def _redact_param(match: re.Match) -> str:
