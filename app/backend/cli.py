@@ -24,6 +24,21 @@ def _port(text: str) -> int:
     return value
 
 
+def _few_malloc_arenas(arenas: int = 2) -> None:
+    """Let glibc keep at most ``arenas`` malloc arenas in the web process: its request
+    threads each grew an arena of their own with the large, short-lived arrays of the
+    heavy reads, and its memory crept up by tens of MB over a soak (benchmarks/soak.py).
+    Nothing where the C library is not glibc."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.mallopt(-8, arenas)  # M_ARENA_MAX
+    except (OSError, AttributeError):
+        pass
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -39,6 +54,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
                              f"loopback and {TOKEN_ENV} is not set)")
         _write_secret(Path(args.token_file), token)
     listener = bind_port(args.host, args.port)  # before the loop and the viewer start
+    _few_malloc_arenas()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     app = create_app(viser_port=args.viser_port, host=args.host,
                      default_scenario=args.scenario, token=token)
