@@ -393,7 +393,7 @@ def create_app(
         restitution's forecast spread for its contact and sensing chain
         (``collision_forecast``: restitution_sd, peak_force_N, noise_force_N,
         peak_to_noise; null without a contact or in ideal mode) and how long it took
-        (``wall_s``, a few seconds; cached until another scenario's is asked for).
+        (``wall_s``, a few seconds; cached per configuration and mode, the last 32).
 
         404: unknown scenario; 422: the pre-flight refuses it (as Start would).
         """

@@ -55,6 +55,9 @@ MAX_PUSH_DV_MPS = 0.1
 """The largest velocity change (m/s, lab) the pushes under way on a satellite may give it
 at ``[loop] max_tracking_error_m`` = 0.05 m (it scales with that bound): MOTION_MARGIN of
 the smallest Δv an arm followed in benchmarks/push_follow.py."""
+FORECASTS_KEPT = 32
+"""Forecasts kept (each the configuration's JSON and a small result): every scenario in
+both modes, so that a page or client switching between them does not wait again."""
 MAX_BAG_MESSAGES = 60_000
 """A bag from the web app holds at most about this many messages (~10 s to write here):
 a long run's bag is thinned below the rate asked for. `run --bag` has no such bound."""
@@ -276,7 +279,8 @@ class EmulatorService:
         key = (config.model_dump_json(), mode)
         with self._forecast_lock:
             if key not in self._forecasts:
-                self._forecasts.clear()  # one scenario's at a time
+                while len(self._forecasts) >= FORECASTS_KEPT:  # the oldest goes
+                    del self._forecasts[next(iter(self._forecasts))]
                 self._forecasts[key] = self._compute_forecast(name, config, mode)
             return self._forecasts[key]
 
