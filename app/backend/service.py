@@ -139,9 +139,8 @@ class EmulatorService:
         self._csv_chunks = CsvChunks(CSV_CACHE_BYTES)
         self._push_lock = threading.Lock()
         self._pushes: list[_PushRecord] = []
-        self._pushes_of_run: list[_PushRecord] = []
-        """Every push accepted in the current run (their velocity changes add up)."""
-        """The pushes under way (until PUSH_END_MARGIN_S after their end)."""
+        """Every push accepted in the current run (their velocity changes add up; those
+        under way, :meth:`_under_way`, also their forces)."""
         self._limits: tuple[Any, list[float]] = (None, [])
 
     # --- lifecycle ----------------------------------------------------------------------
@@ -382,9 +381,7 @@ class EmulatorService:
         point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
             point_m, state["layout"]["satellites"][satellite - 1][1])
         with self._push_lock:  # the check and the record of a push, one at a time
-            self._pushes_of_run = [p for p in self._pushes_of_run
-                                   if p.generation == state["generation"]]
-            self._drop_ended_pushes(state)
+            self._pushes = [p for p in self._pushes if p.generation == state["generation"]]
             self._within_push_limit(state, satellite, math.hypot(*force))
             dv_R = self._push_dv_R(satellite, force, duration_s)
             self._within_push_motion(state, satellite, dv_R)
@@ -393,20 +390,19 @@ class EmulatorService:
             record = _PushRecord(state["generation"], satellite, state["t_s"], duration_s,
                                  math.hypot(*force), dv_R)
             self._pushes.append(record)
-            self._pushes_of_run.append(record)
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
                 "point_m": list(point), "t_s": self.state()["t_s"]}
 
-    def _drop_ended_pushes(self, state: dict) -> None:
-        """Forget the pushes of other runs and those over (PUSH_END_MARGIN_S after)."""
-        self._pushes = [p for p in self._pushes
-                        if p.generation == state["generation"]
-                        and p.start_s + p.duration_s + PUSH_END_MARGIN_S > state["t_s"]]
+    def _under_way(self, state: dict, satellite: int) -> list[_PushRecord]:
+        """The run's pushes on ``satellite`` still under way (until PUSH_END_MARGIN_S
+        after their end)."""
+        return [p for p in self._pushes if p.satellite == satellite
+                and p.start_s + p.duration_s + PUSH_END_MARGIN_S > state["t_s"]]
 
     def _within_push_limit(self, state: dict, satellite: int, force_N: float) -> None:
         """InvalidRequest when this push and those still pushing the same satellite would
         add up beyond its push limit (:func:`push_limit`)."""
-        pushing = sum(p.force_N for p in self._pushes if p.satellite == satellite)
+        pushing = sum(p.force_N for p in self._under_way(state, satellite))
         limit_N, why = push_limit(self.last_config, satellite - 1)
         if force_N + pushing > limit_N:
             already = f" with {pushing:.1f} N already pushing it" if pushing else ""
@@ -430,7 +426,7 @@ class EmulatorService:
         if state["status"] != "running" or state["mode"] != "hil" or not any(
                 rob["satellite"] == satellite for rob in state["robots"]):
             return
-        under_way = [p for p in self._pushes if p.satellite == satellite]
+        under_way = self._under_way(state, satellite)
         dv = float(np.linalg.norm(dv_R))
         pushing = sum(float(np.linalg.norm(p.dv_R)) for p in under_way)
         limit, why = push_max_dv(self.last_config)
@@ -440,7 +436,7 @@ class EmulatorService:
                 f"force_N, duration_s: the push changes satellite {satellite}'s velocity by "
                 f"{dv:.3f} m/s{already}, beyond its velocity-change limit {limit:.3f} m/s "
                 f"({why})")
-        net_before = sum((p.dv_R for p in self._pushes_of_run if p.satellite == satellite),
+        net_before = sum((p.dv_R for p in self._pushes if p.satellite == satellite),
                          np.zeros(3))
         net = float(np.linalg.norm(net_before + dv_R))
         if net > limit * (1.0 + 1e-9) and net > float(np.linalg.norm(net_before)):
