@@ -9,10 +9,10 @@ import sys
 from pathlib import Path
 
 from app.backend.cli import register_serve
+from app.campaign.sweep import KEEP
 from app.config import EmulatorConfig, assignment_override, load_config
-from app.run_config import resolve_run_config
+from app.runs.run_config import resolve_run_config
 from app.scenarios import scenario_descriptions, scenario_names
-from app.sweep import KEEP
 
 
 def _positive_float(text: str) -> float:
@@ -26,8 +26,8 @@ def _positive_float(text: str) -> float:
 
 
 def _cmd_propagate(args: argparse.Namespace) -> int:
-    from app.propagate import propagate
-    from app.report import write_telemetry_csv
+    from app.runs.propagate import propagate
+    from app.runs.report import write_telemetry_csv
 
     config = load_config(args.config) if args.config else EmulatorConfig()
     steps = args.duration / args.dt
@@ -52,7 +52,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from app.headless import RunFailed, headless_config, run_scenario
+    from app.runs.headless import RunFailed, headless_config, run_scenario
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
@@ -62,20 +62,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
     duration = config.loop.duration_s
     ideal = None
     if config.loop.mode == "hil":  # refused before anything is created or moves
-        from app.headless import checked_reference
+        from app.runs.headless import checked_reference
 
         ideal = checked_reference(headless_config(config, duration), duration)
         if ideal and ideal.get("forecast"):  # the fidelity forecast, before the arms move
-            from app.report import forecast_text
+            from app.runs.report import forecast_text
 
             print(forecast_text(ideal["forecast"]), flush=True)
-        from app.metrics import noise_spin_warnings
+        from app.runs.metrics import noise_spin_warnings
 
         carried = [config.satellite_index(r.satellite) for r in config.robots]
         for text in noise_spin_warnings(config, carried):
             print(f"warning: {text}", file=sys.stderr)  # before the arms move
     out_dir = _output_dir(default_out(args))
-    from app.headless import check_run_files
+    from app.runs.headless import check_run_files
 
     check_run_files(out_dir, bag=args.bag)  # before the run, not after it
     bar = tqdm(total=int(round(duration * config.loop.rate_hz)), unit="cycle",
@@ -98,7 +98,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _report_run(result) -> int:
     """Print a headless run's summary, what it wrote and how it ended; its exit status."""
-    from app.report import run_summary
+    from app.runs.report import run_summary
 
     metrics = result.metrics
     print(run_summary(metrics))
@@ -121,8 +121,8 @@ def _report_run(result) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from app.sweep import load_spec, plan_sweep
-    from app.sweep_ray import describe, parse_address, run_sweep
+    from app.campaign.sweep import load_spec, plan_sweep
+    from app.campaign.sweep_ray import describe, parse_address, run_sweep
 
     if args.address is not None:
         parse_address(args.address)
@@ -146,7 +146,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep_plot(args: argparse.Namespace) -> int:
-    from app.sweep_plot import plot_sweep
+    from app.campaign.sweep_plot import plot_sweep
 
     path = plot_sweep(Path(args.dir), args.x, args.y, args.metric, args.out)
     print(f"wrote {path}")

@@ -56,14 +56,14 @@ from pathlib import Path
 import numpy as np
 
 from app.config import EmulatorConfig, assignment_override, merge_overrides
-from app.headless import (
+from app.runs.headless import (
     checked_reference,
     collision_of,
     headless_config,
     ideal_collision,
     run_scenario,
 )
-from app.metrics import compare_with_ideal, sensing_limits
+from app.runs.metrics import compare_with_ideal, sensing_limits
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
 
@@ -100,7 +100,7 @@ def collision_run(args: tuple) -> dict:
     assignments, seed, ideal = args
     config = configure(load_scenario("collision"), assignments + [f"loop.seed={seed}"])
     em = run_scenario(config, duration_s=config.loop.duration_s, with_ideal=False).emulator
-    from app.metrics import collision_metrics
+    from app.runs.metrics import collision_metrics
     bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
     coll = collision_metrics(em.telemetry.rows(), em.telemetry.index, em.dt_s, bodies=bodies)
     if coll is not None:

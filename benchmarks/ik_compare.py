@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from app.config import ServoConfig
-from app.headless import run_scenario
+from app.runs.headless import run_scenario
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
 from app.sim.rotations import invert_transform, make_transform, quat_to_matrix

@@ -46,7 +46,7 @@ ROOT = HERE.parents[1]
 
 def realtime_factors(scenario: str, duration_s: float | None, repeats: int) -> list[dict]:
     """run_scenario's realtime_factor and cycle p50/p99 of `repeats` headless hil runs."""
-    from app.headless import run_scenario
+    from app.runs.headless import run_scenario
     from app.scenarios import load_scenario
 
     out = []

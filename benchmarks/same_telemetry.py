@@ -5,7 +5,7 @@
 
 Runs a fixed set of headless cases (scenario, mode, seed, settings) in a fresh process for
 each tree and compares the recorded telemetry rows bit for bit (and the metrics, less the
-timing figures). Needs only ``app.headless.run_scenario``, ``app.config.merge_overrides``
+timing figures). Needs only ``app.runs.headless.run_scenario``, ``app.config.merge_overrides``
 and ``app.scenarios.load_scenario`` in the other tree.
 """
 
@@ -42,7 +42,7 @@ def record(out_dir: Path) -> None:
     """Run every case in this process; write rows (.npy) and metrics (.json) per case."""
     import app
     from app.config import merge_overrides
-    from app.headless import run_scenario
+    from app.runs.headless import run_scenario
     from app.scenarios import load_scenario
 
     print(f"recording with {Path(app.__file__).parent}", flush=True)

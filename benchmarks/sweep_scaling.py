@@ -30,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from app.sweep import TIMING_METRICS, load_spec, plan_sweep, read_results
+from app.campaign.sweep import TIMING_METRICS, load_spec, plan_sweep, read_results
 
 SPEC = """
 scenario = "collision"
@@ -66,7 +66,7 @@ def sweep_command(spec: Path, out: Path) -> float:
 
 def sequential(plan) -> tuple[float, dict[str, dict]]:
     """The same runs one after the other here: (wall time, run_id → metrics)."""
-    from app.headless import run_scenario
+    from app.runs.headless import run_scenario
 
     runs = list(plan.runs())
     run_scenario(runs[0].config, duration_s=0.1)  # imports and kernels before the clock
@@ -82,7 +82,7 @@ def sequential(plan) -> tuple[float, dict[str, dict]]:
 def ideal_times(plan) -> tuple[float, int]:
     """The ideal reference runs alone, once per setting, timed apart: (their total time,
     how many runs share them), to estimate a sequential baseline that shares them too."""
-    from app.headless import headless_config, ideal_collision
+    from app.runs.headless import headless_config, ideal_collision
 
     first = {}
     for run in plan.runs():

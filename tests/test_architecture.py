@@ -16,8 +16,8 @@ from pathlib import Path
 APP = Path(__file__).resolve().parent.parent / "app"
 
 #: What app/sim/ (the numeric core) must not import: the web stack, the backend, and Ray
-#: (campaigns run the core; app/sweep_ray.py).
-WEB_IMPORTS = ("fastapi", "uvicorn", "viser", "app.backend", "ray", "app.sweep_ray")
+#: (campaigns run the core; app/campaign/sweep_ray.py).
+WEB_IMPORTS = ("fastapi", "uvicorn", "viser", "app.backend", "ray", "app.campaign.sweep_ray")
 
 
 def module_name(path: Path) -> str:
@@ -125,7 +125,7 @@ def test_the_graph_sees_every_kind_of_import():
     assert {"app.cli", "app.sim.loop", "app.backend.runner", "app.scenarios"} <= set(graph)
     assert "app.sim.loop" in graph["app.backend.loop_process"]  # from app.sim.loop import ...
     assert "app.backend.snapshots" in graph["app.backend.runner"]  # from app.backend import m
-    assert "app.headless" in graph["app.cli"]  # inside a function
+    assert "app.runs.headless" in graph["app.cli"]  # inside a function
     assert "app.backend" not in graph["app.backend.runner"]  # only the package of a module
 
 
@@ -232,3 +232,12 @@ def test_no_lab_side_stage_reads_the_simulated_contact_or_hand():
     assert status == "finished"
     _, free = _sealed_run(False)
     np.testing.assert_array_equal(sealed, free)
+
+
+def test_app_top_level_holds_packages_and_the_cli():
+    """One home per responsibility: the run (make, describe, read), campaigns, settings,
+    the numeric core, the server; only the CLI lives at the top."""
+    modules = sorted(p.name for p in APP.glob("*.py"))
+    assert modules == ["__init__.py", "cli.py"]
+    packages = sorted(p.name for p in APP.iterdir() if (p / "__init__.py").is_file())
+    assert packages == ["backend", "campaign", "config", "runs", "scenarios", "sim"]

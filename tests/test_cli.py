@@ -138,7 +138,7 @@ def test_a_run_that_raises_once_started_keeps_what_it_recorded_with_status_error
     CW transfer crossing half an orbit, is fixed), so the fault comes through the run's
     own progress callback, as an interrupted display's would: what it recorded up to then
     is written, and metrics.json says status "error" and why (the CLI then exits 4)."""
-    from app.headless import RunFailed, run_scenario
+    from app.runs.headless import RunFailed, run_scenario
     from app.scenarios import load_scenario
 
     def fail_at_1000(k, n):
@@ -243,7 +243,7 @@ def test_a_file_that_cannot_be_written_after_the_run_goes_elsewhere_and_exits_5(
     telemetry.csv goes): the other files are written, telemetry.csv is written to a fresh
     temporary folder, and `run` says so on stderr and exits 5."""
     from app.cli import EXIT_NOT_WRITTEN, _report_run
-    from app.headless import run_scenario
+    from app.runs.headless import run_scenario
     from app.scenarios import load_scenario
 
     out = tmp_path / "out"

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.config import assignment_override, merge_overrides
-from app.headless import run_scenario
+from app.runs.headless import run_scenario
 from app.scenarios import load_scenario
 from app.sim.compensation import LagModelError, force_lag_s, lag_model, predicted_state
 from app.sim.ft_sensor import VirtualFTSensor, WrenchProcessor

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.config import merge_overrides
-from app.headless import run_scenario
+from app.runs.headless import run_scenario
 from app.scenarios import load_scenario
 from app.sim.contact_estimator import cone_projection, contact_wrench_W
 

@@ -10,10 +10,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from app.report import gnc_success_lines
+from app.runs.report import gnc_success_lines
+from app.runs.success import success_metrics
 from app.scenarios import load_scenario
 from app.sim.rotations import quat_to_matrix
-from app.success import success_metrics
 from tests.test_cli import EXE
 
 CFG = load_scenario("free-flying")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.config import merge_overrides
-from app.headless import run_scenario
+from app.runs.headless import run_scenario
 from app.scenarios import load_scenario, scenario_descriptions
 from app.sim.hand import Push
 from app.sim.loop import Emulator

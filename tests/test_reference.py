@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from app.config import ContactMaterial, merge_overrides
-from app.headless import run_scenario
+from app.runs.headless import run_scenario
 from app.scenarios import load_scenario
 from app.sim.contact import combine_materials
 

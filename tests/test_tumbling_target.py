@@ -11,8 +11,8 @@ import subprocess
 import numpy as np
 import pytest
 
+from app.runs.success import success_metrics
 from app.scenarios import load_scenario
-from app.success import success_metrics
 from tests.test_cli import EXE
 
 CFG = load_scenario("tumbling-target")

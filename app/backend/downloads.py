@@ -25,7 +25,7 @@ import numpy as np
 
 from app.backend.ring import CHUNK_ROWS, RingFile
 from app.config import EmulatorConfig
-from app.report import csv_row_format, json_safe
+from app.runs.report import csv_row_format, json_safe
 
 __all__ = ["DownloadWorker", "build_archive", "build_bag", "temporary_zip"]
 
@@ -45,8 +45,8 @@ def build_archive(path: str, snap: dict, config: EmulatorConfig, columns: list[s
                   ring: RingFile | None, metrics: dict) -> None:
     """The run's zip at ``path``: telemetry.csv (formatted a chunk at a time),
     metrics.json, summary.txt, config.json and the headless run's plots."""
-    from app.plots import plot_run
-    from app.report import run_summary
+    from app.runs.plots import plot_run
+    from app.runs.report import run_summary
 
     rows = ring.numbered_rows()[1] if ring is not None else _empty_rows(columns)
     fmt = csv_row_format(len(columns))
@@ -71,11 +71,11 @@ def build_archive(path: str, snap: dict, config: EmulatorConfig, columns: list[s
 
 def build_bag(path: str, snap: dict, config: EmulatorConfig, columns: list[str],
               ring: RingFile | None, rate_hz: float, max_messages: int) -> float:
-    """The run's ROS 2 bag (app/bag.py), zipped at ``path``; the rate written: at most
+    """The run's ROS 2 bag (app/runs/bag.py), zipped at ``path``; the rate written: at most
     rate_hz messages per topic and second of scenario time, and fewer where the run is
     long (about max_messages in all). Only the rows kept are held, read a chunk at a
     time."""
-    from app.bag import write_bag
+    from app.runs.bag import write_bag
 
     rows = _empty_rows(columns)
     if ring is not None:
@@ -93,8 +93,8 @@ def bag_rows(ring: RingFile, snap: dict, rate_hz: float,
              max_messages: int) -> tuple[np.ndarray, float]:
     """(the rows a bag keeps, the rate written): every step-th row of the ring from its
     first, step the least whose rate is at most rate_hz and that keeps the bag within
-    max_messages (app.bag.thinning_step)."""
-    from app.bag import thinning_step
+    max_messages (app.runs.bag.thinning_step)."""
+    from app.runs.bag import thinning_step
 
     head = tail = None
     for first, rows in ring.chunks():

@@ -35,11 +35,11 @@ from app.backend import snapshots
 from app.backend.ring import attach_ring
 from app.backend.snapshots import SnapshotWriter
 from app.config import EmulatorConfig
-from app.metrics import noise_spin_warnings, passivity_metrics
+from app.runs.metrics import noise_spin_warnings, passivity_metrics
+from app.runs.uncertainty import run_interval
 from app.sim.loop import Emulator
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
 from app.sim.scaling import scaling_of, summary_line
-from app.uncertainty import run_interval
 
 log = logging.getLogger("orbit_emulator.runner")
 
@@ -71,7 +71,7 @@ class LoopCore:
         self.em = Emulator(config, mode=mode)
         self.generation = 0
         self.interval: dict | None = None
-        """The last run's restitution interval (app/uncertainty.py), once computed."""
+        """The last run's restitution interval (app/runs/uncertainty.py), once computed."""
         self.shutdown = False
         self._pending: tuple | None = None  # a control message that interrupted a start
         self._rings: list = []  # the telemetry rings mapped (the current run's last)
@@ -278,7 +278,7 @@ class LoopCore:
 
     def _interval(self, em: Emulator) -> None:
         """After a run, outside its paced cycles: the restitution's interval from the
-        replicates of its contact (app/uncertainty.py; a second or two, with the
+        replicates of its contact (app/runs/uncertainty.py; a second or two, with the
         heartbeat between replicates), published as ``interval``."""
         if em.snapshot is None or em.status not in ("finished", "safety_stop"):
             return
@@ -307,7 +307,7 @@ class LoopCore:
 
     def _config_warnings(self, em: Emulator) -> list[str]:
         """What the operator must read before Start (computed once per emulator): a hil
-        run's satellites that the F/T noise can spin (app/metrics.py, as the CLI warns)."""
+        run's satellites that the F/T noise can spin (app/runs/metrics.py, as the CLI warns)."""
         if self._warned_em is not em:
             carried = [a.satellite for a in em.arms]
             self._warnings = (noise_spin_warnings(em.config, carried)

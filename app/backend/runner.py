@@ -392,7 +392,7 @@ class Runner:
                       snapshot_at_s: float | None = None) -> int:
         """Start `config` (validated) in the loop; returns the generation it will have.
         ``snapshot_at_s``: when the loop keeps its snapshot for the restitution's interval
-        (app/uncertainty.py; from the pre-flight's ideal run), None for none.
+        (app/runs/uncertainty.py; from the pre-flight's ideal run), None for none.
 
         Raises RunnerBusy when a run is starting or running.
         """

@@ -55,7 +55,7 @@ from app.backend.service import (
 from app.backend.viewer import PATH as VIEWER_PATH
 from app.backend.viewer import add_viewer_routes, start_viser
 from app.config import MAX_SATELLITES
-from app.report import json_safe
+from app.runs.report import json_safe
 
 log = logging.getLogger("orbit_emulator.server")
 

@@ -19,7 +19,7 @@ from app.backend.downloads import DownloadWorker
 from app.backend.ring import COUNTER_BYTES, RingSpaceError, check_ring_space, ring_bytes
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
-from app.preflight import PreflightRefused, preflight
+from app.runs.preflight import PreflightRefused, preflight
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.scaling import scaling_of
@@ -252,7 +252,7 @@ class EmulatorService:
     @staticmethod
     def preflight(config: EmulatorConfig, mode: str | None) -> float | None:
         """Refuse a hil start whose predicted course leaves an arm's reach, safety volume
-        or speed (app/preflight.py; InvalidRequest naming the robot, time and limit); else
+        or speed (app/runs/preflight.py; InvalidRequest naming the robot, time and limit); else
         when the run keeps its snapshot for the restitution's interval (before the
         contact the prediction has; None: none)."""
         if (mode or config.loop.mode) != "hil":
@@ -263,15 +263,15 @@ class EmulatorService:
             raise InvalidRequest(str(err)) from None
         if prediction is None or prediction.n_sat < 2:
             return None
-        from app.headless import collision_of
-        from app.uncertainty import snapshot_time_s
+        from app.runs.headless import collision_of
+        from app.runs.uncertainty import snapshot_time_s
 
         return snapshot_time_s(config, collision_of(prediction))
 
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
         """Before Start: the pre-flight of scenario ``name`` as it would start, with the
-        restitution's forecast spread (app/uncertainty.py; ``collision_forecast`` None
+        restitution's forecast spread (app/runs/uncertainty.py; ``collision_forecast`` None
         without a contact, or in ideal mode); refused as a start would be. Cached per
         configuration: the forecast takes seconds."""
         config, mode = self.build(name, overrides, mode)
@@ -287,7 +287,7 @@ class EmulatorService:
     def _compute_forecast(name: str, config: EmulatorConfig, mode: str | None) -> dict:
         import time
 
-        from app.headless import checked_reference, headless_config
+        from app.runs.headless import checked_reference, headless_config
 
         t0 = time.perf_counter()
         forecast = None
@@ -486,7 +486,7 @@ class EmulatorService:
         streamed response: read from the shared ring CHUNK_ROWS rows at a time and
         formatted as they go, so that a download holds one chunk, never the whole text
         (a 1 GiB ring is gigabytes of text). Rows committed after the call are not in it."""
-        from app.report import csv_row_format
+        from app.runs.report import csv_row_format
 
         snap = self.runner.snapshot()
         ring = self.runner.ring_of(snap)
@@ -522,7 +522,7 @@ class EmulatorService:
         return self._reads.get("metrics", self._metrics)
 
     def _metrics(self, read=None) -> dict[str, Any]:
-        from app.metrics import RunFacts, metrics_of
+        from app.runs.metrics import RunFacts, metrics_of
 
         snap, ring, _, rows = read or self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
@@ -571,7 +571,7 @@ class EmulatorService:
         return path
 
     def run_bag(self, rate_hz: float) -> tuple[Path, float]:
-        """The current (or last) run as a ROS 2 bag (MCAP; app/bag.py), zipped into a
+        """The current (or last) run as a ROS 2 bag (MCAP; app/runs/bag.py), zipped into a
         temporary file (the caller deletes it), and the rate it was written at: at most
         rate_hz messages per topic and second of scenario time, and fewer where the run is
         long (:data:`MAX_BAG_MESSAGES`). Built one at a time (the heavy reads' turn) by a

@@ -200,7 +200,7 @@ class BoxContactModel:
 
     def __deepcopy__(self, memo: dict) -> BoxContactModel:
         """A copy with its own coal objects (coal's solvers cannot be copied; they hold no
-        state between calls): what an Emulator snapshot needs (app/uncertainty.py)."""
+        state between calls): what an Emulator snapshot needs (app/runs/uncertainty.py)."""
         new = BoxContactModel.__new__(BoxContactModel)
         memo[id(self)] = new
         for key, value in self.__dict__.items():

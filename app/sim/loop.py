@@ -141,7 +141,7 @@ class Emulator:
         self._final_recorded_at = -1
         self.snapshot_at_s: float | None = None
         """When set: at the first cycle that starts at or after this time, the loop keeps a
-        copy of its whole state in ``snapshot`` (app/uncertainty.py replays from it)."""
+        copy of its whole state in ``snapshot`` (app/runs/uncertainty.py replays from it)."""
         self.snapshot: Emulator | None = None
         self._load_kernels()
 

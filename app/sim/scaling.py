@@ -109,7 +109,7 @@ def box_inertia(mass_kg: float, size_m) -> np.ndarray:
 
 
 def scaling_of(config: EmulatorConfig) -> Scaling:
-    """The scaling a configuration asks for (validated with it: app/config.py)."""
+    """The scaling a configuration asks for (validated with it: app/config/)."""
     s = config.scaling
     if s.law == "similarity":
         return Scaling("similarity", s.length, s.time, s.mass,

@@ -1,7 +1,7 @@
 """F/T sensors a lab can choose (``[sensor] model``), each with its data sheet's figures.
 
 A model sets the sensor's range, noise, sample rate and delay; any of them given in
-``[sensor]`` overrides the model's (app/config.py SensorConfig). The chain downstream (the
+``[sensor]`` overrides the model's (app/config/ SensorConfig). The chain downstream (the
 lab's processing, the contact gate, the lag compensation) reads the resolved values.
 
 How the figures are read:

@@ -1,4 +1,4 @@
-"""Collision metrics (app/metrics.py): what the mockups went through, against closed forms."""
+"""Collision metrics (app/runs/metrics.py): what the mockups went through, against closed forms."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from app.config import merge_overrides
-from app.headless import run_scenario
-from app.metrics import collision_metrics, compare_with_ideal, contact_pair
+from app.runs.headless import run_scenario
+from app.runs.metrics import collision_metrics, compare_with_ideal, contact_pair
 from app.scenarios import load_scenario
 
 
@@ -208,7 +208,7 @@ def test_hil_metrics_compare_the_actual_mockups_with_the_ideal_run(hil, ideal):
     # the noise may part the bodies for a few ms near the contact's soft end: named if so
     chatter = [f"the bodies touched {coll['touches']} times within this contact"]
     assert [w[:len(chatter[0])] for w in coll["warnings"]] == chatter * (coll["touches"] > 1)
-    # the interval (app/uncertainty.py) replaced the unchecked open-loop bound
+    # the interval (app/runs/uncertainty.py) replaced the unchecked open-loop bound
     e, sd = coll["restitution"], coll["restitution_sd"]
     assert sd > 0.0
     assert coll["restitution_interval_95"] == pytest.approx([e - 1.959964 * sd,
@@ -259,7 +259,7 @@ def test_a_restitution_above_one_is_named_as_energy_the_emulation_put_in():
 def test_a_contact_the_ods_never_felt_is_named_and_the_summary_prints():
     """True force on the mockups, none received by the ODS (a deadband that hid it): no
     impulse balance, a warning, and the printed summary copes."""
-    from app.report import run_summary
+    from app.runs.report import run_summary
 
     rows, index = _telemetry(_pulses((0.1, 0.13, 5.0)))
     for s in (1, 2):
@@ -328,7 +328,7 @@ def test_a_satellite_the_sensor_noise_can_spin_is_warned_about(tmp_path):
     at the scenario's k_M = 1 (0.0075 kg m2: 0.067 rad/s), and in every built-in scenario,
     no warning."""
     from app.config import merge_overrides
-    from app.metrics import noise_spin_warnings
+    from app.runs.metrics import noise_spin_warnings
     from app.scenarios import load_scenario, scenario_names
 
     heavy = merge_overrides(load_scenario("rendezvous"), {"scaling": {"mass": 500.0}})
@@ -360,7 +360,7 @@ def test_the_off_normal_noise_bound_counts_the_samples_a_slower_sensor_takes():
     """The off-normal warning's noise bound adds one independent sample per sample
     interval: every 2 ms cycle for the UR10e's sensor, every 10 ms for the FT 300-S's
     100 Hz stream (held in between), whatever the loop's rate; no sensor without arms."""
-    from app.metrics import _sensor_noise
+    from app.runs.metrics import _sensor_noise
 
     cfg = load_scenario("collision")
     assert _sensor_noise(cfg, True) == (cfg.sensor.noise_force_N, 1.0 / 500.0)

@@ -11,7 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from app.sweep import FIXED_COLUMNS_HEAD, FIXED_COLUMNS_MID, FIXED_COLUMNS_TAIL, read_results
+from app.campaign.sweep import (
+    FIXED_COLUMNS_HEAD,
+    FIXED_COLUMNS_MID,
+    FIXED_COLUMNS_TAIL,
+    read_results,
+)
 
 UNITS = {
     "Npm": "N/m", "spm": "s/m", "mps": "m/s", "mps2": "m/s²", "radps": "rad/s",

@@ -27,7 +27,7 @@ def success_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
                     ) -> dict | None:
     """The ``success`` block of metrics.json (None when the scenario names no criterion);
     ``capture``: the run's capture metrics, if it has a [capture]; ``collision``: its
-    first contact's metrics (app/metrics.py), None if the satellites never touched."""
+    first contact's metrics (app/runs/metrics.py), None if the satellites never touched."""
     crit = config.success
     checks = {}
     if crit.no_contact:

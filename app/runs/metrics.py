@@ -11,7 +11,7 @@ from app.config import EmulatorConfig
 from app.sim.loop import Emulator
 from app.sim.scaling import describe as describe_scaling
 from app.sim.scaling import describe_body, scaling_of
-from app.success import success_metrics
+from app.runs.success import success_metrics
 
 
 def _cols(rows: np.ndarray, index: dict, prefix: str, names) -> np.ndarray:
@@ -268,7 +268,7 @@ def compare_with_ideal(coll: dict, ideal: dict | None, deadband_N: float) -> Non
 
     deadband_N: the F/T force deadband the contact meets (0 where the contact gate lifts
     it, or without a sensor). How far one run's restitution can be trusted is its
-    interval (``restitution_sd``, ``restitution_interval_95``: app/uncertainty.py).
+    interval (``restitution_sd``, ``restitution_interval_95``: app/runs/uncertainty.py).
     """
     ideal = ideal or None  # {}: the ideal run had no contact
     coll["restitution_ideal"] = None if ideal is None else ideal["restitution"]
@@ -457,7 +457,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
             coll["warnings"] += _off_normal_warnings(
                 coll, _sensor_noise(config, bool(facts.arm_of)))
             coll["restitution_sd"] = coll["restitution_interval_95"] = None  # hil: filled
-            coll["uncertainty"] = None  # by app/uncertainty.py after the run
+            coll["uncertainty"] = None  # by app/runs/uncertainty.py after the run
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
                 coll["warnings"].append(
                     f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the F/T "

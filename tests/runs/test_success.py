@@ -1,4 +1,4 @@
-"""Scenario success criteria (app/success.py) and the gravity-stabilised scenario."""
+"""Scenario success criteria (app/runs/success.py) and the gravity-stabilised scenario."""
 
 import json
 import math
@@ -10,7 +10,7 @@ from scipy.special import ellipk
 
 from app.config import ConfigError, parse_config
 from app.sim.rotations import rotvec_to_quat
-from app.success import libration_period_theory_s, pitch_rad
+from app.runs.success import libration_period_theory_s, pitch_rad
 from tests.test_cli import EXE
 
 

@@ -1,6 +1,6 @@
-"""Sweep specs (app/sweep.py): validation with the field named, expansion into runs, run
-identity, the results table and --resume's reading of it; sweep-plot (app/sweep_plot.py).
-No Ray here: tests/test_sweep_ray.py runs sweeps end to end."""
+"""Sweep specs (app/campaign/sweep.py): validation with the field named, expansion into runs, run
+identity, the results table and --resume's reading of it; sweep-plot (app/campaign/sweep_plot.py).
+No Ray here: tests/campaign/test_sweep_ray.py runs sweeps end to end."""
 
 from __future__ import annotations
 
@@ -16,10 +16,7 @@ import time
 
 import pytest
 
-from app.config import assignment_override
-from app.run_config import resolve_run_config
-from app.scenarios import scenario_names
-from app.sweep import (
+from app.campaign.sweep import (
     MAX_RUNS,
     ResultsTable,
     Run,
@@ -33,7 +30,10 @@ from app.sweep import (
     row_of,
     run_id,
 )
-from app.sweep_plot import label, plot_sweep, unit_of
+from app.campaign.sweep_plot import label, plot_sweep, unit_of
+from app.config import assignment_override
+from app.runs.run_config import resolve_run_config
+from app.scenarios import scenario_names
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 
@@ -331,7 +331,7 @@ def test_the_table_refuses_to_overwrite_and_resume_reads_it_back(tmp_path):
 def test_an_unresolved_run_has_a_row_with_its_reason(tmp_path):
     plan = plan_of(tmp_path, HEAD)
     run = Run(0, 0, {}, None, error="ConfigError: nope", run_id="x")
-    from app.sweep import unresolved_outcome
+    from app.campaign.sweep import unresolved_outcome
 
     row = row_of(plan, run, unresolved_outcome(run))
     assert (row["status"], row["reason"], row["collision.restitution"]) == (
@@ -409,7 +409,7 @@ def test_settings_that_must_change_together_are_checked_together(tmp_path):
 
 def test_run_applies_its_set_options_together():
     from app.config import assignment_override
-    from app.run_config import resolve_run_config
+    from app.runs.run_config import resolve_run_config
 
     cfg = resolve_run_config("docking", None, overrides=[
         assignment_override("scaling.length=2"), assignment_override("scaling.time=2")])

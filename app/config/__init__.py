@@ -25,7 +25,7 @@ from pydantic import (
     model_validator,
 )
 
-from app.inputs import InputFileError, read_bounded_text
+from app.config.inputs import InputFileError, read_bounded_text
 from app.sim.sensor_models import SENSOR_MODELS
 
 __all__ = [
@@ -563,7 +563,7 @@ def _two_or_more(n: int) -> int:
 
 
 class UncertaintyConfig(_Model):
-    """The restitution's uncertainty (app/uncertainty.py; docs/fidelity-uncertainty.md).
+    """The restitution's uncertainty (app/runs/uncertainty.py; docs/fidelity-uncertainty.md).
 
     A hil run keeps a snapshot of the whole loop ``lead_s`` before the contact its ideal
     run predicts; after the run, ``replicates`` copies of the contact window run from it
@@ -655,7 +655,7 @@ class CaptureConfig(_Model):
 
 
 class SuccessConfig(_Model):
-    """What a scenario must achieve (app/success.py): each criterion given is computed
+    """What a scenario must achieve (app/runs/success.py): each criterion given is computed
     from the run's telemetry and reported in metrics.json ``success``."""
 
     libration_period_error_max: Annotated[float, AfterValidator(_finite),
@@ -1008,7 +1008,7 @@ def load_config(path: str | Path) -> EmulatorConfig:
     return parse_config(read_scenario_file(path))
 
 
-SCENARIO_DIR = Path(__file__).parent / "scenarios"
+SCENARIO_DIR = Path(__file__).parent.parent / "scenarios"
 
 
 def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:

@@ -10,7 +10,7 @@ passivity, ODS) until its contact has ended and the velocities after it can be r
   the start-up calibration (``ArmRig.rest_sd_S``: measured, not the configured value);
 * a fresh draw of the calibration's own bias-estimate error, σ / sqrt(n_rest) per axis;
 
-and its restitution is read by the run's own code (:func:`app.metrics.collision_metrics`).
+and its restitution is read by the run's own code (:func:`app.runs.metrics.collision_metrics`).
 The replicates' standard deviation is the restitution's, ``restitution_sd``; the 95 %
 interval is the run's e ± 1.96 sd. The contact in a replicate is the configured contact
 law: the lab's model of its own mockups (their digital twin), not the mockups themselves.
@@ -28,16 +28,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from app.config import EmulatorConfig, merge_overrides
-from app.metrics import collision_metrics
+from app.runs.metrics import collision_metrics
 from app.sim.loop import Emulator, StartPoseError
 
 __all__ = ["SensorNoise", "configured_noise", "forecast", "measured_noise", "replicate",
            "restitution_spread", "run_interval", "snapshot_time_s", "spread_of_run"]
 
 QUIET_S = 0.05
-"""A contact ends once the bodies have been apart this long (app/metrics.py)."""
+"""A contact ends once the bodies have been apart this long (app/runs/metrics.py)."""
 WAIT_S = 0.02
-"""The velocities after a contact are read this long past its window (app/metrics.py)."""
+"""The velocities after a contact are read this long past its window (app/runs/metrics.py)."""
 Z95 = 1.959963984540054
 """The two-sided 95 % quantile of the normal distribution."""
 
@@ -85,7 +85,7 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
               noise: list[SensorNoise] | None = None,
               rng: np.random.Generator | None = None) -> dict | None:
     """One replicate of the contact window from ``snapshot`` (left untouched): its
-    collision metrics (app/metrics.collision_metrics; None if the pair never touched).
+    collision metrics (app/runs/metrics.collision_metrics; None if the pair never touched).
 
     It steps until the pair's contact has ended (apart for QUIET_S) and WAIT_S more, a
     stop, or ``until_s``. ``noise``: per arm, draw fresh noise of this size with ``rng``
@@ -249,7 +249,7 @@ def run_interval(em: Emulator, tick=None) -> dict | None:
     own): its first collision's restitution and the interval around it, {"restitution",
     "restitution_sd", "restitution_interval_95", "uncertainty"}; None without a snapshot
     or a collision."""
-    from app.metrics import contact_pair
+    from app.runs.metrics import contact_pair
 
     if em.snapshot is None or em.n_sat < 2:
         return None

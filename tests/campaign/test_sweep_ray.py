@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from app.sweep import METRIC_FIELDS, TIMING_METRICS
+from app.campaign.sweep import METRIC_FIELDS, TIMING_METRICS
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 RAY = shutil.which("ray") or f"{sys.prefix}/bin/ray"

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import ConfigError, EmulatorConfig, merge_overrides
-from app.metrics import contact_pair
+from app.runs.metrics import contact_pair
 from app.sim.loop import Emulator
 from app.sim.rotations import make_transform, quat_to_matrix
 from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M, T_W_B_from_config

@@ -153,7 +153,7 @@ def run_summary(metrics: dict) -> str:
 
 
 def gnc_success_lines(success: dict) -> list[str]:
-    """The summary's lines for the GNC criteria (app/success.py), orbit units."""
+    """The summary's lines for the GNC criteria (app/runs/success.py), orbit units."""
     lines = []
     wp = success.get("waypoints")
     if wp:
@@ -198,7 +198,7 @@ def gnc_success_lines(success: dict) -> list[str]:
 
 
 def interval_text(coll: dict) -> str | None:
-    """The restitution's 95 % interval as a line (app/uncertainty.py); None without one."""
+    """The restitution's 95 % interval as a line (app/runs/uncertainty.py); None without one."""
     interval, sd = coll.get("restitution_interval_95"), coll.get("restitution_sd")
     if interval is None:
         return None
@@ -213,7 +213,7 @@ def interval_text(coll: dict) -> str | None:
 
 
 def forecast_text(forecast: dict) -> str:
-    """The pre-flight's fidelity forecast as a line (app/uncertainty.py)."""
+    """The pre-flight's fidelity forecast as a line (app/runs/uncertainty.py)."""
     sd = forecast.get("restitution_sd")
     ratio = forecast.get("peak_to_noise")
     return ("forecast before the run: restitution sd "

@@ -1,4 +1,4 @@
-"""Pre-flight (app/preflight.py): the ideal run's course against each arm's reach, safety
+"""Pre-flight (app/runs/preflight.py): the ideal run's course against each arm's reach, safety
 volume and speed, before the arms move."""
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.config import merge_overrides
-from app.preflight import HOLD_RADIUS_M, PreflightRefused, preflight
+from app.runs.preflight import HOLD_RADIUS_M, PreflightRefused, preflight
 from app.scenarios import load_scenario, scenario_names
 from app.sim.ur10e import SHOULDER_B_M, T_W_B_from_config
 
@@ -95,8 +95,8 @@ def test_an_ideal_only_layout_has_nothing_to_check():
 def test_a_sweep_run_the_pre_flight_refuses_is_a_row_refused_and_nothing_runs():
     """The sweep's shared reference carries the pre-flight: a refused configuration is
     the outcome "refused" with the reason, for every seed, and no run starts."""
-    from app.run_config import finish_run_config
-    from app.sweep import compute_ideal, execute_run
+    from app.runs.run_config import finish_run_config
+    from app.campaign.sweep import compute_ideal, execute_run
 
     base = merge_overrides(load_scenario("collision"),
                            {"satellites": {"0": {"velocity_mps": [0.6, 0.0, 0.0]}}})

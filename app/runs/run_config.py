@@ -1,7 +1,7 @@
 """What one headless run runs: a scenario (or a config file), a mode, a duration, a seed and
 ``--set`` overrides resolved into one EmulatorConfig.
 
-``orbit-emulator run`` and every run of a sweep (app/sweep.py) resolve their configuration
+``orbit-emulator run`` and every run of a sweep (app/campaign/sweep.py) resolve their configuration
 here, so that a sweep's run is exactly the ``run`` of the same settings. The resolved
 configuration carries the mode (``loop.mode``), the duration (``loop.duration_s``) and the
 seed (``loop.seed``): it alone says what the run does.

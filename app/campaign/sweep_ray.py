@@ -1,4 +1,4 @@
-"""Running a sweep's runs as Ray tasks (app/sweep.py plans them, keeps the table).
+"""Running a sweep's runs as Ray tasks (app/campaign/sweep.py plans them, keeps the table).
 
 With no address, Ray starts on this machine for the sweep and stops at its end; with one,
 the sweep joins that Ray cluster (``ray start --head`` there) and leaves it running. Each
@@ -20,8 +20,7 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
-from app.report import write_json
-from app.sweep import (
+from app.campaign.sweep import (
     ResultsTable,
     Run,
     SweepPlan,
@@ -33,6 +32,7 @@ from app.sweep import (
     status_counts,
     unresolved_outcome,
 )
+from app.runs.report import write_json
 
 CONNECT_TIMEOUT_S = 20.0
 """How long joining a cluster may take before the sweep gives up (Ray's own connect

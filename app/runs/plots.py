@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from app.report import interval_text  # noqa: E402
+from app.runs.report import interval_text  # noqa: E402
 
 AXES = ("x", "y", "z")
 

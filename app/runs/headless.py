@@ -9,14 +9,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.bag import check_bag_dir, replace_bag_dir, write_bag
+from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
 from app.config import EmulatorConfig, merge_overrides
-from app.metrics import collision_metrics, compute_metrics, contact_pair
-from app.plots import PLOT_FILES, plot_run
-from app.preflight import preflight
-from app.report import write_json, write_telemetry_csv
+from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
+from app.runs.plots import PLOT_FILES, plot_run
+from app.runs.preflight import preflight
+from app.runs.report import write_json, write_telemetry_csv
 from app.sim.loop import Emulator
-from app.uncertainty import forecast, snapshot_time_s, spread_of_run
+from app.runs.uncertainty import forecast, snapshot_time_s, spread_of_run
 
 
 @dataclass
@@ -54,7 +54,7 @@ def collision_of(em: Emulator) -> dict:
 
 def checked_reference(config: EmulatorConfig, duration_s: float,
                       with_ideal: bool = True) -> dict | None:
-    """Before a hil run: its pre-flight (app/preflight.py; raises PreflightRefused naming
+    """Before a hil run: its pre-flight (app/runs/preflight.py; raises PreflightRefused naming
     the robot, the time and the limit), and from the same ideal run the collision
     reference a run with two or more satellites is compared with (None when it needs
     none). Nothing of the run itself has started."""
@@ -64,7 +64,7 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
     if prediction is None:  # no robots: no pre-flight, but a reference still
         return ideal_collision(config, duration_s)
     reference = collision_of(prediction)  # at the run's rate (two satellites)
-    if reference:  # the fidelity forecast (app/uncertainty.py), in metrics.json
+    if reference:  # the fidelity forecast (app/runs/uncertainty.py), in metrics.json
         reference["forecast"] = forecast(config, reference)
     return reference
 
@@ -82,7 +82,7 @@ def run_scenario(
     preflight_done: bool = False,
 ) -> RunResult:
     """Run a scenario headless; with out_dir, write its telemetry, metrics and plots (and
-    with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.bag.write_bag`).
+    with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.runs.bag.write_bag`).
 
     The telemetry buffer is sized to hold the whole run, so nothing recorded is dropped;
     on a safety stop the run ends there and everything up to it is written. A hil run
@@ -132,7 +132,7 @@ def run_scenario(
 
 def _add_uncertainty(em: Emulator, metrics: dict) -> None:
     """The restitution's interval from the replicates of the contact window
-    (app/uncertainty.py); if they fail, the run's record is written all the same, with a
+    (app/runs/uncertainty.py); if they fail, the run's record is written all the same, with a
     warning and no interval."""
     coll = metrics.get("collision")
     if coll is None or em.snapshot is None:

@@ -1,4 +1,4 @@
-"""The ROS 2 bag of a run (app/bag.py), read back with rosbags and checked against the
+"""The ROS 2 bag of a run (app/runs/bag.py), read back with rosbags and checked against the
 run's telemetry.csv: topics, message types, counts, values, and a tf tree that puts each
 mockup where the telemetry has it."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.bag import JOINT_NAMES
+from app.runs.bag import JOINT_NAMES
 from app.scenarios import load_scenario
 from app.sim.rotations import make_transform, quat_to_matrix
 from app.sim.ur10e import T_F_C_from_config, T_W_B_from_config
@@ -156,7 +156,7 @@ def test_bag_rate_thins_the_messages_and_needs_bag(tmp_path):
 
 
 def test_the_thinning_step_never_writes_faster_than_asked():
-    from app.bag import thinning_step
+    from app.runs.bag import thinning_step
 
     for rate_hz, dt_s, step in ((50, 1e-3, 20), (300, 1e-3, 4), (1000, 1e-3, 1),
                                 (2000, 1e-3, 1), (0.5, 0.002, 1000), (333.4, 1e-3, 3)):

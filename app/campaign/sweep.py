@@ -1,11 +1,11 @@
 """Campaigns: a sweep spec (TOML) names a scenario, a grid and random draws over its
 settings, seeds and the metrics to collect; this module validates it, expands it into runs,
 runs one run, and keeps the results table (``results.csv``) that a sweep streams into and
-``--resume`` reads back. Running the runs on Ray is app/sweep_ray.py.
+``--resume`` reads back. Running the runs on Ray is app/campaign/sweep_ray.py.
 
 Each run is exactly the headless run of ``orbit-emulator run`` with its settings and seed:
-its configuration is resolved by :mod:`app.run_config` and run by
-:func:`app.headless.run_scenario`. A run is identified by the hash of its resolved
+its configuration is resolved by :mod:`app.runs.run_config` and run by
+:func:`app.runs.headless.run_scenario`. A run is identified by the hash of its resolved
 configuration (which holds its seed, mode and duration).
 """
 
@@ -41,8 +41,8 @@ from app.config import (
     merge_overrides,
     merge_overrides_all,
 )
-from app.inputs import InputFileError, read_bounded_text
-from app.run_config import base_config, finish_run_config
+from app.config.inputs import InputFileError, read_bounded_text
+from app.runs.run_config import base_config, finish_run_config
 from app.scenarios import scenario_names
 
 MAX_RUNS = 100_000
@@ -92,7 +92,7 @@ METRIC_FIELDS: dict[str, tuple[str, ...]] = {
     "success": ("passed", "libration", "docking", "waypoints", "final_position", "recovery",
                 "synchronisation"),
 }
-"""The fields of metrics.json (app/metrics.py metrics_of) a metric path is checked against:
+"""The fields of metrics.json (app/runs/metrics.py metrics_of) a metric path is checked against:
 the top level (""), a satellite's entry, the collision's, and the small tables; deeper
 levels (e.g. ``collision.impulse_Ns.sat1``) are not checked."""
 
@@ -570,8 +570,8 @@ def compute_ideal(config: EmulatorConfig) -> tuple[str, dict | str]:
     """The ideal reference of a hil run's configuration, after its pre-flight, from one
     ideal run: ("ok", its collision metrics), ("refused", the pre-flight's reason) or
     ("error", why it raised)."""
-    from app.headless import checked_reference, headless_config
-    from app.preflight import PreflightRefused
+    from app.runs.headless import checked_reference, headless_config
+    from app.runs.preflight import PreflightRefused
 
     duration_s = config.loop.duration_s
     try:
@@ -591,8 +591,8 @@ def execute_run(config: EmulatorConfig, ideal: tuple[str, dict | str] | None, ke
     outcome with status "error" (with the metrics of what it recorded, if it had started).
     With ``keep`` telemetry or all, it writes telemetry.csv (and the plots) into run_dir;
     metrics.json is the caller's to write."""
-    from app.headless import RunFailed, run_scenario, write_run_files
-    from app.preflight import PreflightRefused
+    from app.runs.headless import RunFailed, run_scenario, write_run_files
+    from app.runs.preflight import PreflightRefused
 
     t0 = time.perf_counter()
     status, reason, metrics = "error", "", None
