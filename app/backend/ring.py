@@ -148,6 +148,11 @@ class RingFile:
             done += n
         return out
 
+    def wrap_slack_rows(self) -> int:
+        """The rows a wrapped ring's stream leaves out at its oldest end: an eighth of
+        the ring (3.75 s of a 30 s ring at 500 Hz), the time its reader may pause."""
+        return self.capacity // 8
+
     def _span(self, fd: int) -> tuple[int, int]:
         """(first, end): the numbers of the rows committed and not overwritten."""
         claimed, committed = self._counters(fd)
@@ -174,16 +179,24 @@ class RingFile:
         """(number of the first row, rows) of the rows committed when called, oldest first,
         chunk_rows at a time, each chunk but the first beginning at a multiple of
         chunk_rows (so that a whole chunk is the same rows at every read, for a cache):
-        memory for one chunk, whatever the ring's size. A row the
-        loop overwrote before it was read is left out (the stream then begins later: a
-        ring that wraps keeps only its last capacity rows). Yields nothing for a ring
-        released before the call."""
+        memory for one chunk, whatever the ring's size.
+
+        A ring that has wrapped is overwritten at its oldest end while it is read, and a
+        streamed read pauses between chunks as its client takes them: read from the
+        oldest row, a pause of a few cycles lost rows in the middle of the stream. So a
+        wrapped ring's stream begins :meth:`wrap_slack_rows` after its oldest row (at a
+        chunk boundary): the rows it holds are contiguous unless its reader stalls for
+        that long, and then the rows overwritten are left out (a gap in the time
+        column). Yields nothing for a ring released before the call."""
         try:
             fd = self._open()
         except OSError:
             return
         try:
             first, end = self._span(fd)
+            if first > 0:  # wrapped: keep clear of the rows the loop overwrites next
+                first = min(end, -(-(first + self.wrap_slack_rows()) // chunk_rows)
+                            * chunk_rows)
             while first < end:
                 stop = min((first // chunk_rows + 1) * chunk_rows, end)
                 rows = self._read(fd, first, stop)
