@@ -206,8 +206,15 @@ def test_the_csv_cache_keeps_the_newest_whole_chunks_of_one_ring_within_its_budg
     assert cache.get("ring-a", 8) is None and cache.get("ring-b", 0) == b"xy"
     cache.put("ring-b", 4, b"x" * 11)  # over the whole budget: not kept
     assert cache.get("ring-b", 4) is None and cache.get("ring-b", 0) == b"xy"
+    cache.put("ring-b", 8, b"zz")
+    cache.forget_before("ring-a", 8)  # another ring: nothing to forget here
+    assert cache.get("ring-b", 0) == b"xy"
+    cache.forget_before("ring-b", 8)  # the ring wrapped past row 8: its older chunks go
+    assert cache.get("ring-b", 0) is None and cache.get("ring-b", 8) == b"zz"
+    cache.put("ring-b", 12, b"x" * 8)  # the forgotten bytes no longer count
+    assert cache.get("ring-b", 8) == b"zz"
     cache.clear()
-    assert cache.get("ring-b", 0) is None
+    assert cache.get("ring-b", 12) is None
 
 
 def test_the_push_limit_keeps_room_for_weight_bias_noise_hand_and_overlapping_pulses():

@@ -498,7 +498,9 @@ class EmulatorService:
         fmt = csv_row_format(len(columns))
         cache = self._csv_chunks
         try:
-            for number, rows in ring.chunks(CSV_CHUNK_ROWS):
+            for k, (number, rows) in enumerate(ring.chunks(CSV_CHUNK_ROWS)):
+                if k == 0:
+                    cache.forget_before(ring.path, number)
                 whole = len(rows) == CSV_CHUNK_ROWS  # (aligned: the same rows every read)
                 data = cache.get(ring.path, number) if whole else None
                 if data is None:
@@ -633,6 +635,14 @@ class CsvChunks:
     def get(self, ring: str, number: int) -> bytes | None:
         with self._lock:
             return self._chunks.get(number) if ring == self._ring else None
+
+    def forget_before(self, ring: str, number: int) -> None:
+        """Let go of the chunks before row ``number``: the ring no longer streams them
+        (it wrapped), so no read will ask for them again."""
+        with self._lock:
+            if ring == self._ring:
+                for old in [k for k in self._chunks if k < number]:
+                    self._bytes -= len(self._chunks.pop(old))
 
     def put(self, ring: str, number: int, data: bytes) -> None:
         with self._lock:
