@@ -397,6 +397,12 @@ function socket(url) {
                 {method: "POST", mode: "no-cors", credentials: "include"});
     results.post = "sent";
   } catch (e) { results.post = "error " + e; }
+  try {  // reads the page cannot see but the app would build: a CSV, a zip
+    for (const path of ["/api/telemetry", "/api/run.zip"]) {
+      await fetch("http://APP" + path, {mode: "no-cors", credentials: "include"});
+    }
+    results.reads = "sent";
+  } catch (e) { results.reads = "error " + e; }
   results.viewer = await socket("ws://APP/viewer");
   results.viser = await socket("ws://VISER/");
   results.done = true;
@@ -465,15 +471,23 @@ def _attack_and_own_page(live, browser, token: str | None) -> None:
                                          f"127.0.0.1:{live.viser_port}")
         try:
             evil = context.new_page()
+            answers = []  # what the app answered the other page's requests
+            evil.on("response", lambda r: answers.append((r.url, r.status)))
             evil.goto(url)
             evil.wait_for_function("window.results.done === true", timeout=30_000)
             results = evil.evaluate("window.results")
+            for _ in range(100):  # the response events come in as playwright is called
+                if sum(f":{live.port}/api/" in u for u, _ in answers) >= 3:
+                    break
+                evil.wait_for_timeout(100)
         finally:
             server.shutdown()
         time.sleep(1.0)  # a start that got through would have moved on by now
         state = live.state()
         assert state["generation"] == gen and state["status"] != "running", state["status"]
-        assert results["post"] == "sent"  # (sent by the browser; refused by the app)
+        assert results["post"] == results["reads"] == "sent"  # (sent; refused by the app)
+        api = [(u, st) for u, st in answers if f":{live.port}/api/" in u]
+        assert len(api) == 3 and all(st == 403 for _, st in api), answers
         assert results["viewer"] != "open" and results["viser"] != "open", results
         status, ws = own.evaluate(OWN_PAGE_CHECK, _subprotocol())
         assert (status, ws) == (200, "open")

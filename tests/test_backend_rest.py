@@ -423,12 +423,23 @@ def test_a_same_origin_page_and_loopback_names_are_served(live):
 
 def test_a_request_a_browser_marks_as_from_another_site_may_only_read(live):
     """No Origin but Sec-Fetch-Site naming another site (or another port of this host,
-    "same-site"): reads are served, nothing that changes state."""
+    "same-site"): nothing that changes state; the API only through a link the user
+    follows, not from the page's scripts or images (which could make the app build
+    downloads over and over)."""
     live.client.post("/api/stop")
     gen = live.state()["generation"]
     for site in ["cross-site", "same-site"]:
         headers = {"Sec-Fetch-Site": site}
-        assert live.client.get("/api/state", headers=headers).status_code == 200
+        for path in ["/api/state", "/api/telemetry", "/api/run.zip", "/api/bag",
+                     "/api/scenarios/collision/forecast"]:
+            for mode in ["no-cors", "cors", ""]:
+                r = live.client.get(path, headers={**headers, "Sec-Fetch-Mode": mode})
+                assert r.status_code == 403, (site, path, mode, r.text)
+                assert r.json()["detail"] == ("another site's page may link to the API, "
+                                              "not call it")
+        navigate = {**headers, "Sec-Fetch-Mode": "navigate"}
+        assert live.client.get("/api/state", headers=navigate).status_code == 200
+        assert live.client.get("/", headers=headers).status_code == 200  # the page itself
         r = live.client.post("/api/scenarios/collision/start", headers=headers)
         assert r.status_code == 403, r.text
         assert r.json()["detail"] == "a request from another site's page may not change anything"

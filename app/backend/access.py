@@ -168,9 +168,10 @@ class SameOrigin:
     another port of this host (any other local web service) is another origin, and
     SameSite cookies, the token's included, go along with its requests all the same.
     Without an Origin (API clients), a request that a browser marks as coming from another
-    site (``Sec-Fetch-Site``) may only read (GET, HEAD). A request with a body must
-    declare ``application/json`` (415): a cross-site form or ``text/plain`` post, which
-    browsers send without asking first, is refused.
+    site (``Sec-Fetch-Site``) may only read (GET, HEAD), and the API only by a link the
+    user follows (``Sec-Fetch-Mode: navigate``), not from a script, image or frame. A
+    request with a body must declare ``application/json`` (415): a cross-site form or
+    ``text/plain`` post, which browsers send without asking first, is refused.
     """
 
     def __init__(self, app, hosts: frozenset[str]) -> None:
@@ -192,6 +193,9 @@ class SameOrigin:
         elif _from_another_site(scope, headers):
             return await _reject(scope, send, 403, "a request from another site's page "
                                  "may not change anything")
+        elif _api_call_from_another_site(scope, headers):
+            return await _reject(scope, send, 403, "another site's page may link to the "
+                                 "API, not call it")
         if scope["type"] == "http" and _has_body(headers):
             kind = headers.get(b"content-type", b"").split(b";")[0].strip().lower()
             if kind != b"application/json":
@@ -238,6 +242,18 @@ def _from_another_site(scope, headers: dict) -> bool:
     if site not in (b"cross-site", b"same-site"):
         return False
     return scope["type"] == "websocket" or scope.get("method") not in ("GET", "HEAD")
+
+
+def _api_call_from_another_site(scope, headers: dict) -> bool:
+    """A script, image or frame of another site's page (Sec-Fetch-Site, and a fetch
+    mode other than a top-level navigation) asking the API for anything: the browser
+    would not let that page read the answer, but the app would still build it (a CSV, a
+    zip, a bag, a forecast: seconds of CPU each), so a page could keep the machine busy
+    by embedding links. A link the user follows (a navigation) is served."""
+    site = headers.get(b"sec-fetch-site", b"").strip().lower()
+    mode = headers.get(b"sec-fetch-mode", b"").strip().lower()
+    return (site in (b"cross-site", b"same-site") and mode != b"navigate"
+            and scope.get("path", "").startswith("/api/"))
 
 
 def _cookies(headers: dict, name: str) -> list[str]:
