@@ -383,3 +383,38 @@ def test_a_loop_killed_by_sigbus_is_reported_with_the_likely_cause(live):
         "more room (docker run --shm-size=1g) or lower loop.telemetry_capacity")
     assert live.client.post("/api/reset").json()["status"] == "idle"
     assert live.client.get("/api/health").json()["status"] == "ok"
+
+
+def test_a_command_waits_for_a_slow_sender_while_the_loop_beats_not_for_a_stalled_one():
+    """Runner._delivered: a message not yet handed to the pipe after SEND_TIMEOUT_S is a
+    stalled loop's only if the loop ran no cycle meanwhile (its heartbeat still); while it
+    beats (a loaded machine: the web's sender thread waits for the CPU), it waits on, up
+    to SEND_PATIENCE_S. The full suite on a loaded VM once killed a running loop so."""
+    import threading
+    from types import SimpleNamespace
+
+    from app.backend import runner, snapshots
+
+    shm = SimpleNamespace(buf=bytearray(4096))
+    done, stop = threading.Event(), threading.Event()
+
+    def loop_beating():
+        count = 0
+        while not stop.wait(0.05):
+            count += 1
+            snapshots.beat(shm.buf, count)
+
+    beating = threading.Thread(target=loop_beating)
+    beating.start()
+    threading.Timer(2.5, done.set).start()  # handed over after 2.5 s
+    try:
+        t0 = time.monotonic()
+        assert runner.Runner._delivered(done, shm)
+        assert 2.4 < time.monotonic() - t0 < 3.5
+    finally:
+        stop.set()
+        beating.join()
+    t0 = time.monotonic()
+    assert not runner.Runner._delivered(threading.Event(), shm)  # no beat: stalled
+    assert runner.SEND_TIMEOUT_S <= time.monotonic() - t0 < runner.SEND_TIMEOUT_S + 0.5
+    assert not runner.Runner._delivered(threading.Event(), None)  # no loop at all

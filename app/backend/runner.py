@@ -67,7 +67,11 @@ STALL_S = 0.5
 """A loop process whose heartbeat has not moved for this long is stalled (a fault that
 ends when it beats again)."""
 SEND_TIMEOUT_S = 1.0
-"""A loop process that takes no command for this long is killed (see Runner._send)."""
+"""A loop process that takes no command for this long, and has not run a cycle meanwhile,
+is killed (see Runner._send)."""
+SEND_PATIENCE_S = 10.0
+"""A command not delivered for this long kills the loop process even if it still runs
+cycles (it is not reading its commands)."""
 
 
 def exit_reason(exitcode: int | None) -> str:
@@ -288,12 +292,13 @@ class Runner:
                 self._sender = threading.Thread(target=self._sender_main,
                                                 name="loop-commands", daemon=True)
                 self._sender.start()
-        done, failed = threading.Event(), []
+        done, failed, queued = threading.Event(), [], time.monotonic()
         with self._state_lock:
-            proc = self._proc
+            proc, shm = self._proc, self._shm
             self._outbox.put((self._cmd, msg, done, failed))
-        if not done.wait(SEND_TIMEOUT_S):
-            reason = (f"the loop process did not take a command for {SEND_TIMEOUT_S:g} s "
+        if not self._delivered(done, shm):
+            waited = time.monotonic() - queued
+            reason = (f"the loop process did not take a command for {waited:.1f} s "
                       f"and was stopped (killed)")
             with self._state_lock:
                 if self._proc is proc and self._fault is None:  # not replaced meanwhile
@@ -304,6 +309,27 @@ class Runner:
             raise LoopDown(reason)
         if failed:
             raise LoopDown(f"the loop process is gone ({type(failed[0]).__name__})")
+
+    @staticmethod
+    def _delivered(done: threading.Event, shm) -> bool:
+        """Wait for the sender to hand a message to the pipe: SEND_TIMEOUT_S, and longer
+        (up to SEND_PATIENCE_S) while the loop keeps running cycles, which it does only
+        between reads of its commands: on a loaded machine the delay is then the web
+        process's own (its sender thread waiting for the CPU), not a stalled loop's."""
+        def heartbeat():
+            try:
+                return snapshots.heartbeat(shm.buf)
+            except (AttributeError, TypeError, ValueError):  # none, or let go by a restart
+                return None
+
+        beat, waited = heartbeat(), 0.0
+        while not done.wait(SEND_TIMEOUT_S):
+            waited += SEND_TIMEOUT_S
+            now = heartbeat()
+            if now is None or now == beat or waited >= SEND_PATIENCE_S:
+                return False
+            beat = now
+        return True
 
     def _sender_main(self) -> None:
         """The sender thread: writes each message to its pipe in order. A send blocked on
