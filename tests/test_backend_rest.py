@@ -470,7 +470,7 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, mo
     zf = zipfile.ZipFile(io.BytesIO(r.content))
     names = set(zf.namelist())
     assert {"telemetry.csv", "metrics.json", "summary.txt", "config.json",
-            "plots/fig8_forces.png", "plots/fig8b_contact_closeup.png"} <= names
+            "plots/forces.png", "plots/contact_closeup.png", "plots/figures.json"} <= names
     assert zf.read("telemetry.csv").decode() == csv
     in_zip = json.loads(zf.read("metrics.json"))
     assert in_zip["collision"]["restitution"] == metrics["collision"]["restitution"]
@@ -479,7 +479,9 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, mo
     assert (config["scenario"], config["mode"]) == ("collision", "ideal")
     assert config["config"]["loop"]["duration_s"] == 4.0
     assert "restitution" in zf.read("summary.txt").decode()
-    assert zf.read("plots/fig8_forces.png")[:4] == b"\x89PNG"
+    assert zf.read("plots/forces.png")[:4] == b"\x89PNG"
+    listed = {f["file"] for f in json.loads(zf.read("plots/figures.json"))}
+    assert listed == {n.removeprefix("plots/") for n in names if n.endswith(".png")}
 
     r = live.client.get("/api/bag", params={"rate_hz": 50})
     assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
