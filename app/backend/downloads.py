@@ -103,7 +103,7 @@ def bag_rows(ring: RingFile, snap: dict, rate_hz: float,
     if head is None or len(head[1]) < 2:
         return (head[1] if head is not None else np.empty((0, ring.n_columns))), rate_hz
     first, rows = head
-    per_row = 1 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])
+    per_row = 2 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])  # /clock, /tf
     span_s = max(float(tail[-1, 0] - rows[0, 0]), 1e-9)
     rate_hz = min(rate_hz, max_messages / (per_row * span_s))
     dt_s = float(rows[1, 0] - rows[0, 0])
