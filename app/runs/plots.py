@@ -4,12 +4,13 @@ scenario; docs/outputs.md lists them per scenario).
 A figure is planned from the run's telemetry, configuration and metrics
 (:func:`plan_figures`: which figures the run has data for, as stacks of panels over a
 shared time axis), then drawn (:func:`draw`). Planning leaves out what has nothing to
-show: a panel none of whose lines moves by more than a thousandth of its quantity's
-minimum span, and a figure with no panel left. Each axis spans at least its quantity's
-minimum span (a flat line is not blown up to fill it), and legends sit outside the axes,
-to the right, clear of the data. :func:`plot_run` draws the plan and writes the list of
-what it wrote (name, title, file) to ``figures.json``; :func:`figures_of` reads it back:
-other code lists a run's figures with it, never by file name.
+show: a panel none of whose lines moves by more than 2 % of its quantity's minimum span,
+and a figure with no panel left. Each axis spans at least its quantity's
+minimum span (a flat line is not blown up to fill it; a log axis at least a decade), and
+legends sit outside the axes, to the right, clear of the data. :func:`plot_run` draws the
+plan and writes the list of what it wrote (name, title, file) to ``figures.json``;
+:func:`figures_of` reads it back: other code lists a run's figures with it, never by file
+name.
 """
 
 from __future__ import annotations
@@ -61,9 +62,9 @@ PAPER_FIGURES = {
 }
 """The paper's figure each of its scenarios' figures corresponds to (in the title)."""
 
-FLAT_FRACTION = 1e-3
+FLAT_FRACTION = 0.02
 """A line whose peak-to-peak is under this fraction of its panel's minimum span shows
-nothing (a third of a pixel on a 300-pixel axis)."""
+nothing (4 pixels of a 200-pixel axis: an arm's micrometre jitter, a 1e-7 m drift)."""
 
 MIN_SPAN = {"force": 0.1, "torque": 0.01, "velocity": 1e-3, "rate": 0.1, "position": 1e-3,
             "error_mm": 0.1, "angle": 0.1, "orbit_position": 0.1, "gnc_force": 0.01,
@@ -168,6 +169,7 @@ def _draw_panel(ax, panel: Panel) -> None:
     ax.grid(alpha=0.3)
     if panel.log:
         ax.set_yscale("log")
+        _a_decade_at_least(ax, panel)
     else:
         _at_least(ax, panel)
     handles, labels = ax.get_legend_handles_labels()
@@ -185,6 +187,17 @@ def _at_least(ax, panel: Panel) -> None:
     if hi - lo < panel.min_span:
         mid = 0.5 * (lo + hi)
         ax.set_ylim(mid - 0.5 * panel.min_span, mid + 0.5 * panel.min_span)
+
+
+def _a_decade_at_least(ax, panel: Panel) -> None:
+    """A log axis spans at least a decade, centred (geometrically) on the data and limits."""
+    values = [np.clip(line.y[np.isfinite(line.y)], 1e-12, None) for line in panel.lines]
+    values += [np.array([v]) for v, _ in panel.limits if v > 0]
+    values = np.concatenate([v for v in values if len(v)] or [np.ones(1)])
+    lo, hi = float(values.min()), float(values.max())
+    if hi < 10.0 * lo:
+        mid = math.sqrt(lo * hi)
+        ax.set_ylim(mid / math.sqrt(10.0), mid * math.sqrt(10.0))
 
 
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,
