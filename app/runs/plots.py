@@ -96,6 +96,7 @@ class Panel:
     """Horizontal lines (value, label): the criteria's limits."""
     log: bool = False
     shade: tuple[float, float] | None = None
+    shade_label: str = "in contact"
     marks: list[tuple[float, str]] = field(default_factory=list)
     """Vertical lines (time, label): events (a waypoint reached, the capture)."""
     title: str = ""
@@ -162,7 +163,7 @@ def _draw_panel(ax, panel: Panel) -> None:
     for t, label in panel.marks:
         ax.axvline(t, color="0.4", ls=":", lw=0.8, label=label)
     if panel.shade is not None:
-        ax.axvspan(*panel.shade, color="0.9", label="in contact / held")
+        ax.axvspan(*panel.shade, color="0.9", label=panel.shade_label)
     ax.set_ylabel(panel.ylabel)
     if panel.title:
         ax.set_title(panel.title, fontsize=9)
@@ -198,6 +199,12 @@ def _a_decade_at_least(ax, panel: Panel) -> None:
     if hi < 10.0 * lo:
         mid = math.sqrt(lo * hi)
         ax.set_ylim(mid / math.sqrt(10.0), mid * math.sqrt(10.0))
+    elif hi > LOG_DECADES_MAX * lo:  # an error crossing zero dips without bound: not shown
+        ax.set_ylim(hi / LOG_DECADES_MAX, 2.0 * hi)
+
+
+LOG_DECADES_MAX = 1e5
+"""A log axis shows at most five decades below its highest value."""
 
 
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,
@@ -546,14 +553,18 @@ def _synchronisation(run: _Run) -> Figure | None:
                                                f"waypoint {last + 1}"),
                   [Panel("position error [m]", [Line(t, np.linalg.norm(p - r_ref, axis=1),
                                                      "position", color="C0")],
-                         MIN_SPAN["orbit_position"], pos_lim, log=True, shade=shade),
+                         MIN_SPAN["orbit_position"], pos_lim, log=True, shade=shade,
+                         shade_label=HELD),
                    Panel("attitude error [deg]", [Line(t, np.degrees(angle), "attitude",
                                                        color="C1")],
-                         MIN_SPAN["angle"], att_lim, log=True, shade=shade),
+                         MIN_SPAN["angle"], att_lim, log=True, shade=shade, shade_label=HELD),
                    Panel("rate error [deg/s]", [Line(t, np.degrees(rate), "rate",
                                                      color="C2")],
-                         MIN_SPAN["rate"], log=True, shade=shade)],
+                         MIN_SPAN["rate"], log=True, shade=shade, shade_label=HELD)],
                   xlabel="orbit time [s]")
+
+
+HELD = "the hold judged"
 
 
 def _target_spin(run: _Run) -> Figure | None:

@@ -58,7 +58,7 @@ def runs(tmp_path_factory) -> dict:
 
 
 def test_every_scenario_s_figures_are_named_by_content_and_listed(runs):
-    for key, (result, folder) in runs.items():
+    for key, (_, folder) in runs.items():
         pngs = {p.stem for p in folder.glob("*.png")}
         listed = figures_of(folder)
         assert [f["file"] for f in listed] == [f"{f['name']}.png" for f in listed]
