@@ -210,7 +210,9 @@ LOG_DECADES_MAX = 1e5
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,
              note: str = "") -> list[Path]:
     """Draw the run's figures (:func:`plan_figures`) into ``out_dir``, and the list of them
-    into ``out_dir / figures.json`` (:func:`figures_of`); the paths written."""
+    into ``out_dir / figures.json`` (:func:`figures_of`); the paths written. A figure an
+    earlier run left there that this run does not draw is removed: the folder shows one
+    run."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     figures = plan_figures(rows, index, config, metrics or {}) if len(rows) else []
@@ -220,6 +222,11 @@ def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict
         paths.append(out_dir / figure.file)
         fig.savefig(paths[-1], dpi=100)
         plt.close(fig)
+    drawn = {f.name for f in figures}
+    for name in FIGURES:  # an earlier run's figure this run has not replaced goes
+        stale = out_dir / f"{name}.png"
+        if name not in drawn and stale.is_file():
+            stale.unlink()
     listing = out_dir / FIGURES_FILE
     listing.write_text(json.dumps([f.entry() for f in figures], indent=2) + "\n")
     return [*paths, listing]

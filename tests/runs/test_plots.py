@@ -72,9 +72,24 @@ def test_every_scenario_s_figures_are_named_by_content_and_listed(runs):
             if not paper:
                 assert "paper" not in f["title"], (key, f)
     assert figures_of(runs["free-floating"][1]) == []  # no empty figure written
+    assert not list(runs["free-floating"][1].glob("*.png"))
     titles = {f["name"]: f["title"] for f in figures_of(runs["collision"][1])}
     assert titles["forces"].endswith("(paper Fig. 8)")
     assert titles["velocity"].endswith("(paper Fig. 9)")
+
+
+def test_a_run_into_a_folder_replaces_the_earlier_run_s_figures(runs, tmp_path):
+    """An earlier run's figure in the folder that this run (at rest: it draws none) does
+    not draw is removed; other files stay: a folder's figures are one run's."""
+    from app.runs.plots import plot_run
+
+    (tmp_path / "forces.png").write_bytes(b"\x89PNG earlier run")
+    (tmp_path / "notes.png").write_bytes(b"mine")
+    rest, _ = runs["free-floating"]
+    plot_run(rest.emulator.telemetry.rows(), rest.emulator.telemetry.index, tmp_path,
+             rest.emulator.config, rest.metrics)
+    assert not (tmp_path / "forces.png").exists() and figures_of(tmp_path) == []
+    assert (tmp_path / "notes.png").read_bytes() == b"mine"
 
 
 def _drawn(result):
