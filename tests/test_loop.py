@@ -295,7 +295,10 @@ def test_cli_hil_telemetry_has_robot_columns(tmp_path):
     for name in ("rob1_x_m", "rob1_qw", "rob1_q1_rad", "rob1_q6_rad", "rob1_ft_fx_N",
                  "rob1_ft_tz_Nm", "sat1_wz_radps"):
         assert name in header
-    assert (tmp_path / "velocity.png").exists() and (tmp_path / "figures.json").exists()
+    from app.runs.plots import figures_of  # before its first push: nothing moves to draw
+
+    assert {f["file"] for f in figures_of(tmp_path)} == {p.name for p in tmp_path.glob("*.png")}
+    assert (tmp_path / "figures.json").exists()
 
 
 def test_cli_scenarios_and_bad_input(tmp_path):
