@@ -481,7 +481,7 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, mo
     zf = zipfile.ZipFile(io.BytesIO(r.content))
     names = set(zf.namelist())
     assert {"telemetry.csv", "metrics.json", "summary.txt", "config.json",
-            "plots/fig8_forces.png", "plots/fig8b_contact_closeup.png"} <= names
+            "plots/forces.png", "plots/contact_closeup.png", "plots/figures.json"} <= names
     assert zf.read("telemetry.csv").decode() == csv
     in_zip = json.loads(zf.read("metrics.json"))
     assert in_zip["collision"]["restitution"] == metrics["collision"]["restitution"]
@@ -490,7 +490,9 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, mo
     assert (config["scenario"], config["mode"]) == ("collision", "ideal")
     assert config["config"]["loop"]["duration_s"] == 4.0
     assert "restitution" in zf.read("summary.txt").decode()
-    assert zf.read("plots/fig8_forces.png")[:4] == b"\x89PNG"
+    assert zf.read("plots/forces.png")[:4] == b"\x89PNG"
+    listed = {f["file"] for f in json.loads(zf.read("plots/figures.json"))}
+    assert listed == {n.removeprefix("plots/") for n in names if n.endswith(".png")}
 
     r = live.client.get("/api/bag", params={"rate_hz": 50})
     assert r.status_code == 200 and r.headers["content-type"] == "application/zip"
@@ -504,10 +506,11 @@ def test_a_run_can_be_taken_home_as_files_a_zip_and_a_ros_bag(live, tmp_path, mo
     # a rate the 1 kHz loop cannot give exactly: the next lower one, never above the asked
     r = live.client.get("/api/bag", params={"rate_hz": 300})
     assert r.headers["x-bag-rate-hz"] == "250"
-    # a long run's bag is thinned to the message budget: 7 messages a row (ideal: no arms)
+    # a long run's bag is thinned to the message budget: 8 messages a row (ideal: no arms;
+    # /clock, /tf and 3 per satellite)
     import app.backend.service as service_module
 
-    monkeypatch.setattr(service_module, "MAX_BAG_MESSAGES", 7 * 4 * 25)
+    monkeypatch.setattr(service_module, "MAX_BAG_MESSAGES", 8 * 4 * 25)
     r = live.client.get("/api/bag", params={"rate_hz": 1000})
     assert r.headers["x-bag-rate-hz"] == "25"
     monkeypatch.undo()

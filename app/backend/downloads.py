@@ -44,7 +44,8 @@ def _empty_rows(columns) -> np.ndarray:
 def build_archive(path: str, snap: dict, config: EmulatorConfig, columns: list[str],
                   ring: RingFile | None, metrics: dict) -> None:
     """The run's zip at ``path``: telemetry.csv (formatted a chunk at a time),
-    metrics.json, summary.txt, config.json and the headless run's plots."""
+    metrics.json, summary.txt, config.json and the headless run's figures (plots/, with
+    their list plots/figures.json: app/runs/plots.py figures_of)."""
     from app.runs.plots import plot_run
     from app.runs.report import run_summary
 
@@ -63,8 +64,7 @@ def build_archive(path: str, snap: dict, config: EmulatorConfig, columns: list[s
             {"scenario": snap["scenario"], "mode": snap["mode"],
              "config": config.model_dump(mode="json")}, indent=2))
         index = {name: k for k, name in enumerate(columns)}
-        for plot in plot_run(rows, index, Path(tmp), len(snap["satellites"]),
-                             len(snap["robots"]), metrics.get("collision"),
+        for plot in plot_run(rows, index, Path(tmp), config, metrics,
                              note=metrics["scaling"]["text"]):
             zf.write(plot, f"plots/{plot.name}")
 
@@ -103,7 +103,7 @@ def bag_rows(ring: RingFile, snap: dict, rate_hz: float,
     if head is None or len(head[1]) < 2:
         return (head[1] if head is not None else np.empty((0, ring.n_columns))), rate_hz
     first, rows = head
-    per_row = 1 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])
+    per_row = 2 + 3 * len(snap["satellites"]) + 3 * len(snap["robots"])  # /clock, /tf
     span_s = max(float(tail[-1, 0] - rows[0, 0]), 1e-9)
     rate_hz = min(rate_hz, max_messages / (per_row * span_s))
     dt_s = float(rows[1, 0] - rows[0, 0])

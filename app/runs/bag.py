@@ -1,16 +1,34 @@
-"""A run as a ROS 2 bag (MCAP storage, standard messages), for Foxglove, PlotJuggler and
-``ros2 bag play``: written from the telemetry rows with rosbags, nothing converted later.
+"""A run as a ROS 2 bag (MCAP storage, standard messages), for RViz2, Foxglove, PlotJuggler
+and ``ros2 bag play``: written from the telemetry rows with rosbags, nothing converted later.
 
-Topics (frames: ``world`` = the lab W, ``R`` = the orbit frame, ``robot<k>_base``,
-``robot<k>_flange``, ``sat<i>`` = the satellite where the ODS has it (desired),
-``sat<i>_mockup`` = the mockup where its arm holds it (actual)):
+Frames: ``world`` = the lab W, ``R`` = the orbit frame, ``robot<k>/base_link`` …
+``robot<k>/tool0`` = arm k's links (app/runs/urdf.py; ``tool0`` is the flange), ``sat<i>``
+= the satellite where the ODS has it (desired), ``sat<i>_mockup`` = the mockup where its
+arm holds it (actual).
 
-* ``/tf_static`` (tf2_msgs/TFMessage): world → R, world → each base;
-* ``/tf`` (tf2_msgs/TFMessage), every recorded cycle: R → sat<i>, R → sat<i>_mockup,
-  base → flange (forward kinematics of the recorded joints);
-* ``/robot<k>/joint_states`` (sensor_msgs/JointState): the six joint positions;
-* ``/robot<k>/ft_raw`` (geometry_msgs/WrenchStamped): the F/T sensor's raw reading, in its
-  flange frame;
+Latched topics (offered with transient-local durability, as rosbag2 records a latched
+publisher, so that ``ros2 bag play`` republishes them latched and late subscribers such as
+tf2's and RViz2's get them), one message at the start:
+
+* ``/tf_static`` (tf2_msgs/TFMessage): world → R, world → each arm's base_link, each
+  arm's wrist_3_link → tool0;
+* ``/robot<k>/robot_description`` (std_msgs/String): arm k's URDF, its names prefixed;
+* ``/markers`` (visualization_msgs/MarkerArray): each mockup (at sat<i>_mockup), each
+  satellite's ODS pose (translucent, at sat<i>), each arm's safety box (in world, the
+  box its mockup's centre must stay in); frame-locked: they follow their frames.
+
+Every recorded cycle:
+
+* ``/clock`` (rosgraph_msgs/Clock): the run's time;
+* ``/tf`` (tf2_msgs/TFMessage): R → sat<i>, R → sat<i>_mockup, and each arm's joints
+  (base_link → shoulder_link → … → wrist_3_link);
+* ``/robot<k>/joint_states`` (sensor_msgs/JointState): the six joints (names prefixed
+  ``robot<k>/``): position, and velocity as the backward difference of the recorded
+  positions since the previous row (the telemetry keeps no joint velocity; at the full
+  rate this is the servo's own); effort is left empty: the arm model
+  is kinematic (a joint servo) and computes no joint torques;
+* ``/robot<k>/ft_raw`` (geometry_msgs/WrenchStamped): the F/T sensor's raw reading, in
+  its flange frame (``robot<k>/tool0``);
 * ``/robot<k>/ft_processed`` (WrenchStamped): the processed reading (bias, payload and
   inertia compensated, filtered, deadband), the wrench on the mockup's COM, in the
   mockup's frame;
@@ -31,13 +49,40 @@ from pathlib import Path
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.runs.urdf import joint_names, link_names, link_transforms, urdf_text
 from app.sim.rotations import make_transform, matrix_to_quat, quat_to_matrix
-from app.sim.ur10e import T_W_B_from_config, flange_pose_B
+from app.sim.ur10e import T_J6_F, T_W_B_from_config
 
-__all__ = ["JOINT_NAMES", "replace_bag_dir", "write_bag"]
+__all__ = ["LATCHED", "prefix_of", "replace_bag_dir", "write_bag"]
 
-JOINT_NAMES = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
-               "wrist_2_joint", "wrist_3_joint")
+
+def prefix_of(k: int) -> str:
+    """The frame and joint name prefix of arm k (1-based): ``robot<k>/``."""
+    return f"robot{k}/"
+
+
+def _latched_qos():
+    """The QoS profile a latched ROS 2 publisher offers (reliable, transient-local, keep
+    last 1; durations at their defaults), as rosbag2 records it for a topic: in the
+    bag's metadata.yaml and in the MCAP channel's ``offered_qos_profiles`` metadata."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+
+    zero = QosTime(sec=0, nsec=0)
+    return Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
+               durability=QosDurability.TRANSIENT_LOCAL, deadline=zero, lifespan=zero,
+               liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
+               avoid_ros_namespace_conventions=False)
+
+
+LATCHED = ("/tf_static", "/markers", "/robot<k>/robot_description")
+"""The topics recorded with a transient-local QoS profile (module doc)."""
 
 
 class _Messages:
@@ -48,6 +93,7 @@ class _Messages:
 
         self.store = get_typestore(Stores.ROS2_HUMBLE)
         t = self.store.types
+        self.types = t
         self.Time, self.Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
         self.Vector3, self.Quaternion = t["geometry_msgs/msg/Vector3"], t[
             "geometry_msgs/msg/Quaternion"]
@@ -59,20 +105,28 @@ class _Messages:
             "geometry_msgs/msg/WrenchStamped"]
         self.Twist, self.TwistStamped = t["geometry_msgs/msg/Twist"], t[
             "geometry_msgs/msg/TwistStamped"]
+        self.Clock, self.String = t["rosgraph_msgs/msg/Clock"], t["std_msgs/msg/String"]
+
+    def time(self, t_ns: int):
+        return self.Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
 
     def header(self, t_ns: int, frame: str):
-        return self.Header(stamp=self.Time(sec=t_ns // 1_000_000_000,
-                                           nanosec=t_ns % 1_000_000_000), frame_id=frame)
+        return self.Header(stamp=self.time(t_ns), frame_id=frame)
 
     def vec(self, v) -> object:
         return self.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
+    def quat(self, q_wxyz):
+        return self.Quaternion(x=float(q_wxyz[1]), y=float(q_wxyz[2]), z=float(q_wxyz[3]),
+                               w=float(q_wxyz[0]))
+
     def transform(self, t_ns: int, parent: str, child: str, p, q_wxyz):
-        q = self.Quaternion(x=float(q_wxyz[1]), y=float(q_wxyz[2]), z=float(q_wxyz[3]),
-                            w=float(q_wxyz[0]))
         return self.TransformStamped(header=self.header(t_ns, parent), child_frame_id=child,
                                      transform=self.Transform(translation=self.vec(p),
-                                                              rotation=q))
+                                                              rotation=self.quat(q_wxyz)))
+
+    def transform_of(self, t_ns: int, parent: str, child: str, T: np.ndarray):
+        return self.transform(t_ns, parent, child, T[:3, 3], matrix_to_quat(T[:3, :3]))
 
     def wrench(self, t_ns: int, frame: str, force, torque):
         return self.WrenchStamped(header=self.header(t_ns, frame),
@@ -83,6 +137,26 @@ class _Messages:
         return self.TwistStamped(header=self.header(t_ns, frame),
                                  twist=self.Twist(linear=self.vec(linear),
                                                   angular=self.vec(angular)))
+
+    def cube(self, t_ns: int, frame: str, ns: str, marker_id: int, centre, size, rgba):
+        """A frame-locked CUBE marker (visualization_msgs/Marker) of ``size`` at ``centre``
+        of ``frame``, axes the frame's."""
+        t = self.types
+        return t["visualization_msgs/msg/Marker"](
+            header=self.header(t_ns, frame), ns=ns, id=marker_id, type=1, action=0,
+            pose=t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](x=float(centre[0]), y=float(centre[1]),
+                                                      z=float(centre[2])),
+                orientation=self.quat((1.0, 0.0, 0.0, 0.0))),
+            scale=self.vec(size), color=t["std_msgs/msg/ColorRGBA"](*map(float, rgba)),
+            lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+            frame_locked=True, points=[], colors=[], texture_resource="",
+            texture=t["sensor_msgs/msg/CompressedImage"](
+                header=self.header(t_ns, frame), format="", data=np.zeros(0, dtype=np.uint8)),
+            uv_coordinates=[], text="", mesh_resource="",
+            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="",
+                                                            data=np.zeros(0, dtype=np.uint8)),
+            mesh_use_embedded_materials=False)
 
 
 def check_bag_dir(path: Path) -> Path:
@@ -118,40 +192,85 @@ def thinning_step(rate_hz: float, dt_s: float) -> int:
     return max(1, math.ceil(1.0 / (rate_hz * dt_s) - 1e-9))
 
 
+def joint_velocities(t_s: np.ndarray, q_rad: np.ndarray) -> np.ndarray:
+    """Joint velocities (rad/s) from recorded joint positions (rows) at times t_s: the
+    backward difference (q_k − q_{k−1}) / (t_k − t_{k−1}), the first row the forward one;
+    zeros for a single row. At the loop's full rate this is the servo's own joint velocity
+    (it integrates q_k = q_{k−1} + dt · qd_k, app/sim/servo.py); over thinned rows, the
+    mean velocity since the previous row kept."""
+    if len(t_s) < 2:
+        return np.zeros_like(q_rad)
+    qd = np.diff(q_rad, axis=0) / np.diff(t_s)[:, None]
+    return np.concatenate([qd[:1], qd])
+
+
+def _markers(msgs: _Messages, t_ns: int, config: EmulatorConfig, carried: dict[int, int]):
+    """The scene's markers (module doc): mockups, the ODS poses, the safety boxes."""
+    out = []
+    for i, sat in enumerate(config.satellites, start=1):
+        size = sat.size_m
+        if i in carried:
+            out.append(msgs.cube(t_ns, f"sat{i}_mockup", "mockups", i, (0.0, 0.0, 0.0), size,
+                                 (0.85, 0.55, 0.15, 1.0)))
+        out.append(msgs.cube(t_ns, f"sat{i}", "ods_poses", i, (0.0, 0.0, 0.0), size,
+                             (0.2, 0.5, 0.9, 0.35)))
+    for k in sorted(set(carried.values())):
+        robot = config.robots[k - 1]
+        lo, hi = np.asarray(robot.safety_box_min_m), np.asarray(robot.safety_box_max_m)
+        out.append(msgs.cube(t_ns, "world", "safety_boxes", k, 0.5 * (lo + hi), hi - lo,
+                             (0.9, 0.2, 0.2, 0.12)))
+    return msgs.types["visualization_msgs/msg/MarkerArray"](markers=out)
+
+
 def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index: dict,
               rate_hz: float | None = None) -> Path:
     """Write the telemetry ``rows`` (columns ``index``) of a run of ``config`` as a ROS 2
     bag directory at ``path`` (MCAP storage; it must not exist yet). ``rate_hz`` keeps at
-    most that many rows per simulated second (all of them if None)."""
+    most that many rows per simulated second (all of them if None); the joint velocities
+    are differenced on every row given, before that."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     path = Path(path)
     msgs = _Messages()
-    if rate_hz is not None and len(rows) > 1:
-        rows = rows[::thinning_step(rate_hz, float(rows[1, 0] - rows[0, 0]))]
     n_sat = len(config.satellites)
     n_rob = sum(1 for k in range(len(config.robots)) if f"rob{k + 1}_x_m" in index)
+    qd = {k: joint_velocities(rows[:, 0], _cols(rows, index, f"rob{k}",
+                                                 tuple(f"q{j}_rad" for j in range(1, 7))))
+          for k in range(1, n_rob + 1)}
+    if rate_hz is not None and len(rows) > 1:
+        step = thinning_step(rate_hz, float(rows[1, 0] - rows[0, 0]))
+        rows, qd = rows[::step], {k: v[::step] for k, v in qd.items()}
     t_ns = np.round(rows[:, 0] * 1e9).astype(np.int64)
     T_W_R = make_transform(quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m)
+    latched = [_latched_qos()]
 
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        def topic(name: str, msgtype: str):
-            return writer.add_connection(name, msgtype, typestore=msgs.store)
+        def topic(name: str, msgtype: str, qos=()):
+            return writer.add_connection(name, msgtype, typestore=msgs.store,
+                                         offered_qos_profiles=qos)
 
         def write(conn, stamp_ns: int, message) -> None:
             writer.write(conn, int(stamp_ns), msgs.store.serialize_cdr(message,
                                                                       message.__msgtype__))
 
         start = int(t_ns[0]) if len(t_ns) else 0
-        static = [msgs.transform(start, "world", "R", T_W_R[:3, 3],
-                                 matrix_to_quat(T_W_R[:3, :3]))]
-        for k in range(n_rob):
-            T_W_B = T_W_B_from_config(config.robots[k])
-            static.append(msgs.transform(start, "world", f"robot{k + 1}_base", T_W_B[:3, 3],
-                                         matrix_to_quat(T_W_B[:3, :3])))
-        write(topic("/tf_static", "tf2_msgs/msg/TFMessage"), start,
+        carried = {config.satellite_index(config.robots[k - 1].satellite) + 1: k
+                   for k in range(1, n_rob + 1)}
+        static = [msgs.transform_of(start, "world", "R", T_W_R)]
+        for k in range(1, n_rob + 1):
+            links = link_names(prefix_of(k))
+            static.append(msgs.transform_of(start, "world", links[0],
+                                            T_W_B_from_config(config.robots[k - 1])))
+            static.append(msgs.transform_of(start, links[6], links[7], T_J6_F))
+        write(topic("/tf_static", "tf2_msgs/msg/TFMessage", latched), start,
               msgs.TFMessage(transforms=static))
+        for k in range(1, n_rob + 1):
+            write(topic(f"/robot{k}/robot_description", "std_msgs/msg/String", latched), start,
+                  msgs.String(data=urdf_text(prefix_of(k), f"robot{k}")))
+        write(topic("/markers", "visualization_msgs/msg/MarkerArray", latched), start,
+              _markers(msgs, start, config, carried))
 
+        clock = topic("/clock", "rosgraph_msgs/msg/Clock")
         tf = topic("/tf", "tf2_msgs/msg/TFMessage")
         sats = []
         for i in range(1, n_sat + 1):
@@ -179,11 +298,12 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                 k, config.satellite_index(config.robots[k - 1].satellite) + 1,
                 _cols(rows, index, p, ("x_m", "y_m", "z_m")),
                 _cols(rows, index, p, ("qw", "qx", "qy", "qz")),
-                _cols(rows, index, p, tuple(f"q{j}_rad" for j in range(1, 7))),
+                _cols(rows, index, p, tuple(f"q{j}_rad" for j in range(1, 7))), qd[k],
                 _cols(rows, index, p, ("ft_fx_N", "ft_fy_N", "ft_fz_N", "ft_tx_Nm", "ft_ty_Nm",
                                        "ft_tz_Nm")),
                 _cols(rows, index, p, ("pft_fx_N", "pft_fy_N", "pft_fz_N", "pft_tx_Nm",
                                        "pft_ty_Nm", "pft_tz_Nm")),
+                link_names(prefix_of(k)), joint_names(prefix_of(k)),
                 topic(f"/robot{k}/joint_states", "sensor_msgs/msg/JointState"),
                 topic(f"/robot{k}/ft_raw", "geometry_msgs/msg/WrenchStamped"),
                 topic(f"/robot{k}/ft_processed", "geometry_msgs/msg/WrenchStamped"),
@@ -191,6 +311,7 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
 
         for r, stamp in enumerate(t_ns):
             stamp = int(stamp)
+            write(clock, stamp, msgs.Clock(clock=msgs.time(stamp)))
             transforms = []
             for i, pos, quat, vel, omega, force, torque, true_f, c_in, c_true, c_tw in sats:
                 transforms.append(msgs.transform(stamp, "R", f"sat{i}", pos[r], quat[r]))
@@ -202,17 +323,17 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
             for i, force, torque, quat, c_gnc in gnc:
                 write(c_gnc, stamp, msgs.wrench(stamp, f"sat{i}",
                                                 quat_to_matrix(quat[r]).T @ force[r], torque[r]))
-            for k, sat, pos, quat, q, ft, pft, c_js, c_ft, c_pft in robots:
+            for (_, sat, pos, quat, q, dq, ft, pft, links, joints, c_js, c_ft,
+                 c_pft) in robots:
                 transforms.append(msgs.transform(stamp, "R", f"sat{sat}_mockup", pos[r],
                                                  quat[r]))
-                T_B_F = flange_pose_B(q[r])
-                transforms.append(msgs.transform(stamp, f"robot{k}_base", f"robot{k}_flange",
-                                                 T_B_F[:3, 3], matrix_to_quat(T_B_F[:3, :3])))
+                for j, T in enumerate(link_transforms(q[r])):
+                    transforms.append(msgs.transform_of(stamp, links[j], links[j + 1], T))
                 write(c_js, stamp, msgs.JointState(
-                    header=msgs.header(stamp, f"robot{k}_base"), name=list(JOINT_NAMES),
+                    header=msgs.header(stamp, links[0]), name=joints,
                     position=np.array(q[r], dtype=np.float64),
-                    velocity=np.zeros(0), effort=np.zeros(0)))
-                write(c_ft, stamp, msgs.wrench(stamp, f"robot{k}_flange", ft[r, :3], ft[r, 3:]))
+                    velocity=np.array(dq[r], dtype=np.float64), effort=np.zeros(0)))
+                write(c_ft, stamp, msgs.wrench(stamp, links[7], ft[r, :3], ft[r, 3:]))
                 R_R_M = quat_to_matrix(quat[r])  # the processed force is in R: mockup axes
                 write(c_pft, stamp, msgs.wrench(stamp, f"sat{sat}_mockup",
                                                 R_R_M.T @ pft[r, :3], pft[r, 3:]))

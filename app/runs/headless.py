@@ -12,7 +12,7 @@ from pathlib import Path
 from app.config import EmulatorConfig, merge_overrides
 from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
 from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
-from app.runs.plots import PLOT_FILES, plot_run
+from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
 from app.runs.preflight import preflight
 from app.runs.report import write_json, write_telemetry_csv
 from app.runs.uncertainty import forecast, snapshot_time_s, spread_of_run
@@ -174,7 +174,8 @@ TELEMETRY_MIN_ROWS = 100
 """The least telemetry capacity a configuration takes ([loop] telemetry_capacity)."""
 
 
-RUN_FILES = ("telemetry.csv", "metrics.json", *PLOT_FILES)
+RUN_FILES = ("telemetry.csv", "metrics.json", FIGURES_FILE,
+             *(f"{name}.png" for name in FIGURES))
 """The files a headless run may write in its output folder (and ``bag/`` with --bag)."""
 
 
@@ -227,8 +228,7 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
             _write_csv(d / "telemetry.csv", em.columns, rows)]))
     if plots:
         writers.append(("plots", lambda d: plot_run(
-            rows, em.telemetry.index, d, em.n_sat, len(em.arms), metrics.get("collision"),
-            note=metrics["scaling"]["text"])))
+            rows, em.telemetry.index, d, em.config, metrics, note=metrics["scaling"]["text"])))
     if bag:
         writers.append(("bag", lambda d: [write_bag(
             replace_bag_dir(d / "bag"), em.config, rows, em.telemetry.index, bag_rate_hz)]))

@@ -420,6 +420,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
             )
         v = _cols(rows, index, f"sat{i + 1}", ("vx_mps", "vy_mps", "vz_mps"))
         entry["delta_v_mps"] = float(np.linalg.norm(v[-1] - v[0])) if len(rows) else 0.0
+        entry["delta_v_pushed_mps"] = pushed_delta_v(rows, index, i + 1)
         sats.append(entry)
     metrics = {
         "scenario": config.name,
@@ -476,6 +477,18 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
     metrics["warnings"] = _run_warnings(metrics, ideal_collision) + noise_spin_warnings(
         config, [i for i in facts.arm_of])
     return metrics
+
+
+def pushed_delta_v(rows: np.ndarray, index: dict, sat: int) -> float:
+    """The sum of |Δv| over the cycles in which satellite ``sat`` received a force (the
+    pushes and contacts the ODS integrated; lab m/s): Σ |v_{k+1} − v_k| where F_k ≠ 0.
+    Beside the net change |v_end − v_0|, which opposite pushes cancel."""
+    if len(rows) < 2:
+        return 0.0
+    v = _cols(rows, index, f"sat{sat}", ("vx_mps", "vy_mps", "vz_mps"))
+    f = _cols(rows[:-1], index, f"sat{sat}", ("fx_N", "fy_N", "fz_N"))
+    pushed = np.any(f != 0.0, axis=1)
+    return float(np.linalg.norm(np.diff(v, axis=0)[pushed], axis=1).sum())
 
 
 def capture_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,

@@ -1,7 +1,24 @@
-"""PNG plots of a run, like the paper's Fig. 6 (free-floating) and Figs. 8-11 (collision)."""
+"""The figures of a run, each a PNG named by what it shows (the same names for every
+scenario; docs/outputs.md lists them per scenario).
+
+A figure is planned from the run's telemetry, configuration and metrics
+(:func:`plan_figures`: which figures the run has data for, as stacks of panels over a
+shared time axis), then drawn (:func:`draw`). Planning leaves out what has nothing to
+show: a panel none of whose lines moves by more than 2 % of its quantity's minimum span,
+and a figure with no panel left. Each axis spans at least its quantity's
+minimum span (a flat line is not blown up to fill it; a log axis at least a decade), and
+legends sit outside the axes, to the right, clear of the data. :func:`plot_run` draws the
+plan and writes the list of what it wrote (name, title, file) to ``figures.json``;
+:func:`figures_of` reads it back: other code lists a run's figures with it, never by file
+name.
+"""
 
 from __future__ import annotations
 
+import json
+import math
+import textwrap
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
@@ -12,122 +29,635 @@ import numpy as np  # noqa: E402
 
 from app.runs.report import interval_text  # noqa: E402
 
+__all__ = ["FIGURES", "FIGURES_FILE", "Figure", "Line", "Panel", "draw", "figures_of",
+           "plan_figures", "plot_run"]
+
 AXES = ("x", "y", "z")
 
+FIGURES = {
+    "forces": "Forces and torques the ODS received",
+    "contact_closeup": "The contact, close up",
+    "velocity": "Velocity, desired (ODS) and actual (mockup)",
+    "position": "Position, desired (ODS) and actual (mockup)",
+    "tracking_error": "Tracking error, actual (mockup) vs desired (ODS)",
+    "libration": "Pitch libration under the gravity gradient",
+    "waypoints": "Waypoints flown by the GNC",
+    "relative_pose": "Relative pose of the chaser to the target",
+    "synchronisation": "Synchronisation with the target at the capture point",
+    "target_spin": "The target's spin",
+    "thrust": "Thrusters' force and wheels' torque of the GNC",
+    "capture": "Capture envelope: the chaser-target state against its tolerances",
+}
+"""Every figure a run may have: file stem -> what it shows (the drawn title adds the
+satellite names and, for the paper's scenarios, the paper's figure)."""
 
-PLOT_FILES = ("fig6_free_floating.png", "fig8b_contact_closeup.png", "fig8_forces.png",
-              "fig9_velocity.png", "fig10_position.png", "fig11_position_error.png")
-"""The figures :func:`plot_run` may write (those a run has data for)."""
+FIGURES_FILE = "figures.json"
+"""The list of a run's figures in its folder (:func:`figures_of`)."""
 
+PAPER_FIGURES = {
+    "collision": {"forces": 8, "contact_closeup": 8, "velocity": 9, "position": 10,
+                  "tracking_error": 11},
+    "free-floating": {"forces": 6, "velocity": 6, "position": 6},
+    "free-floating-scripted": {"forces": 6, "velocity": 6, "position": 6},
+}
+"""The paper's figure each of its scenarios' figures corresponds to (in the title)."""
 
-def _save(fig, path: Path, note: str) -> None:
-    """Save a figure with the run's note (the scaling in force) above its titles."""
-    if note:
-        fig.suptitle(note, fontsize=8, color="0.35")
-    fig.savefig(path, dpi=100)
+FLAT_FRACTION = 0.02
+"""A line whose peak-to-peak is under this fraction of its panel's minimum span shows
+nothing (4 pixels of a 200-pixel axis: an arm's micrometre jitter, a 1e-7 m drift)."""
 
-
-def _series(rows, index, prefix, fields):
-    return rows[:, [index[f"{prefix}_{f}"] for f in fields]]
-
-
-def _three(ax, t, data, label, unit, style="-"):
-    for k, a in enumerate(AXES):
-        ax.plot(t, data[:, k], style, color=f"C{k}", lw=1.0, label=f"{label} {a}")
-    ax.set_ylabel(unit)
-    ax.grid(alpha=0.3)
-
-
-def plot_free_floating(rows, index, out_dir: Path, sat: int = 1, note: str = "") -> list[Path]:
-    """Fig. 6: force and torque the ODS received (measured: force in R, torque in body
-    axes), the satellite's velocity, angular velocity and position."""
-    t = rows[:, 0]
-    fig, axes = plt.subplots(5, 1, figsize=(9, 12), sharex=True, layout="constrained")
-    pre = f"sat{sat}"
-    _three(axes[0], t, _series(rows, index, pre, ("fx_N", "fy_N", "fz_N")), "F", "force [N]")
-    _three(axes[1], t, _series(rows, index, pre, ("tx_Nm", "ty_Nm", "tz_Nm")), "T",
-           "torque [N m]")
-    _three(axes[2], t, _series(rows, index, pre, ("vx_mps", "vy_mps", "vz_mps")), "v",
-           "velocity [m/s]")
-    _three(axes[3], t, np.degrees(_series(rows, index, pre,
-                                          ("wx_radps", "wy_radps", "wz_radps"))),
-           "ω", "angular velocity [deg/s]")
-    _three(axes[4], t, _series(rows, index, pre, ("x_m", "y_m", "z_m")), "p", "position [m]")
-    axes[0].set_title(f"Satellite {sat}: force (in R) and torque (body axes) from the F/T "
-                      "sensor, and the ODS response")
-    axes[-1].set_xlabel("time [s]")
-    for ax in axes:
-        ax.legend(loc="upper right", fontsize=7, ncol=3)
-    path = out_dir / "fig6_free_floating.png"
-    _save(fig, path, note)
-    plt.close(fig)
-    return [path]
+MIN_SPAN = {"force": 0.1, "torque": 0.01, "velocity": 1e-3, "rate": 0.1, "position": 1e-3,
+            "error_mm": 0.1, "angle": 0.1, "orbit_position": 0.1, "gnc_force": 0.01,
+            "gnc_torque": 1e-3, "mm": 1.0, "mm_s": 1.0}
+"""The least span of an axis, per quantity, in the panel's unit (N, N m, m/s, deg/s, m,
+mm, deg, orbit m, orbit N, orbit N m, mm, mm/s)."""
 
 
-def plot_contact_closeup(rows, index, out_dir: Path, n_sat: int, collision: dict,
-                         note: str = "") -> Path:
-    """The contact window ± 0.1 s: along the contact normal's main axis (x here), each
-    satellite's force (received by the ODS, and the true contact force) and velocity
-    (ODS, and the mockup where an arm carries it): how the impact went, cycle by cycle."""
-    t0, t1 = collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1
-    keep = (rows[:, 0] >= t0) & (rows[:, 0] <= t1)
-    w, t = rows[keep], rows[keep, 0]
-    text = _collision_text(collision)
-    fig, (ax_f, ax_v) = _axes_over_text(2, text, panel_height_in=3.0)
-    for s in range(1, n_sat + 1):
-        c = f"C{s - 1}"
-        ax_f.plot(t, w[:, index[f"sat{s}_fx_N"]], "-", color=c, lw=1.2,
-                  label=f"sat {s}: received by the ODS")
-        ax_f.plot(t, w[:, index[f"sat{s}_true_fx_N"]], ":", color=c, lw=1.2,
-                  label=f"sat {s}: true contact")
-        ax_v.plot(t, w[:, index[f"sat{s}_vx_mps"]], "-", color=c, lw=1.2,
-                  label=f"sat {s}: ODS")
-        if f"rob{s}_vx_mps" in index:
-            ax_v.plot(t, w[:, index[f"rob{s}_vx_mps"]], "--", color=c, lw=1.0,
-                      label=f"sat {s}: mockup (arm)")
-    for ax in (ax_f, ax_v):
-        ax.axvspan(collision["contact_start_s"], collision["contact_end_s"], color="0.9")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=7, ncol=2)
-    ax_f.set_ylabel("force x [N]")
-    ax_v.set_ylabel("velocity x [m/s]")
-    ax_v.set_xlabel("time [s]")
-    ax_f.set_title("The contact, close up (shaded: in contact)")
-    path = out_dir / "fig8b_contact_closeup.png"
-    _save(fig, path, note)
-    plt.close(fig)
-    return path
+@dataclass
+class Line:
+    t: np.ndarray
+    y: np.ndarray
+    label: str
+    style: str = "-"
+    color: str | None = None
+    width: float = 1.0
+
+    def moves(self, min_span: float) -> bool:
+        y = self.y[np.isfinite(self.y)]
+        return len(y) > 0 and float(np.ptp(y)) > FLAT_FRACTION * min_span
 
 
+@dataclass
+class Panel:
+    ylabel: str
+    lines: list[Line]
+    min_span: float
+    limits: list[tuple[float, str]] = field(default_factory=list)
+    """Horizontal lines (value, label): the criteria's limits."""
+    log: bool = False
+    shade: tuple[float, float] | None = None
+    shade_label: str = "in contact"
+    marks: list[tuple[float, str]] = field(default_factory=list)
+    """Vertical lines (time, label): events (a waypoint reached, the capture)."""
+    title: str = ""
+
+    def shows_something(self) -> bool:
+        return any(line.moves(self.min_span) for line in self.lines)
+
+
+@dataclass
+class Figure:
+    name: str
+    title: str
+    panels: list[Panel]
+    xlabel: str = "time [s]"
+    text: str = ""
+    """Lines of text in a panel of their own below the axes (the metrics)."""
+
+    @property
+    def file(self) -> str:
+        return f"{self.name}.png"
+
+    def entry(self) -> dict:
+        return {"name": self.name, "title": self.title, "file": self.file}
+
+
+# --- drawing ----------------------------------------------------------------------------
+
+PANEL_HEIGHT_IN = 2.4
 TEXT_COLUMNS = 120
-"""Characters per line of a figure's text panel (9 in wide at 7.5 pt)."""
+"""Characters per line of a figure's text panel (about 10 in wide at 7.5 pt)."""
 
 
-def _axes_over_text(n_panels: int, text: str, panel_height_in: float):
-    """A figure of ``n_panels`` stacked axes (shared time axis) with ``text`` in a panel of
-    its own below them, sized to the text: nothing overlaps the curves or leaves the page."""
-    n_lines = text.count("\n") + 1
-    text_in = 0.16 * n_lines + 0.3
-    fig = plt.figure(figsize=(9, panel_height_in * n_panels + text_in),
-                     layout="constrained")
-    grid = fig.add_gridspec(n_panels + 1, 1,
-                            height_ratios=[panel_height_in] * n_panels + [text_in])
+def draw(figure: Figure, note: str = ""):
+    """The matplotlib figure of ``figure``: its panels stacked over a shared time axis,
+    legends outside the axes on the right, the text (if any) in a panel below, ``note``
+    (the scaling in force) on top."""
+    n = len(figure.panels)
+    text_in = 0.0 if not figure.text else 0.16 * (figure.text.count("\n") + 1) + 0.3
+    fig = plt.figure(figsize=(11, PANEL_HEIGHT_IN * n + text_in + 0.6), layout="constrained")
+    ratios = [PANEL_HEIGHT_IN] * n + ([text_in] if text_in else [])
+    grid = fig.add_gridspec(len(ratios), 1, height_ratios=ratios)
     axes = [fig.add_subplot(grid[0])]
-    axes += [fig.add_subplot(grid[k], sharex=axes[0]) for k in range(1, n_panels)]
+    axes += [fig.add_subplot(grid[k], sharex=axes[0]) for k in range(1, n)]
+    for ax, panel in zip(axes, figure.panels, strict=True):
+        _draw_panel(ax, panel)
     for ax in axes[:-1]:
         ax.tick_params(labelbottom=False)
-    box = fig.add_subplot(grid[n_panels])
-    box.axis("off")
-    box.text(0.0, 1.0, text, transform=box.transAxes, va="top", ha="left", fontsize=7.5,
-             family="monospace")
-    return fig, axes
+    axes[-1].set_xlabel(figure.xlabel)
+    if figure.text:
+        box = fig.add_subplot(grid[n])
+        box.axis("off")
+        box.text(0.0, 1.0, figure.text, transform=box.transAxes, va="top", ha="left",
+                 fontsize=7.5, family="monospace")
+    fig.suptitle(figure.title if not note else f"{figure.title}\n{note}", fontsize=10)
+    return fig
+
+
+def _draw_panel(ax, panel: Panel) -> None:
+    for line in panel.lines:
+        y = np.clip(line.y, 1e-12, None) if panel.log else line.y
+        ax.plot(line.t, y, line.style, color=line.color, lw=line.width, label=line.label)
+    for value, label in panel.limits:
+        ax.axhline(value, color="k", ls="-.", lw=0.8, label=label)
+    for t, label in panel.marks:
+        ax.axvline(t, color="0.4", ls=":", lw=0.8, label=label)
+    if panel.shade is not None:
+        ax.axvspan(*panel.shade, color="0.9", label=panel.shade_label)
+    ax.set_ylabel(panel.ylabel)
+    if panel.title:
+        ax.set_title(panel.title, fontsize=9)
+    ax.grid(alpha=0.3)
+    if panel.log:
+        ax.set_yscale("log")
+        _a_decade_at_least(ax, panel)
+    else:
+        _at_least(ax, panel)
+    handles, labels = ax.get_legend_handles_labels()
+    unique = dict(zip(labels, handles, strict=True))  # a repeated mark is listed once
+    ax.legend(unique.values(), unique.keys(), loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              fontsize=7, frameon=False, borderaxespad=0.0)
+
+
+def _at_least(ax, panel: Panel) -> None:
+    """The y axis spans at least the panel's minimum span, centred on the data."""
+    values = [line.y[np.isfinite(line.y)] for line in panel.lines]
+    values += [np.array([v]) for v, _ in panel.limits]
+    values = np.concatenate([v for v in values if len(v)] or [np.zeros(1)])
+    lo, hi = float(values.min()), float(values.max())
+    if hi - lo < panel.min_span:
+        mid = 0.5 * (lo + hi)
+        ax.set_ylim(mid - 0.5 * panel.min_span, mid + 0.5 * panel.min_span)
+
+
+def _a_decade_at_least(ax, panel: Panel) -> None:
+    """A log axis spans at least a decade, centred (geometrically) on the data and limits."""
+    values = [np.clip(line.y[np.isfinite(line.y)], 1e-12, None) for line in panel.lines]
+    values += [np.array([v]) for v, _ in panel.limits if v > 0]
+    values = np.concatenate([v for v in values if len(v)] or [np.ones(1)])
+    lo, hi = float(values.min()), float(values.max())
+    if hi < 10.0 * lo:
+        mid = math.sqrt(lo * hi)
+        ax.set_ylim(mid / math.sqrt(10.0), mid * math.sqrt(10.0))
+    elif hi > LOG_DECADES_MAX * lo:  # an error crossing zero dips without bound: not shown
+        ax.set_ylim(hi / LOG_DECADES_MAX, 2.0 * hi)
+
+
+LOG_DECADES_MAX = 1e5
+"""A log axis shows at most five decades below its highest value."""
+
+
+def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,
+             note: str = "") -> list[Path]:
+    """Draw the run's figures (:func:`plan_figures`) into ``out_dir``, and the list of them
+    into ``out_dir / figures.json`` (:func:`figures_of`); the paths written. A figure an
+    earlier run left there that this run does not draw is removed: the folder shows one
+    run."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    figures = plan_figures(rows, index, config, metrics or {}) if len(rows) else []
+    paths = []
+    for figure in figures:
+        fig = draw(figure, note)
+        paths.append(out_dir / figure.file)
+        fig.savefig(paths[-1], dpi=100)
+        plt.close(fig)
+    drawn = {f.name for f in figures}
+    for name in FIGURES:  # an earlier run's figure this run has not replaced goes
+        stale = out_dir / f"{name}.png"
+        if name not in drawn and stale.is_file():
+            stale.unlink()
+    listing = out_dir / FIGURES_FILE
+    listing.write_text(json.dumps([f.entry() for f in figures], indent=2) + "\n")
+    return [*paths, listing]
+
+
+def figures_of(run_dir: str | Path) -> list[dict]:
+    """The figures of the run in ``run_dir``: [{name, title, file}], in the order drawn
+    (from its figures.json; [] when it has none, e.g. a run written without plots)."""
+    path = Path(run_dir) / FIGURES_FILE
+    if not path.is_file():
+        return []
+    return [entry for entry in json.loads(path.read_text())
+            if (Path(run_dir) / entry["file"]).is_file()]
+
+
+# --- planning ---------------------------------------------------------------------------
+
+
+@dataclass
+class _Run:
+    """What the planners read: rows, their columns, the configuration and metrics."""
+
+    rows: np.ndarray
+    index: dict
+    config: object
+    metrics: dict
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.rows[:, 0]
+
+    def cols(self, prefix: str, fields) -> np.ndarray:
+        return self.rows[:, [self.index[f"{prefix}_{f}"] for f in fields]]
+
+    def has(self, column: str) -> bool:
+        return column in self.index
+
+    def name(self, s: int) -> str:
+        return self.config.satellites[s - 1].name
+
+    @property
+    def n_sat(self) -> int:
+        return len(self.config.satellites)
+
+    def carried(self, s: int) -> bool:
+        return self.has(f"rob{s}_x_m")
+
+    def title(self, stem: str, detail: str = "") -> str:
+        fig = PAPER_FIGURES.get(self.config.name, {}).get(stem)
+        return (FIGURES[stem] + (f": {detail}" if detail else "")
+                + (f" (paper Fig. {fig})" if fig else ""))
+
+
+def plan_figures(rows: np.ndarray, index: dict, config, metrics: dict) -> list[Figure]:
+    """The figures the run has something to show in, in order (module doc)."""
+    run = _Run(rows, index, config, metrics)
+    planners = (_forces, _contact_closeup, _velocity, _position, _tracking_error,
+                _libration, _waypoints, _relative_pose, _synchronisation, _target_spin,
+                _thrust, _capture)
+    out = []
+    for planner in planners:
+        figure = planner(run)
+        if figure is None:
+            continue
+        figure.panels = [p for p in figure.panels if p.shows_something()]
+        if figure.panels:
+            out.append(figure)
+    return out
+
+
+def _xyz(t, data, label, style="-", scale=1.0) -> list[Line]:
+    return [Line(t, scale * data[:, k], f"{label} {a}", style, f"C{k}")
+            for k, a in enumerate(AXES)]
+
+
+def _contact_window(run: _Run) -> np.ndarray:
+    coll = run.metrics.get("collision")
+    if not coll:
+        return np.ones(len(run.rows), dtype=bool)
+    t0, t1 = coll["contact_start_s"] - 0.1, coll["contact_end_s"] + 0.1
+    return (run.t >= t0) & (run.t <= t1)
+
+
+def _forces(run: _Run) -> Figure:
+    """Per satellite: the force (R axes) and torque (body axes) the ODS received, and the
+    true external force on it (dotted); with a contact, its window ± 0.1 s and the
+    collision's metrics."""
+    keep = _contact_window(run)
+    t, panels = run.t[keep], []
+    for s in range(1, run.n_sat + 1):
+        p = f"sat{s}"
+        lines = _xyz(t, run.cols(p, ("fx_N", "fy_N", "fz_N"))[keep], "received")
+        lines += _xyz(t, run.cols(p, ("true_fx_N", "true_fy_N", "true_fz_N"))[keep], "true",
+                      ":")
+        panels.append(Panel("force [N]", lines, MIN_SPAN["force"],
+                            title=f"{run.name(s)}: force in R (received solid, true dotted)"))
+        panels.append(Panel("torque [N m]", _xyz(t, run.cols(p, ("tx_Nm", "ty_Nm", "tz_Nm"))[
+            keep], "received"), MIN_SPAN["torque"], title=f"{run.name(s)}: torque, body axes"))
+    coll = run.metrics.get("collision")
+    return Figure("forces", run.title("forces", "the contact ± 0.1 s" if coll else ""), panels,
+                  text=_collision_text(coll) if coll else "")
+
+
+def _contact_closeup(run: _Run) -> Figure | None:
+    """The contact window ± 0.1 s along x (the contact normal's main axis here): each
+    satellite's force (received by the ODS, and true) and velocity (ODS, and the mockup
+    where an arm carries it)."""
+    coll = run.metrics.get("collision")
+    if not coll:
+        return None
+    keep = _contact_window(run)
+    t, force, vel = run.t[keep], [], []
+    for s in range(1, run.n_sat + 1):
+        c, n = f"C{s - 1}", run.name(s)
+        force.append(Line(t, run.cols(f"sat{s}", ("fx_N",))[keep, 0], f"{n}: received", "-",
+                          c, 1.2))
+        force.append(Line(t, run.cols(f"sat{s}", ("true_fx_N",))[keep, 0], f"{n}: true", ":",
+                          c, 1.2))
+        vel.append(Line(t, run.cols(f"sat{s}", ("vx_mps",))[keep, 0], f"{n}: ODS", "-", c, 1.2))
+        if run.carried(s):
+            vel.append(Line(t, run.cols(f"rob{s}", ("vx_mps",))[keep, 0], f"{n}: mockup",
+                            "--", c))
+    shade = (coll["contact_start_s"], coll["contact_end_s"])
+    return Figure("contact_closeup", run.title("contact_closeup", "x, shaded: in contact"),
+                  [Panel("force x [N]", force, MIN_SPAN["force"], shade=shade),
+                   Panel("velocity x [m/s]", vel, MIN_SPAN["velocity"], shade=shade)],
+                  text=_collision_text(coll))
+
+
+def _desired_actual(run: _Run, stem: str, fields, unit: str, span: str,
+                    extra=None) -> Figure:
+    panels = []
+    for s in range(1, run.n_sat + 1):
+        lines = _xyz(run.t, run.cols(f"sat{s}", fields), "ODS")
+        if run.carried(s):
+            lines += _xyz(run.t, run.cols(f"rob{s}", fields), "mockup", "--")
+        panels.append(Panel(unit, lines, MIN_SPAN[span],
+                            title=f"{run.name(s)}: ODS (desired, solid), mockup on its arm "
+                                  "(actual, dashed)"))
+        if extra is not None:
+            panels.append(extra(s))
+    return Figure(stem, run.title(stem), panels)
+
+
+def _velocity(run: _Run) -> Figure:
+    """Per satellite: velocity in R, ODS and mockup, and the ODS's angular velocity
+    (relative to R, body axes)."""
+    def rate(s):
+        w = np.degrees(run.cols(f"sat{s}", ("wx_radps", "wy_radps", "wz_radps")))
+        return Panel("angular velocity [deg/s]", _xyz(run.t, w, "ω"), MIN_SPAN["rate"],
+                     title=f"{run.name(s)}: ODS angular velocity relative to R, body axes")
+    return _desired_actual(run, "velocity", ("vx_mps", "vy_mps", "vz_mps"), "velocity [m/s]",
+                           "velocity", rate)
+
+
+def _position(run: _Run) -> Figure:
+    """Per satellite: position in R, ODS and mockup."""
+    return _desired_actual(run, "position", ("x_m", "y_m", "z_m"), "position [m]", "position")
+
+
+def _tracking_error(run: _Run) -> Figure | None:
+    """The isochronous position error |mockup − ODS| of each carried satellite."""
+    lines = [Line(run.t, 1e3 * np.linalg.norm(run.cols(f"rob{s}", ("x_m", "y_m", "z_m"))
+                                              - run.cols(f"sat{s}", ("x_m", "y_m", "z_m")),
+                                              axis=1), run.name(s), color=f"C{s - 1}")
+             for s in range(1, run.n_sat + 1) if run.carried(s)]
+    if not lines:
+        return None
+    return Figure("tracking_error", run.title("tracking_error"),
+                  [Panel("position error [mm]", lines, MIN_SPAN["error_mm"])])
+
+
+# --- the success criteria's figures (app/runs/success.py): orbit units and time -----------
+
+
+def _success(run: _Run) -> dict:
+    return run.metrics.get("success") or {}
+
+
+def _orbit_time(run: _Run) -> np.ndarray:
+    from app.sim.scaling import scaling_of
+
+    return scaling_of(run.config).time * run.t
+
+
+def _libration(run: _Run) -> Figure | None:
+    """The pitch angle (about the orbit normal) of the librating satellite, orbit time,
+    with the period measured and the theory's."""
+    from app.runs.success import pitch_rad
+
+    lib = _success(run).get("libration")
+    if not lib:
+        return None
+    s = [x.name for x in run.config.satellites].index(lib["satellite"]) + 1
+    pitch = np.degrees(pitch_rad(run.cols(f"sat{s}", ("qw", "qx", "qy", "qz"))))
+    period = "-" if lib["period_s"] is None else f"{lib['period_s']:.1f} s"
+    return Figure("libration", run.title("libration", lib["satellite"]),
+                  [Panel("pitch [deg]", [Line(_orbit_time(run), pitch, "pitch (ODS)")],
+                         MIN_SPAN["angle"],
+                         title=f"period {period}, theory {lib['period_theory_s']:.1f} s at "
+                               f"{lib['amplitude_deg']:.1f} deg (limit ± "
+                               f"{100 * lib['limit']:g} %)")],
+                  xlabel="orbit time [s]")
+
+
+def _gnc_sat(run: _Run) -> int | None:
+    """The first satellite with a GNC (0-based), or None."""
+    return next((i for i, s in enumerate(run.config.satellites) if s.gnc is not None), None)
+
+
+def _waypoint_flown(run: _Run, sat: int) -> np.ndarray:
+    """Row by row, the index of the waypoint the GNC flies to (the number reached before)."""
+    reached = (_success(run).get("waypoints") or {}).get("reached_at_s", [])
+    count = len(run.config.satellites[sat].gnc.waypoints)
+    return np.minimum(np.searchsorted(np.asarray(reached), _orbit_time(run), side="right"),
+                      count - 1)
+
+
+def _reference(run: _Run, sat: int) -> np.ndarray:
+    """Row by row, the reference position (orbit m) of the waypoint flown."""
+    from app.runs.success import reference_track
+
+    flown = _waypoint_flown(run, sat)
+    ref = np.zeros((len(run.rows), 3))
+    for k in np.unique(flown):
+        rows = flown == k
+        ref[rows] = reference_track(run.config, run.rows, run.index, sat, int(k))[0][rows]
+    return ref
+
+
+def _waypoints(run: _Run) -> Figure | None:
+    """The GNC satellite's position (orbit m, R axes) and the waypoint it flies to
+    (dashed), and its distance to it with the GNC's tolerance; dotted: each waypoint
+    reached, and the pushes on it."""
+    from app.runs.success import orbit_track
+
+    wp = _success(run).get("waypoints")
+    sat = _gnc_sat(run)
+    if not wp or sat is None:
+        return None
+    t, p, _ = orbit_track(run.config, run.rows, run.index, sat)
+    ref, gnc = _reference(run, sat), run.config.satellites[sat].gnc
+    marks = [(x, "waypoint reached") for x in wp["reached_at_s"]]
+    from app.sim.scaling import scaling_of
+
+    k_t = scaling_of(run.config).time
+    marks += [(k_t * q.start_s, "push") for q in run.config.pulses
+              if q.satellite == run.name(sat + 1)]
+    fp = _success(run).get("final_position")
+    limits = [(gnc.tolerance_m, "GNC tolerance")]
+    if fp:
+        limits.append((fp["limit_m"], "final position limit"))
+    name = run.name(sat + 1)
+    return Figure("waypoints", run.title("waypoints", f"{name}, {wp['reached']} of "
+                                                      f"{wp['count']} reached"),
+                  [Panel("position [m]", _xyz(t, p, name) + _xyz(t, ref, "waypoint", "--"),
+                         MIN_SPAN["orbit_position"], marks=marks),
+                   Panel("distance to the waypoint [m]",
+                         [Line(t, np.linalg.norm(p - ref, axis=1), "distance", color="C3")],
+                         MIN_SPAN["orbit_position"], limits=limits, log=True, marks=marks)],
+                  xlabel="orbit time [s]")
+
+
+def _target_of(run: _Run, sat: int) -> int | None:
+    """The satellite a GNC satellite flies relative to (0-based), else the first other
+    satellite, else None."""
+    gnc = run.config.satellites[sat].gnc
+    names = [s.name for s in run.config.satellites]
+    if gnc.relative_to is not None:
+        return names.index(gnc.relative_to)
+    return next((i for i in range(len(names)) if i != sat), None)
+
+
+def _attitude_angle(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+    """The rotation angle (rad) between two rows of attitudes (wxyz)."""
+    return 2.0 * np.arccos(np.clip(np.abs(np.sum(q_a * q_b, axis=1)), 0.0, 1.0))
+
+
+def _relative_pose(run: _Run) -> Figure | None:
+    """The GNC satellite relative to the other one (its target): position difference in
+    R (orbit m) and range, and the angle between their attitudes."""
+    from app.runs.success import orbit_track
+
+    sat = _gnc_sat(run)
+    target = None if sat is None else _target_of(run, sat)
+    if target is None:
+        return None
+    t, p_c, _ = orbit_track(run.config, run.rows, run.index, sat)
+    _, p_t, _ = orbit_track(run.config, run.rows, run.index, target)
+    d = p_c - p_t
+    angle = np.degrees(_attitude_angle(run.cols(f"sat{sat + 1}", ("qw", "qx", "qy", "qz")),
+                                       run.cols(f"sat{target + 1}", ("qw", "qx", "qy", "qz"))))
+    c, g = run.name(sat + 1), run.name(target + 1)
+    return Figure("relative_pose", run.title("relative_pose", f"{c} relative to {g}"),
+                  [Panel("position [m]", _xyz(t, d, f"{c} − {g}")
+                         + [Line(t, np.linalg.norm(d, axis=1), "range", "-", "k")],
+                         MIN_SPAN["orbit_position"]),
+                   Panel("attitude angle [deg]", [Line(t, angle, f"{c} to {g}", color="C4")],
+                         MIN_SPAN["angle"])],
+                  xlabel="orbit time [s]")
+
+
+def _synchronisation(run: _Run) -> Figure | None:
+    """At the capture point (the last waypoint) that turns with the target: position,
+    attitude and rate errors over the run (log scale), their limits, the hold judged."""
+    from app.runs.success import attitude_track, orbit_track, reference_track
+    from app.sim.rotations import quat_mul, quat_to_matrix
+
+    sync = _success(run).get("synchronisation")
+    sat = _gnc_sat(run)
+    if not sync or sat is None:
+        return None
+    gnc = run.config.satellites[sat].gnc
+    last = len(gnc.waypoints) - 1
+    target = [s.name for s in run.config.satellites].index(gnc.relative_to)
+    t, p, _ = orbit_track(run.config, run.rows, run.index, sat)
+    r_ref, _ = reference_track(run.config, run.rows, run.index, sat, last)
+    q_T, w_T = attitude_track(run.config, run.rows, run.index, target)
+    q_B, w_B = attitude_track(run.config, run.rows, run.index, sat)
+    q_ref = quat_mul(q_T, np.asarray(gnc.attitude_wxyz, dtype=float))
+    angle = _attitude_angle(q_ref, q_B)
+    rate = np.linalg.norm(np.einsum("kij,kj->ki", quat_to_matrix(q_B), w_B)
+                          - np.einsum("kij,kj->ki", quat_to_matrix(q_T), w_T), axis=1)
+    shade = None if sync["at_s"] is None else (sync["at_s"] - sync["hold_s"], sync["at_s"])
+    pos_lim = [] if sync["position_limit_m"] is None else [(sync["position_limit_m"],
+                                                           "limit")]
+    att_lim = [] if sync["attitude_limit_rad"] is None else [
+        (math.degrees(sync["attitude_limit_rad"]), "limit")]
+    return Figure("synchronisation",
+                  run.title("synchronisation", f"{run.name(sat + 1)} with {gnc.relative_to}, "
+                                               f"waypoint {last + 1}"),
+                  [Panel("position error [m]", [Line(t, np.linalg.norm(p - r_ref, axis=1),
+                                                     "position", color="C0")],
+                         MIN_SPAN["orbit_position"], pos_lim, log=True, shade=shade,
+                         shade_label=HELD),
+                   Panel("attitude error [deg]", [Line(t, np.degrees(angle), "attitude",
+                                                       color="C1")],
+                         MIN_SPAN["angle"], att_lim, log=True, shade=shade, shade_label=HELD),
+                   Panel("rate error [deg/s]", [Line(t, np.degrees(rate), "rate",
+                                                     color="C2")],
+                         MIN_SPAN["rate"], log=True, shade=shade, shade_label=HELD)],
+                  xlabel="orbit time [s]")
+
+
+HELD = "the hold judged"
+
+
+def _target_spin(run: _Run) -> Figure | None:
+    """The target's angular velocity (relative to R, its body axes, orbit deg/s) and its
+    magnitude, beside the chaser's magnitude: the spin the chaser matches."""
+    from app.runs.success import attitude_track
+
+    sat = _gnc_sat(run)
+    if sat is None or run.config.satellites[sat].gnc.relative_to is None:
+        return None
+    target = [s.name for s in run.config.satellites].index(
+        run.config.satellites[sat].gnc.relative_to)
+    t = _orbit_time(run)
+    w_T = np.degrees(attitude_track(run.config, run.rows, run.index, target)[1])
+    w_C = np.degrees(attitude_track(run.config, run.rows, run.index, sat)[1])
+    name = run.name(target + 1)
+    lines = _xyz(t, w_T, f"{name} ω") + [
+        Line(t, np.linalg.norm(w_T, axis=1), f"|{name} ω|", "-", "k"),
+        Line(t, np.linalg.norm(w_C, axis=1), f"|{run.name(sat + 1)} ω|", "--", "0.5")]
+    return Figure("target_spin", run.title("target_spin", name),
+                  [Panel("angular velocity [deg/s]", lines, MIN_SPAN["rate"])],
+                  xlabel="orbit time [s]")
+
+
+def _thrust(run: _Run) -> Figure | None:
+    """Each GNC satellite's own thrusters' force (R axes) and wheels' torque (body axes),
+    orbit N and N m."""
+    panels = []
+    t = _orbit_time(run)
+    for s in range(1, run.n_sat + 1):
+        if run.config.satellites[s - 1].gnc is None:
+            continue
+        p = f"sat{s}"
+        panels.append(Panel("force [N]", _xyz(t, run.cols(p, ("gnc_fx_N", "gnc_fy_N",
+                                                              "gnc_fz_N")), "thrust"),
+                            MIN_SPAN["gnc_force"], title=f"{run.name(s)}: thrusters, R axes"))
+        panels.append(Panel("torque [N m]", _xyz(t, run.cols(p, ("gnc_tx_Nm", "gnc_ty_Nm",
+                                                                 "gnc_tz_Nm")), "wheels"),
+                            MIN_SPAN["gnc_torque"], title=f"{run.name(s)}: wheels, body axes"))
+    if not panels:
+        return None
+    return Figure("thrust", run.title("thrust"), panels, xlabel="orbit time [s]")
+
+
+def _capture(run: _Run) -> Figure | None:
+    """Docking: the target's miss from its mated offset in the chaser's frame, the
+    relative speed (as the chaser sees it) and the relative angle, against the capture
+    tolerances; dotted: the capture."""
+    from app.sim.rotations import quat_to_matrix
+
+    cap = run.config.capture
+    if cap is None:
+        return None
+    c = run.config.satellite_index(cap.chaser) + 1
+    g = run.config.satellite_index(cap.target) + 1
+    p_c, p_t = (run.cols(f"sat{s}", ("x_m", "y_m", "z_m")) for s in (c, g))
+    v_c, v_t = (run.cols(f"sat{s}", ("vx_mps", "vy_mps", "vz_mps")) for s in (c, g))
+    q_c, q_t = (run.cols(f"sat{s}", ("qw", "qx", "qy", "qz")) for s in (c, g))
+    R_c = quat_to_matrix(q_c)
+    d_R = p_t - p_c
+    w_c_R = np.einsum("kij,kj->ki", R_c, run.cols(f"sat{c}", ("wx_radps", "wy_radps",
+                                                              "wz_radps")))
+    v_rel = v_t - v_c - np.cross(w_c_R, d_R)  # as the chaser's rotating frame sees it
+    miss = np.linalg.norm(np.einsum("kji,kj->ki", R_c, d_R) - np.asarray(cap.mated_offset_m),
+                          axis=1)
+    angle = np.degrees(_attitude_angle(q_c, q_t))
+    event = run.metrics.get("capture") or {}
+    marks = [(event["t_s"], "captured")] if event.get("captured") else []
+    t = run.t
+    return Figure("capture", run.title("capture", f"{cap.chaser} and {cap.target}"),
+                  [Panel("miss [mm]", [Line(t, 1e3 * miss, "miss from the mated offset")],
+                         MIN_SPAN["mm"], [(1e3 * cap.position_tolerance_m, "tolerance")],
+                         marks=marks),
+                   Panel("relative speed [mm/s]", [Line(t, 1e3 * np.linalg.norm(v_rel, axis=1),
+                                                        "relative speed", color="C1")],
+                         MIN_SPAN["mm_s"], [(1e3 * cap.velocity_tolerance_mps, "tolerance")],
+                         marks=marks),
+                   Panel("relative angle [deg]", [Line(t, angle, "relative angle",
+                                                       color="C2")],
+                         MIN_SPAN["angle"], [(math.degrees(cap.attitude_tolerance_rad),
+                                              "tolerance")], marks=marks)])
 
 
 def _collision_text(coll: dict) -> str:
     """The collision metrics as lines of text: what the mockups went through, and vs the
     ideal run; the warnings wrapped to the figure's width."""
-    import textwrap
-
     e, ei, err = coll["restitution"], coll.get("restitution_ideal"), coll.get("restitution_error")
     ratio = coll.get("true_impulse_ratio") or {}
     lines = [
@@ -147,83 +677,3 @@ def _collision_text(coll: dict) -> str:
     for warning in coll.get("warnings", []):
         lines += textwrap.wrap(f"! {warning}", TEXT_COLUMNS, subsequent_indent="  ")
     return "\n".join(lines)
-
-
-def plot_collision(rows, index, out_dir: Path, n_sat: int, n_rob: int,
-                   collision: dict | None = None, note: str = "") -> list[Path]:
-    """Figs. 8-11: forces in R, desired vs actual velocity and position, position error.
-
-    Fig. 8 zooms on the contact (its window ± 0.1 s) when ``collision`` (the metrics) is
-    given, and shows them."""
-    t = rows[:, 0]
-    sats = list(range(1, n_sat + 1))
-    paths = []
-
-    if collision is not None:  # the metrics in a text panel below the forces
-        fig, panels = _axes_over_text(n_sat, _collision_text(collision), panel_height_in=3.0)
-        axes = np.array(panels)[:, None]
-    else:
-        fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True,
-                                 squeeze=False, layout="constrained")
-    for ax, s in zip(axes[:, 0], sats, strict=True):
-        _three(ax, t, _series(rows, index, f"sat{s}", ("fx_N", "fy_N", "fz_N")), "F", "force [N]")
-        _three(ax, t, _series(rows, index, f"sat{s}", ("true_fx_N", "true_fy_N", "true_fz_N")),
-               "true", "force [N]", ":")
-        ax.set_title(f"Satellite {s}: force received by the ODS (solid) and true contact (dotted)")
-        ax.legend(loc="upper right", fontsize=7, ncol=2)
-        if collision is not None:
-            ax.set_xlim(collision["contact_start_s"] - 0.1, collision["contact_end_s"] + 0.1)
-    axes[-1, 0].set_xlabel("time [s]")
-    paths.append(out_dir / "fig8_forces.png")
-    _save(fig, paths[-1], note)
-    plt.close(fig)
-    if collision is not None:
-        paths.append(plot_contact_closeup(rows, index, out_dir, n_sat, collision, note))
-
-    for name, fields, rfields, unit in (
-        ("fig9_velocity.png", ("vx_mps", "vy_mps", "vz_mps"), ("vx_mps", "vy_mps", "vz_mps"),
-         "velocity [m/s]"),
-        ("fig10_position.png", ("x_m", "y_m", "z_m"), ("x_m", "y_m", "z_m"), "position [m]"),
-    ):
-        fig, axes = plt.subplots(n_sat, 1, figsize=(9, 3 * n_sat), sharex=True, squeeze=False,
-                                 layout="constrained")
-        for ax, s in zip(axes[:, 0], sats, strict=True):
-            _three(ax, t, _series(rows, index, f"sat{s}", fields), "ODS", unit)
-            if s <= n_rob:
-                _three(ax, t, _series(rows, index, f"rob{s}", rfields), "robot", unit, "--")
-            ax.set_title(f"Satellite {s}: desired (ODS, solid) vs actual (robot, dashed)")
-            ax.legend(loc="upper right", fontsize=7, ncol=2)
-        axes[-1, 0].set_xlabel("time [s]")
-        paths.append(out_dir / name)
-        _save(fig, paths[-1], note)
-        plt.close(fig)
-
-    if n_rob:
-        fig, ax = plt.subplots(figsize=(9, 4), layout="constrained")
-        for s in range(1, min(n_sat, n_rob) + 1):
-            d = _series(rows, index, f"rob{s}", ("x_m", "y_m", "z_m")) - _series(
-                rows, index, f"sat{s}", ("x_m", "y_m", "z_m")
-            )
-            ax.plot(t, 1e3 * np.linalg.norm(d, axis=1), label=f"satellite {s}")
-        ax.set_ylabel("position error [mm]")
-        ax.set_xlabel("time [s]")
-        ax.set_title("Isochronous position error, actual (robot) vs desired (ODS)")
-        ax.grid(alpha=0.3)
-        ax.legend()
-        paths.append(out_dir / "fig11_position_error.png")
-        _save(fig, paths[-1], note)
-        plt.close(fig)
-    return paths
-
-
-def plot_run(rows: np.ndarray, index: dict, out_dir: Path, n_sat: int, n_rob: int,
-             collision: dict | None = None, note: str = "") -> list[Path]:
-    """The paper's figures for a run: Fig. 6 style with one satellite, Figs. 8-11 with more
-    (``collision``: the run's collision metrics, shown on Fig. 8; ``note``: a line on top
-    of every figure, the scaling in force)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if len(rows) == 0:
-        return []
-    if n_sat == 1:
-        return plot_free_floating(rows, index, out_dir, note=note)
-    return plot_collision(rows, index, out_dir, n_sat, n_rob, collision, note)

@@ -64,7 +64,7 @@ def run_summary(metrics: dict) -> str:
         f"force scale {metrics['force_scale']:g}, torque scale {metrics['torque_scale']:g}",
         "",
         f"{'sat':>3} {'name':12s} {'pos err max':>12} {'pos err rms':>12} {'vel err rms':>12} "
-        f"{'att err max':>12} {'delta v':>12}",
+        f"{'att err max':>12} {'net dv':>12} {'pushes |dv|':>12}",
     ]
 
     def cell(v, scale, unit):
@@ -77,8 +77,11 @@ def run_summary(metrics: dict) -> str:
             f"{cell(s['position_error_rms_m'], 1e3, 'mm')} "
             f"{cell(s['velocity_error_rms_mps'], 1e3, 'mm/s')} "
             f"{cell(s['attitude_error_max_rad'], 1e3, 'mrad')} "
-            f"{cell(s['delta_v_mps'], 1.0, 'm/s')}"
+            f"{cell(s['delta_v_mps'], 1.0, 'm/s')} "
+            f"{cell(s.get('delta_v_pushed_mps'), 1.0, 'm/s')}"
         )
+    lines.append("net dv: |v_end - v_start|; pushes |dv|: the sum of |dv| over the cycles "
+                 "a force reached the ODS")
     coll = metrics.get("collision")
     if coll:
         e, ei = coll["restitution"], coll["restitution_ideal"]
@@ -107,10 +110,15 @@ def run_summary(metrics: dict) -> str:
         ]
     success = metrics.get("success")
     if success:
-        lines += ["", "success: " + ("passed" if success["passed"] else "NOT MET")]
+        judged = [k for k, v in success.items() if isinstance(v, dict) and "passed" in v]
+        lines += ["", "success: " + ("passed" if success["passed"] else "NOT MET")
+                  + f" ({len(judged)} criteria judged: " + ", ".join(
+                      f"{k} {'passed' if success[k]['passed'] else 'NOT MET'}"
+                      for k in judged) + ")"]
         touch = success.get("no_contact")
         if touch:
-            lines.append("  no contact between the satellites" if not touch["touched"] else
+            lines.append("  no contact between the satellites (required: none)"
+                         if not touch["touched"] else
                          f"  {' and '.join(touch['pair'])} touched at {touch['at_s']:.2f} s (lab) "
                          f"(peak {touch['peak_force_N']:.1f} N): a contact this scenario "
                          f"must not have")
@@ -123,6 +131,7 @@ def run_summary(metrics: dict) -> str:
                 f"{lib['periods_seen']:g} periods seen): period {period} (orbit time), "
                 f"theory {lib['period_theory_s']:.1f} s, error {error} (limit "
                 f"{100 * lib['limit']:g} %)")
+        lines += docking_success_lines(success)
         lines += gnc_success_lines(success)
     cap = metrics.get("capture")
     if cap:
@@ -152,6 +161,23 @@ def run_summary(metrics: dict) -> str:
     return "\n".join(lines)
 
 
+def docking_success_lines(success: dict) -> list[str]:
+    """The summary's lines for the docking criteria (app/runs/success.py docking)."""
+    dock = success.get("docking")
+    if not dock:
+        return []
+    lines = []
+    if dock["required"] is not None:
+        lines.append(f"  captured: {'yes' if dock['captured'] else 'no'} (required: "
+                     f"{'yes' if dock['required'] else 'no'})")
+    if dock["residual_rate_max_radps"] is not None:
+        rate = dock["residual_rate_radps"]
+        lines.append("  residual rate of the compound "
+                     + ("-" if rate is None else f"{1e3 * rate:.2f} mrad/s")
+                     + f" (limit {1e3 * dock['residual_rate_max_radps']:g} mrad/s)")
+    return lines
+
+
 def gnc_success_lines(success: dict) -> list[str]:
     """The summary's lines for the GNC criteria (app/runs/success.py), orbit units."""
     lines = []
@@ -159,7 +185,7 @@ def gnc_success_lines(success: dict) -> list[str]:
     if wp:
         at = ", ".join(f"{t:.1f}" for t in wp["reached_at_s"]) or "-"
         lines.append(f"  waypoints of {wp['satellite']}: {wp['reached']} of {wp['count']} "
-                     f"reached in order, at {at} s (orbit time)")
+                     f"reached in order (required: all), at {at} s (orbit time)")
         for leg in wp.get("transfers", []):
             lines.append(f"  CW transfer to waypoint {leg['waypoint']}: due at "
                          f"{leg['due_s']:.1f} s, arrived {leg['miss_m']:.3f} m from it")
@@ -186,15 +212,28 @@ def gnc_success_lines(success: dict) -> list[str]:
     if sync:
         if sync["at_s"] is None:
             lines.append(f"  synchronisation of {sync['satellite']} with {sync['target']}: "
-                         f"its capture point (waypoint {sync['waypoint']}) not reached")
+                         f"its capture point (waypoint {sync['waypoint']}) not reached"
+                         + sync_limits_text(sync))
         else:
             lines.append(
                 f"  synchronisation of {sync['satellite']} with {sync['target']} at its "
                 f"capture point ({sync['at_s']:.1f} s, over the {sync['hold_s']:.1f} s hold): "
                 f"position {1e3 * sync['position_error_max_m']:.1f} mm, attitude "
                 f"{math.degrees(sync['attitude_error_max_rad']):.2f} deg, rate "
-                f"{math.degrees(sync['rate_error_max_radps']):.3f} deg/s at most")
+                f"{math.degrees(sync['rate_error_max_radps']):.3f} deg/s at most"
+                + sync_limits_text(sync))
     return lines
+
+
+def sync_limits_text(sync: dict) -> str:
+    """The synchronisation's limits, as the summary shows them: " (limits 10 mm, 1.00
+    deg)"; "" without any."""
+    limits = []
+    if sync.get("position_limit_m") is not None:
+        limits.append(f"{1e3 * sync['position_limit_m']:g} mm")
+    if sync.get("attitude_limit_rad") is not None:
+        limits.append(f"{math.degrees(sync['attitude_limit_rad']):.2f} deg")
+    return f" (limits {', '.join(limits)})" if limits else ""
 
 
 def interval_text(coll: dict) -> str | None:

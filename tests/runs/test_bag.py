@@ -1,6 +1,7 @@
-"""The ROS 2 bag of a run (app/runs/bag.py), read back with rosbags and checked against the
-run's telemetry.csv: topics, message types, counts, values, and a tf tree that puts each
-mockup where the telemetry has it."""
+"""The ROS 2 bag of a run (app/runs/bag.py), read back with rosbags and, independently, with
+the mcap and mcap-ros2-support readers, and checked against the run's telemetry.csv: topics,
+message types, counts, values, the latched topics' QoS, the URDF, and a tf tree that puts
+each mockup where the telemetry has it."""
 
 from __future__ import annotations
 
@@ -11,10 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.runs.bag import JOINT_NAMES
 from app.scenarios import load_scenario
 from app.sim.rotations import make_transform, quat_to_matrix
-from app.sim.ur10e import T_F_C_from_config, T_W_B_from_config
+from app.sim.ur10e import JOINT_NAMES, T_F_C_from_config, T_W_B_from_config, tcp_jacobian_B
 
 EXE = str(Path(sys.executable).with_name("orbit-emulator"))
 rosbags = pytest.importorskip("rosbags")
@@ -54,8 +54,11 @@ def _telemetry(run_dir: Path) -> tuple[np.ndarray, dict]:
 def test_the_bag_has_every_topic_with_its_standard_type_and_a_message_per_row(run_dir):
     types, messages = _read(run_dir / "bag")
     rows, _ = _telemetry(run_dir)
-    expected = {"/tf_static": "tf2_msgs/msg/TFMessage", "/tf": "tf2_msgs/msg/TFMessage"}
+    expected = {"/tf_static": "tf2_msgs/msg/TFMessage", "/tf": "tf2_msgs/msg/TFMessage",
+                "/clock": "rosgraph_msgs/msg/Clock",
+                "/markers": "visualization_msgs/msg/MarkerArray"}
     for i in (1, 2):
+        expected[f"/robot{i}/robot_description"] = "std_msgs/msg/String"
         expected[f"/sat{i}/ods_input"] = "geometry_msgs/msg/WrenchStamped"
         expected[f"/sat{i}/true_wrench"] = "geometry_msgs/msg/WrenchStamped"
         expected[f"/sat{i}/twist"] = "geometry_msgs/msg/TwistStamped"
@@ -63,10 +66,10 @@ def test_the_bag_has_every_topic_with_its_standard_type_and_a_message_per_row(ru
         expected[f"/robot{i}/ft_raw"] = "geometry_msgs/msg/WrenchStamped"
         expected[f"/robot{i}/ft_processed"] = "geometry_msgs/msg/WrenchStamped"
     assert types == expected
-    assert len(messages["/tf_static"]) == 1
+    latched = {"/tf_static", "/markers", "/robot1/robot_description",
+               "/robot2/robot_description"}
     for topic in expected:
-        if topic != "/tf_static":
-            assert len(messages[topic]) == len(rows), topic
+        assert len(messages[topic]) == (1 if topic in latched else len(rows)), topic
     stamps = [t for t, _ in messages["/robot1/joint_states"]]
     np.testing.assert_array_equal(stamps, np.round(rows[:, 0] * 1e9).astype(np.int64))
 
@@ -77,7 +80,8 @@ def test_the_bag_s_values_are_the_telemetry_s(run_dir):
     for k in (0, len(rows) // 2, len(rows) - 1):
         row = rows[k]
         js = messages["/robot2/joint_states"][k][1]
-        assert list(js.name) == list(JOINT_NAMES)
+        assert list(js.name) == [f"robot2/{name}" for name in JOINT_NAMES]
+        assert len(js.velocity) == 6 and len(js.effort) == 0
         np.testing.assert_allclose(js.position, [row[ix[f"rob2_q{j}_rad"]] for j in range(1, 7)],
                                    atol=1e-6)  # the CSV keeps 7 significant digits or so
         ft = messages["/robot1/ft_raw"][k][1].wrench
@@ -106,29 +110,160 @@ def _T(transform) -> np.ndarray:
     return make_transform(quat_to_matrix(np.array([q.w, q.x, q.y, q.z])), [t.x, t.y, t.z])
 
 
+LINKS = ("base_link", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link",
+         "wrist_2_link", "wrist_3_link", "tool0")
+
+
 def test_the_tf_tree_puts_each_mockup_where_the_telemetry_has_it(run_dir):
-    """world → base → flange (the joints' forward kinematics) → mockup mounting gives the
-    same mockup pose as world → R → sat<i>_mockup (the telemetry's pose in R): the tree is
-    one consistent set of frames."""
+    """world → base_link → each link of the arm in turn → tool0 (the flange) → mockup
+    mounting gives the same mockup pose as world → R → sat<i>_mockup (the telemetry's pose
+    in R): the tree is one consistent set of frames, every link of each arm in it under
+    its prefix."""
     _, messages = _read(run_dir / "bag")
     config = load_scenario("collision")
-    static = {tf.child_frame_id: _T(tf.transform)
+    static = {tf.child_frame_id: (tf.header.frame_id, _T(tf.transform))
               for tf in messages["/tf_static"][0][1].transforms}
     k = len(messages["/tf"]) - 1
     frames = {tf.child_frame_id: (tf.header.frame_id, _T(tf.transform))
               for tf in messages["/tf"][k][1].transforms}
+    frames.update(static)
     for r, robot in enumerate(config.robots, start=1):
-        np.testing.assert_allclose(static[f"robot{r}_base"], T_W_B_from_config(robot),
+        assert static[f"robot{r}/base_link"][0] == "world"
+        np.testing.assert_allclose(static[f"robot{r}/base_link"][1], T_W_B_from_config(robot),
                                    atol=1e-12)
-        parent, T_B_F = frames[f"robot{r}_flange"]
-        assert parent == f"robot{r}_base"
-        by_arm = static[f"robot{r}_base"] @ T_B_F @ T_F_C_from_config(robot)
+        T = np.eye(4)
+        for parent, child in zip(LINKS[:-1], LINKS[1:], strict=True):
+            up, T_link = frames[f"robot{r}/{child}"]
+            assert up == f"robot{r}/{parent}"
+            T = T @ T_link
+        by_arm = static[f"robot{r}/base_link"][1] @ T @ T_F_C_from_config(robot)
         sat = config.satellite_index(robot.satellite) + 1
         parent, T_R_M = frames[f"sat{sat}_mockup"]
         assert parent == "R"
-        by_telemetry = static["R"] @ T_R_M
+        by_telemetry = static["R"][1] @ T_R_M
         np.testing.assert_allclose(by_arm[:3, 3], by_telemetry[:3, 3], atol=1e-5)
         np.testing.assert_allclose(by_arm[:3, :3], by_telemetry[:3, :3], atol=1e-5)
+
+
+def _mcap(bag: Path) -> tuple[dict, dict]:
+    """With the independent readers (mcap, mcap-ros2-support): (topic -> channel metadata,
+    topic -> [(log time ns, decoded message)])."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with (bag / "bag.mcap").open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        channels = {c.topic: c.metadata for c in reader.get_summary().channels.values()}
+        messages: dict[str, list] = {t: [] for t in channels}
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            messages[channel.topic].append((message.log_time, decoded))
+    return channels, messages
+
+
+@pytest.fixture(scope="module")
+def mcap_bag(run_dir) -> tuple[dict, dict]:
+    pytest.importorskip("mcap_ros2")
+    return _mcap(run_dir / "bag")
+
+
+def test_the_latched_topics_are_offered_transient_local_as_rosbag2_records_them(mcap_bag):
+    """``ros2 bag play`` republishes a topic with the QoS its channel says was offered:
+    /tf_static, the markers and the robot descriptions must say transient-local (latched),
+    or tf2 and RViz2's latched subscriptions never get them; the others say nothing."""
+    import yaml
+
+    channels, _ = mcap_bag
+    for topic in ("/tf_static", "/markers", "/robot1/robot_description",
+                  "/robot2/robot_description"):
+        profiles = yaml.safe_load(channels[topic]["offered_qos_profiles"])
+        assert len(profiles) == 1, topic
+        assert profiles[0]["durability"] == "transient_local", topic
+        assert profiles[0]["reliability"] == "reliable" and profiles[0]["history"] == "keep_last"
+        assert profiles[0]["depth"] == 1
+    assert yaml.safe_load(channels["/tf"]["offered_qos_profiles"]) == []
+
+
+def test_every_topic_decodes_with_the_independent_reader(mcap_bag, run_dir):
+    """Each topic decodes with mcap-ros2-support (from the schemas in the file), with
+    the counts rosbags reads; /clock runs with the telemetry's time, strictly increasing."""
+    _, messages = mcap_bag
+    rows, _ = _telemetry(run_dir)
+    types, by_rosbags = _read(run_dir / "bag")
+    assert set(messages) == set(types)
+    for topic, decoded in messages.items():
+        assert len(decoded) == len(by_rosbags[topic]), topic
+    clock = np.array([m.clock.sec + 1e-9 * m.clock.nanosec for _, m in messages["/clock"]])
+    assert np.all(np.diff(clock) > 0)
+    np.testing.assert_allclose(clock, rows[:, 0], atol=1e-9)
+
+
+def test_the_markers_show_the_mockups_the_ods_poses_and_the_safety_boxes(mcap_bag):
+    _, messages = mcap_bag
+    config = load_scenario("collision")
+    markers = messages["/markers"][0][1].markers
+    by_ns: dict[str, list] = {}
+    for m in markers:
+        by_ns.setdefault(m.ns, []).append(m)
+        assert m.type == 1 and m.action == 0 and m.frame_locked  # CUBE, ADD, follows its frame
+    assert sorted(m.header.frame_id for m in by_ns["mockups"]) == ["sat1_mockup", "sat2_mockup"]
+    assert sorted(m.header.frame_id for m in by_ns["ods_poses"]) == ["sat1", "sat2"]
+    for m, robot in zip(sorted(by_ns["safety_boxes"], key=lambda m: m.id), config.robots,
+                        strict=True):
+        assert m.header.frame_id == "world"
+        lo, hi = np.array(robot.safety_box_min_m), np.array(robot.safety_box_max_m)
+        np.testing.assert_allclose([m.scale.x, m.scale.y, m.scale.z], hi - lo)
+        np.testing.assert_allclose([m.pose.position.x, m.pose.position.y, m.pose.position.z],
+                                   0.5 * (lo + hi))
+    sat = config.satellites[0]
+    m = next(m for m in by_ns["mockups"] if m.header.frame_id == "sat1_mockup")
+    np.testing.assert_allclose([m.scale.x, m.scale.y, m.scale.z], sat.size_m)
+
+
+def test_the_robot_descriptions_are_urdfs_whose_chain_is_the_arm_s(mcap_bag):
+    """Each /robot<k>/robot_description is a URDF (parsed by yourdfpy) with every link and
+    joint under the arm's prefix, whose forward kinematics to tool0 is the project's
+    flange pose at any joint positions."""
+    import io
+
+    import yourdfpy
+
+    from app.sim.ur10e import flange_pose_B
+
+    _, messages = mcap_bag
+    for k in (1, 2):
+        text = messages[f"/robot{k}/robot_description"][0][1].data
+        urdf = yourdfpy.URDF.load(io.StringIO(text), load_meshes=False,
+                                  build_collision_scene_graph=False)
+        assert set(urdf.link_map) == {f"robot{k}/{name}" for name in LINKS}
+        movable = [f"robot{k}/{name}" for name in JOINT_NAMES]
+        assert urdf.actuated_joint_names == movable
+        q = np.array([0.4, -1.9, 1.5, 0.3, -1.2, 0.8])
+        urdf.update_cfg(dict(zip(movable, q, strict=True)))
+        np.testing.assert_allclose(urdf.get_transform(f"robot{k}/tool0", f"robot{k}/base_link"),
+                                   flange_pose_B(q), atol=1e-9)
+
+
+def test_joint_velocities_agree_with_the_mockup_s_recorded_velocity(mcap_bag, run_dir):
+    """The bag's joint velocities (differenced joint positions) through the arm's Jacobian
+    give the mockup velocity the telemetry recorded from the servo's own joint
+    velocities (the servo integrates q_k = q_{k-1} + dt qd_k: they agree to rounding),
+    every row from the second on, through the start's acceleration too."""
+    _, messages = mcap_bag
+    rows, ix = _telemetry(run_dir)
+    config = load_scenario("collision")
+    T_W_R = make_transform(quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m)
+    for k, robot in enumerate(config.robots, start=1):
+        R_R_B = T_W_R[:3, :3].T @ T_W_B_from_config(robot)[:3, :3]
+        T_F_C = T_F_C_from_config(robot)
+        errors, speeds = [], []
+        for r in range(1, len(rows)):
+            js = messages[f"/robot{k}/joint_states"][r][1]
+            v_R = R_R_B @ (tcp_jacobian_B(np.array(js.position), T_F_C) @ js.velocity)[:3]
+            recorded = [rows[r, ix[f"rob{k}_v{a}_mps"]] for a in "xyz"]
+            errors.append(np.linalg.norm(v_R - recorded))
+            speeds.append(np.linalg.norm(recorded))
+        assert max(speeds) > 0.05  # the arms do move
+        assert max(errors) < 1e-6 * max(speeds), (k, max(errors), max(speeds))
 
 
 def test_bag_rate_thins_the_messages_and_needs_bag(tmp_path):
