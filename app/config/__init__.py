@@ -710,6 +710,11 @@ class LoopConfig(_Model):
     approach_timeout_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=120.0)] = 20.0
     """How long the start-up may search for each arm's start posture (VFDM iterations on
     its virtual model), at most 2 minutes."""
+    run_up_s: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 1.0
+    """A flying start (hil): over this long before t = 0 the arms run up from rest to
+    their satellites' initial velocity and spin, reaching the initial poses at t = 0
+    (app/sim/run_up.py), instead of starting at rest and catching up with a jolt; 0
+    starts them at rest. The run-up covers v0·run_up_s/2 (4 cm in the collision)."""
     max_tracking_error_m: Positive = 0.05
     """A mockup this far from its satellite's ODS position stops the run (hil): the arm
     can no longer show the orbit (the paper's lab tracked within 0.01 m)."""

@@ -56,6 +56,7 @@ from app.sim.orbital import OdsParams, OrbitalSimulator, rk4_step
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
+from app.sim.run_up import relative_rates, run_up_state, runs_up
 from app.sim.scaling import scaling_of
 from app.sim.sensor_models import sample_every_cycles
 from app.sim.telemetry import Recorder
@@ -468,12 +469,17 @@ class Emulator:
         if settle_s is None:
             settle_s = self.config.wrench.calibration_s
         steps = int(self.config.loop.approach_timeout_s * self.config.loop.rate_hz)
+        run_up = self._run_up()
+        y_start = self.ods.y if run_up is None else run_up(-self.config.loop.run_up_s)
         for arm in self.arms:
-            q, error_m = arm.solve_start_posture(arm.tcp_target_B(self.ods.y), steps, tick)
+            q, error_m = arm.solve_start_posture(arm.tcp_target_B(y_start), steps, tick)
             if q is None:
+                where = "" if run_up is None else (
+                    f" (where its {self.config.loop.run_up_s:g} s run-up begins: "
+                    f"loop.run_up_s = 0 starts at rest)")
                 raise StartPoseError(
                     f"robot {arm.index + 1}: start pose of satellite "
-                    f"{self.config.satellites[arm.satellite].name!r} not reached "
+                    f"{self.config.satellites[arm.satellite].name!r}{where} not reached "
                     f"(error {error_m:.4f} m): is it within reach?"
                 )
             arm.q_start_rad = q
@@ -496,7 +502,42 @@ class Emulator:
                 self._safety_stop(arm, arm.servo.reason)
                 return
             arm.calibrate(np.array(rest[arm.index]))
+        if run_up is not None and not self._run_up_arms(run_up, tick):
+            return
         self.status = "running"
+
+    def _run_up(self):
+        """τ ↦ the satellites' state at τ ≤ 0 of the flying start (app/sim/run_up.py), or
+        None: an ideal run, ``[loop] run_up_s = 0``, or satellites that start at rest."""
+        T = self.config.loop.run_up_s
+        if not self.arms or T <= 0.0:
+            return None
+        y0 = self.ods.y.copy()
+        zeros = np.zeros((self.n_sat, 3))
+        omega_rel_B = relative_rates(y0, self.ods.advance(zeros, zeros, self.dt_s), self.dt_s)
+        if not runs_up(y0, omega_rel_B):
+            return None
+
+        def state(tau_s: float) -> np.ndarray:
+            if tau_s > 0.0:  # a lead past t = 0: the ODS's own course, nothing applied
+                return self.ods.advance(zeros, zeros, tau_s)
+            return run_up_state(y0, omega_rel_B, T, tau_s)
+        return state
+
+    def _run_up_arms(self, run_up, tick) -> bool:
+        """Drive every arm along the run-up, each towards the pose its lead asks for, as
+        the cycle does (VFDM → servo); False if a servo stopped (a safety stop)."""
+        n = int(round(self.config.loop.run_up_s / self.dt_s))
+        for k in range(1, n + 1):
+            tau_s = (k - n) * self.dt_s
+            for arm in self.arms:
+                arm.command(arm.tcp_target_B(run_up(tau_s + arm.lead_s)))
+                if arm.servo.stopped:
+                    self._safety_stop(arm, arm.servo.reason)
+                    return False
+            if k % 100 == 0:
+                tick()
+        return True
 
     def _load_kernels(self) -> None:
         """Run each compiled kernel once on scratch data, so that numba loads it from its
