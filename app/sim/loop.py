@@ -140,6 +140,7 @@ class Emulator:
         """Each satellite's own GNC wrench of the cycle, orbit units: force in R, torque in
         body axes (zeros without a GNC)."""
         self._final_recorded_at = -1
+        self._sensed_before = False  # the F/T chains ran in a run-up before t = 0
         self.snapshot_at_s: float | None = None
         """When set: at the first cycle that starts at or after this time, the loop keeps a
         copy of its whole state in ``snapshot`` (app/runs/uncertainty.py replays from it)."""
@@ -241,7 +242,8 @@ class Emulator:
         for arm in self.arms:
             s = arm.satellite
             measured = arm.sense(external_W[s], bodies.T_W_C[s], bodies.v_W[s], self.R_W_R,
-                                 self.dt_s, first_cycle=self.cycles == 0,
+                                 self.dt_s,
+                                 first_cycle=self.cycles == 0 and not self._sensed_before,
                                  gate_open=bool(near[s]))
             force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
         self.consistent_pairs = []
@@ -502,8 +504,10 @@ class Emulator:
                 self._safety_stop(arm, arm.servo.reason)
                 return
             arm.calibrate(np.array(rest[arm.index]))
-        if run_up is not None and not self._run_up_arms(run_up, tick):
-            return
+        if run_up is not None:
+            if not self._run_up_arms(run_up, tick):
+                return
+            self._sensed_before = True
         self.status = "running"
 
     def _run_up(self):
@@ -525,12 +529,20 @@ class Emulator:
         return state
 
     def _run_up_arms(self, run_up, tick) -> bool:
-        """Drive every arm along the run-up, each towards the pose its lead asks for, as
-        the cycle does (VFDM → servo); False if a servo stopped (a safety stop)."""
+        """Drive every arm along the run-up as the cycle does: its F/T chain reads and
+        processes (nothing touches; what it measures goes nowhere, but its filters and
+        its estimate of the mockup's acceleration are those of a moving arm at t = 0),
+        then VFDM → servo towards the pose its lead asks for. False if a servo stopped
+        (a safety stop)."""
         n = int(round(self.config.loop.run_up_s / self.dt_s))
+        nothing = np.zeros(6)
         for k in range(1, n + 1):
             tau_s = (k - n) * self.dt_s
+            bodies = actual_bodies(self.T_W_R, self.ods, self.arms)
             for arm in self.arms:
+                s = arm.satellite
+                arm.sense(nothing, bodies.T_W_C[s], bodies.v_W[s], self.R_W_R, self.dt_s,
+                          first_cycle=k == 1)
                 arm.command(arm.tcp_target_B(run_up(tau_s + arm.lead_s)))
                 if arm.servo.stopped:
                     self._safety_stop(arm, arm.servo.reason)
