@@ -33,7 +33,6 @@ from app.sim.capture import Compound, compound_wrench, join, relative_state, spr
 from app.sim.compensation import contact_cutoff_hz, force_lag_s, lag_model, predicted_state
 from app.sim.contact import BoxContactModel
 from app.sim.contact_estimator import contact_wrench_W
-from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.contact_gate import (
     ContactGate,
     contact_pairs,
@@ -41,6 +40,7 @@ from app.sim.contact_gate import (
     hold_cycles_for,
     newton_consistent,
 )
+from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.coupling import OdsCoupling
 from app.sim.frames import satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
