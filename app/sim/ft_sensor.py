@@ -431,11 +431,11 @@ class WrenchProcessor:
         cov_t = residual_t.T @ residual_t / (n - 1) if n > 1 else np.zeros((3, 3))
         self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com, cov,
                                        cov_t)
-        self._set_deadbands()
+        self.set_deadbands()
         self.reset()
         return self.calibration
 
-    def _set_deadbands(self) -> None:
+    def set_deadbands(self) -> None:
         """The deadbands from the configuration and the calibration's noise (module
         doc of :class:`WrenchProcessor`, noise floor)."""
         cfg, cal = self.config, self.calibration
