@@ -166,6 +166,7 @@ SEED_CASES = {"sponge vs rigid": ([], 30), "rigid vs rigid": (RIGID, 20)}
 """Each case's assignments and how many seeds it runs."""
 NOISES = {"no noise": NO_NOISE, "default noise": []}
 FACTORS = {
+    "measured contact force": ['wrench.contact_force="measured"'],
     "no-pull clamp": ["wrench.contact_no_pull=true"],
     "30 Hz filter in contact": ["wrench.contact_lowpass_hz=30"],
     "tank 1 mJ": ["passivity.tank_max_J=0.001"],
@@ -283,7 +284,7 @@ def noisy_ideal_table(pool, first_seed: int, repeat: int = 10) -> None:
               f"{len(e)}/{len(seeds)} |", flush=True)
 
 
-def seeds_table(pool, first_seed: int, factors: bool) -> None:
+def seeds_table(pool, first_seed: int, factors: bool | list[str]) -> None:
     """The shipped chain over SEED_CASES' seeds from ``first_seed``, without noise and
     with the data sheet's, and (``factors``) each bias factor's share."""
     names = list(SEED_COLUMNS)
@@ -309,6 +310,8 @@ def seeds_table(pool, first_seed: int, factors: bool) -> None:
             seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
             base = statistics.fmean(_errors(shipped[(case, noise)]))
             for factor, change in FACTORS.items():
+                if isinstance(factors, list) and factor not in factors:
+                    continue
                 runs = _seed_runs(pool, extra + assignments + change, seeds, ideal)
                 e = _errors(runs)
                 share = (f"{100 * (statistics.fmean(e) - base):+.1f} points"
@@ -662,6 +665,10 @@ def main() -> None:
                              "seeds, without and with noise")
     parser.add_argument("--factors", action="store_true",
                         help="with --seeds: each bias factor's share")
+    parser.add_argument("--factor", action="append", choices=list(FACTORS),
+                        help="with --seeds --factors: only these factors (repeatable)")
+    parser.add_argument("--no-perfect-emulator", action="store_true",
+                        help="with --seeds: skip the perfect emulator + noise table")
     parser.add_argument("--first-seed", type=int, default=0,
                         help="with --seeds or --calibration-check: the first seed (1000: "
                              "the chain's tuning seeds)")
@@ -682,8 +689,10 @@ def main() -> None:
                          for case, (extra, seeds) in CHECK_CASES.items()}
                 calibration_check(pool, cases, assignments=args.set)
             else:
-                seeds_table(pool, args.first_seed, args.factors)
-                noisy_ideal_table(pool, args.first_seed)
+                seeds_table(pool, args.first_seed,
+                            (args.factor or True) if args.factors else False)
+                if not args.no_perfect_emulator:
+                    noisy_ideal_table(pool, args.first_seed)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.calibration:

@@ -425,6 +425,16 @@ class RefProcessor:
         w[3:] -= np.cross(cal.com_F_m, load_F)
         return w
 
+    def deadbands(self) -> tuple[float, float]:
+        """(force, torque) deadbands: the configured ones, or deadband_noise_sigmas times
+        the largest standard deviation of the calibrated noise through the low-pass (a
+        first-order filter passes α / (2 − α) of white noise's variance), if larger."""
+        cfg, gain = self.config, self.alpha / (2.0 - self.alpha)
+        sd = [np.sqrt(np.max(np.linalg.eigvalsh(c)) * gain)
+              for c in (self.cal.force_noise_cov_S, self.cal.torque_noise_cov_S)]
+        return (max(cfg.deadband_force_N, cfg.deadband_noise_sigmas * sd[0]),
+                max(cfg.deadband_torque_Nm, cfg.deadband_noise_sigmas * sd[1]))
+
     def filter(self, w: np.ndarray) -> np.ndarray:
         self.state = self.state + self.alpha * (w - self.state)
         return self.state.copy()
@@ -435,7 +445,7 @@ class RefProcessor:
         self.past.append((T_W_F, T_W_C, np.zeros(3) if accel_W is None else accel_W))
         T_W_F, T_W_C, accel_W = self.past[max(0, len(self.past) - 1 - self.delay_cycles)]
         cfg, R_W_F = self.config, T_W_F[:3, :3]
-        db_f, db_t = (0.0, 0.0) if gate_open else (cfg.deadband_force_N, cfg.deadband_torque_Nm)
+        db_f, db_t = (0.0, 0.0) if gate_open else self.deadbands()
         w = self.filter(self.compensate(wrench_S, R_W_F, accel_W))
         r_FC_S = R_W_F.T @ (T_W_C[:3, 3] - T_W_F[:3, 3])
         t_C_S = deadband(w[3:] - np.cross(r_FC_S, w[:3]), db_t, cfg.deadband_mode)

@@ -336,3 +336,21 @@ def test_cycle_times_kept_for_the_telemetry_capacity_only():
     assert em.cycles == 450
     assert em.cycle_time_ns.shape == (200,)
     assert (em.cycle_time_ns > 0).all()
+
+
+def test_at_rest_nothing_moves_for_two_minutes():
+    """Free-floating, hil, the data sheet's sensor, nobody pushing, 120 s: the noise never
+    passes the deadbands (raised to 6 σ of the noise the calibration measured: issue 34),
+    so the satellite keeps |ω| < 1e-5 rad/s and |v| < 1e-5 m/s. (With the 0.25 N·m torque
+    deadband alone, 4.4 σ, its spin stepped by about 6e-5 rad/s now and then.)"""
+    cfg = merge_overrides(load_scenario("free-floating"),
+                          {"loop": {"seed": 4, "telemetry_capacity": 60_010}})
+    em = Emulator(cfg, mode="hil")
+    em.run(120.0)
+    assert em.status == "finished"
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    assert rows[-1, 0] == pytest.approx(120.0)
+    v = rows[:, [col[f"sat1_v{a}_mps"] for a in "xyz"]]
+    w = rows[:, [col[f"sat1_w{a}_radps"] for a in "xyz"]]
+    assert np.linalg.norm(v, axis=1).max() < 1e-5
+    assert np.linalg.norm(w, axis=1).max() < 1e-5

@@ -499,6 +499,11 @@ class WrenchProcessingConfig(_Model):
     """On the torque about the COM, which carries the sensor's torque noise and the lever
     arm of its force noise (std ≈ 0.06 N·m per axis after the low-pass, for the 0.07 m
     mockup offset): about 4 σ."""
+    deadband_noise_sigmas: Annotated[float, AfterValidator(_finite), Field(ge=0.0)] = 6.0
+    """Each deadband is at least this many standard deviations of the filtered noise the
+    start-up calibration measured at rest (largest principal axis; 0: the configured
+    deadbands only). At 6 the noise at rest crosses it about once in 6 hours
+    (app/sim/ft_sensor.py, WrenchProcessor, noise floor): nothing moves at rest."""
     deadband_mode: Literal["hard", "soft"] = "hard"
     """'hard': zero below the threshold, unchanged above (keeps the size of real pushes);
     'soft': zero below, magnitude reduced by the threshold above (continuous)."""
@@ -530,6 +535,13 @@ class WrenchProcessingConfig(_Model):
     """With the contact estimator: a measured normal force that pulls becomes zero. Off:
     it passes as measured (the clamp rectifies the noise where the true force is near zero
     and biases the restitution: app/sim/contact_estimator.py)."""
+    contact_force: Literal["measured", "identified"] = "measured"
+    """With the contact estimator, the normal force handed to the ODS: 'measured' (the
+    processed F/T force), or 'identified': the Hunt–Crossley law identified by least
+    squares from the measured normal forces and the contact's depth and rate (the mockups'
+    boxes at their encoder poses) of every cycle of the pair's contact so far, evaluated
+    at the reading's cycle (app/sim/contact_identification.py): the sensor's noise is
+    averaged over the contact instead of handed over cycle by cycle."""
 
 
 class CompensationConfig(_Model):

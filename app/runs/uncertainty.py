@@ -30,6 +30,7 @@ import numpy as np
 from app.config import EmulatorConfig, merge_overrides
 from app.runs.metrics import collision_metrics
 from app.sim.loop import Emulator, StartPoseError
+from app.sim.rotations import skew
 
 __all__ = ["SensorNoise", "configured_noise", "forecast", "measured_noise", "replicate",
            "restitution_spread", "run_interval", "snapshot_time_s", "spread_of_run"]
@@ -71,6 +72,24 @@ def configured_noise(config: EmulatorConfig) -> list[SensorNoise]:
     sd = np.array([s.noise_force_N] * 3 + [s.noise_torque_Nm] * 3, dtype=float)
     n = max(1, int(round(config.wrench.calibration_s * config.loop.rate_hz)))
     return [SensorNoise(sd, sd / math.sqrt(n)) for _ in config.robots]
+
+
+def expect_measured_noise(em: Emulator, noise: list[SensorNoise]) -> None:
+    """Give each arm's calibration the noise covariance its rest readings would show with
+    ``noise`` (diagonal: σ_f² per force axis; about the COM, σ_τ² plus the lever arm of
+    the force noise, [c]ₓ Σ_f [c]ₓᵀ), and the deadbands that follow from it. The
+    forecast's twin calibrates without noise (its bias exact), yet the chain reads the
+    measured covariance: the pair fusion's Newton check and the deadbands' noise floor.
+    With a zero covariance, the replicates' noisy sensors failed the check on nearly
+    every cycle, and the forecast was of a chain without fusion or estimator."""
+    for arm, nz in zip(em.arms, noise, strict=True):
+        proc = arm.processor
+        cal = proc.calibration
+        cov_f = np.diag(np.square(nz.sd_S[:3]))
+        c = skew(np.asarray(cal.com_F_m, dtype=float))
+        cov_t = np.diag(np.square(nz.sd_S[3:])) + c @ cov_f @ c.T
+        proc.calibration = replace(cal, force_noise_cov_S=cov_f, torque_noise_cov_S=cov_t)
+        proc.set_deadbands()
 
 
 def snapshot_time_s(config: EmulatorConfig, ideal: dict | None) -> float | None:
@@ -222,6 +241,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     except StartPoseError as err:  # the run itself will say so, and stop there
         out["note"] = f"the noise-free twin could not start: {err}"
         return out
+    noise = configured_noise(config)
+    expect_measured_noise(twin, noise)
     while twin.status == "running" and twin.t_s < at_s - 1e-9:
         twin.step()
     if twin.status != "running":
@@ -232,8 +253,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
     snap = twin.copy_state()
     spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
-                                configured_noise(config),
-                                config.uncertainty.forecast_replicates, _rng(config, 2))
+                                noise, config.uncertainty.forecast_replicates, _rng(config, 2))
     out["restitution_sd"] = spread["restitution_sd"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
     got = [e for e in spread["restitutions"] if e is not None]

@@ -303,6 +303,9 @@ class Calibration:
     force_noise_cov_S: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     """(3, 3) [N²] covariance of the force readings about the fit, in S: the sensor's
     noise as the calibration measured it (not as configured)."""
+    torque_noise_cov_S: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    """(3, 3) [N²·m²] covariance of the torque about the COM the readings give about the
+    fit (the sensor's torque noise and the lever arm of its force noise), in S."""
 
 
 @dataclass(frozen=True)
@@ -332,6 +335,17 @@ class WrenchProcessor:
     poses and the acceleration it is compensated, shifted and rotated with are those of the
     cycle it was taken in, kept in a short ring.
 
+    Noise floor: a deadband lets the noise through whenever the filtered noise's
+    magnitude crosses it. At the data sheet's noise, the 0.25 N·m torque deadband is about
+    4.4 σ of the filtered COM torque (σ ≈ 0.058 N·m on its largest axis): a crossing every
+    few tens of seconds at rest, each a step of about 6e-5 rad/s of a free-floating
+    CubeSat's spin. So the calibration raises each deadband to ``deadband_noise_sigmas``
+    (6) times the standard deviation, on its largest principal axis, of the noise it
+    measured at rest, passed through the low-pass (white noise: variance × α / (2 − α)).
+    The magnitude of a 3-D Gaussian exceeds 6 σ_max with probability under 1e-7 per
+    sample, about one crossing in 6 hours at 500 Hz: the torque deadband becomes
+    0.35 N·m, the force deadband 4.3 N at the data sheet's noise.
+
     Contact gate: with ``gate_open`` (the lab's geometry says the mockup is touching or
     about to touch another body), the deadbands are lifted, so that a contact force below
     the noise threshold still reaches the ODS whole.
@@ -351,6 +365,11 @@ class WrenchProcessor:
         self.contact_alpha = (self.alpha if config.contact_lowpass_hz is None
                               else lowpass_alpha(config.contact_lowpass_hz, rate_hz))
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
+        self.deadband_force_N = float(config.deadband_force_N)
+        self.deadband_torque_Nm = float(config.deadband_torque_Nm)
+        """The deadbands applied (force N, torque about the COM N·m): the configured
+        ones, raised by the calibration to ``deadband_noise_sigmas`` times the filtered
+        noise it measured where that is larger."""
         self.delay_cycles = int(delay_cycles)
         self.max_age_cycles = self.delay_cycles if max_age_cycles is None \
             else max(int(max_age_cycles), self.delay_cycles)
@@ -405,11 +424,27 @@ class WrenchProcessor:
         mass, bias_f = self._fit_force(readings_S[:, :3], g_F, mass_kg)
         com, bias_t = self._fit_torque(readings_S[:, 3:], mass * g_F, com_F_m)
         residual = readings_S[:, :3] - mass * g_F - bias_f
-        cov = (residual.T @ residual / (len(residual) - 1) if len(residual) > 1
-               else np.zeros((3, 3)))
-        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com, cov)
+        residual_t = (readings_S[:, 3:] - np.cross(com, mass * g_F) - bias_t
+                      - np.cross(com, residual))  # about the COM: τ_S − c × f
+        n = len(residual)
+        cov = residual.T @ residual / (n - 1) if n > 1 else np.zeros((3, 3))
+        cov_t = residual_t.T @ residual_t / (n - 1) if n > 1 else np.zeros((3, 3))
+        self.calibration = Calibration(np.concatenate([bias_f, bias_t]), mass, com, cov,
+                                       cov_t)
+        self.set_deadbands()
         self.reset()
         return self.calibration
+
+    def set_deadbands(self) -> None:
+        """The deadbands from the configuration and the calibration's noise (module
+        doc of :class:`WrenchProcessor`, noise floor)."""
+        cfg, cal = self.config, self.calibration
+        gain = self.alpha / (2.0 - self.alpha)  # white noise through the low-pass
+        floor = [cfg.deadband_noise_sigmas
+                 * math.sqrt(max(0.0, float(np.linalg.eigvalsh(c * gain)[-1])))
+                 for c in (cal.force_noise_cov_S, cal.torque_noise_cov_S)]
+        self.deadband_force_N = max(cfg.deadband_force_N, floor[0])
+        self.deadband_torque_Nm = max(cfg.deadband_torque_Nm, floor[1])
 
     def filtered_force_cov(self, R_X_S: np.ndarray) -> np.ndarray:
         """(3, 3) [N²] covariance of the noise on the chain's filtered force while the
@@ -473,7 +508,7 @@ class WrenchProcessor:
         accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
         T_W_F, T_W_C, accel = self._aligned(T_W_F, T_W_C, accel)
         db_force, db_torque = ((0.0, 0.0) if gate_open
-                               else (cfg.deadband_force_N, cfg.deadband_torque_Nm))
+                               else (self.deadband_force_N, self.deadband_torque_Nm))
         out = np.empty(12)
         args = (np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R, self.gravity_W_mps2,
                 cfg.payload_compensation, accel, cfg.inertial_compensation, cal.bias_S,

@@ -40,6 +40,7 @@ from app.sim.contact_gate import (
     hold_cycles_for,
     newton_consistent,
 )
+from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.coupling import OdsCoupling
 from app.sim.frames import satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
@@ -118,6 +119,12 @@ class Emulator:
                                                  config.loop.rate_hz)) - 1
             self.gate = ContactGate(self.n_sat, config.wrench.contact_gate_margin_m,
                                     hold_cycles_for(config.sensor.delay_cycles + held, alpha))
+        self.contact_fits: dict[tuple[int, int], HuntCrossleyFit] = {}
+        """Per pair of bodies (a < b), its contact's identified Hunt–Crossley law
+        (``[wrench] contact_force = "identified"``)."""
+        self._contact_kinematics: list[dict[tuple[int, int], tuple[float, float]]] = []
+        """Per recent cycle (newest last), each touching pair's (depth m, depth rate m/s)
+        from the mockups' boxes at their FK poses: the readings arrive delayed."""
         self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
                                  self.T_R_W, self.ods.params.orbit_rate_radps)
         self.telemetry = self.recorder.buffer
@@ -274,6 +281,9 @@ class Emulator:
         single = [s for s in np.nonzero(near & self._is_carried & alone)[0]
                   if partner[s] >= 0 and not self._is_carried[partner[s]]]
         contact = self.interaction.contact
+        identified = wrench.contact_force == "identified"
+        fused = {s for pair in pairs for s in pair} if wrench.fuse_pair_contact else set()
+        model_N: dict[tuple[int, int], float] = {}
         for s in [s for pair in pairs for s in pair] + single:
             p = int(partner[s])
             a, b = min(s, p), max(s, p)
@@ -284,7 +294,13 @@ class Emulator:
             if s == a:
                 normal_W = -normal_W  # the contact pushes a along −n, b along +n
             T_W_C = bodies.T_W_C[s]
-            f_W, t_W = contact_wrench_W(self.R_W_R @ force_R[s], normal_W, point_W,
+            force_W = self.R_W_R @ force_R[s]
+            if identified and (s in fused or s in single):
+                f_n = float(force_W @ normal_W)
+                if (a, b) not in model_N:  # a fused pair: one sample, one law
+                    model_N[(a, b)] = self._identified_normal_force(a, b, s, f_n)
+                force_W = force_W + (model_N[(a, b)] - f_n) * normal_W
+            f_W, t_W = contact_wrench_W(force_W, normal_W, point_W,
                                         T_W_C[:3, 3], contact.friction(a, b),
                                         wrench.contact_no_pull)
             force_R[s] = f_W @ self.R_W_R
@@ -305,7 +321,44 @@ class Emulator:
             return np.zeros(self.n_sat, dtype=bool), np.full(self.n_sat, -1)
         clearance, nearest, crowd = self.interaction.contact.clearances(bodies.T_W_C,
                                                                         self.gate.margin_m)
+        if self.config.wrench.contact_force == "identified":
+            self._record_contact_kinematics(clearance, nearest, bodies)
         return self.gate.update(clearance, nearest, crowd), self.gate.partner
+
+    def _record_contact_kinematics(self, clearance: np.ndarray, nearest: np.ndarray,
+                                   bodies: Bodies) -> None:
+        """This cycle's (depth, depth rate) of each overlapping pair, from the signed
+        distance of the mockups' boxes at their FK poses and their FK velocities at the
+        contact point along its normal (ḋ > 0 approaching); kept for as many cycles as a
+        reading can be old."""
+        frames = self.interaction.contact.frames
+        now = {}
+        for a in range(self.n_sat):
+            b = int(nearest[a])
+            if b <= a or clearance[a] >= 0.0 or (a, b) not in frames:
+                continue
+            n, p = frames[(a, b)]
+            v_a = bodies.v_W[a] + np.cross(bodies.w_W[a], p - bodies.T_W_C[a][:3, 3])
+            v_b = bodies.v_W[b] + np.cross(bodies.w_W[b], p - bodies.T_W_C[b][:3, 3])
+            now[(a, b)] = (-float(clearance[a]), float((v_a - v_b) @ n))
+        history = self._contact_kinematics
+        history.append(now)
+        keep = 2 + max((arm.processor.max_age_cycles for arm in self.arms), default=0)
+        if len(history) > keep:
+            del history[0]
+
+    def _identified_normal_force(self, a: int, b: int, s: int, f_n: float) -> float:
+        """The normal force of pair (a, b) by its identified law (app/sim/
+        contact_identification.py), given body s's measured normal force ``f_n`` (N, >0
+        pushing s): the fit takes the sample at the depth and rate of the cycle the
+        reading was taken in and returns its law's force there."""
+        age = self.arms[self._arm_of[s]].sensor.age_cycles
+        history = self._contact_kinematics
+        depth, rate = (history[-1 - age].get((a, b), (0.0, 0.0))
+                       if len(history) > age else (0.0, 0.0))
+        fit = self.contact_fits.setdefault((a, b), HuntCrossleyFit())
+        fit.update(depth, rate, f_n)
+        return fit.predict(depth, rate)
 
     def _gnc_params(self) -> list[tuple[int, GncParams, int | None]]:
         """(satellite, its GNC's parameters in orbit units, the satellite its waypoints are
