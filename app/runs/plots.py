@@ -82,9 +82,12 @@ class Line:
     color: str | None = None
     width: float = 1.0
 
-    def moves(self, min_span: float) -> bool:
+    def moves(self, min_span: float, magnitude: bool = False) -> bool:
+        """Whether the line shows something: it varies by more than FLAT_FRACTION of the
+        panel's least span, or, for a magnitude (an error), reaches that far from 0."""
         y = self.y[np.isfinite(self.y)]
-        return len(y) > 0 and float(np.ptp(y)) > FLAT_FRACTION * min_span
+        size = np.max(np.abs(y)) if magnitude and len(y) else np.ptp(y) if len(y) else 0.0
+        return len(y) > 0 and float(size) > FLAT_FRACTION * min_span
 
 
 @dataclass
@@ -100,9 +103,11 @@ class Panel:
     marks: list[tuple[float, str]] = field(default_factory=list)
     """Vertical lines (time, label): events (a waypoint reached, the capture)."""
     title: str = ""
+    magnitude: bool = False
+    """The lines are magnitudes (an error): a steady value is a finding, not a flat line."""
 
     def shows_something(self) -> bool:
-        return any(line.moves(self.min_span) for line in self.lines)
+        return any(line.moves(self.min_span, self.magnitude) for line in self.lines)
 
 
 @dataclass
@@ -396,7 +401,8 @@ def _tracking_error(run: _Run) -> Figure | None:
     if not lines:
         return None
     return Figure("tracking_error", run.title("tracking_error"),
-                  [Panel("position error [mm]", lines, MIN_SPAN["error_mm"])])
+                  [Panel("position error [mm]", lines, MIN_SPAN["error_mm"],
+                         magnitude=True)])
 
 
 # --- the success criteria's figures (app/runs/success.py): orbit units and time -----------

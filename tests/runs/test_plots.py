@@ -124,7 +124,9 @@ def test_no_figure_is_empty_or_degenerate_and_no_legend_covers_data(runs):
                     assert hi / lo >= 9.99, what
                 else:
                     floor = FLOOR[_unit(ax.get_ylabel())]
-                    assert any(np.ptp(y) > 0.01 * floor for y in curves), what
+                    size = ((lambda y: np.max(np.abs(y))) if "error" in ax.get_ylabel()
+                            else np.ptp)  # an error's steady level is a finding
+                    assert any(size(y) > 0.01 * floor for y in curves), what
                     assert hi - lo >= floor, what
                 box = ax.get_legend().get_window_extent(renderer)
                 assert not box.overlaps(ax.get_window_extent(renderer)), what
@@ -142,9 +144,11 @@ def test_the_tumbling_target_shows_the_target_s_spin(runs):
 
 def test_no_jump_at_the_start_of_the_velocity_figure(runs):
     """The first samples of each plotted velocity continue into the next: the first step
-    is no larger than the largest of the following ones (the mockup starts at rest and
-    accelerates; nothing is differenced against an unset previous value). And the
-    mockup's recorded velocity is its recorded position's rate of change from the start."""
+    is no larger than the largest of the following ones, or than a micrometre a second
+    (the arms ran up to their satellites' velocity before t = 0: the mockup moves with
+    its satellite from the first cycle; nothing is differenced against an unset previous
+    value). And the mockup's recorded velocity is its recorded position's rate of change
+    from the start."""
     result, _ = runs["collision-hil"]
     figure = next(f for f in plan_figures(result.emulator.telemetry.rows(),
                                           result.emulator.telemetry.index,
@@ -153,7 +157,7 @@ def test_no_jump_at_the_start_of_the_velocity_figure(runs):
     for panel in figure.panels:
         for line in panel.lines:
             steps = np.abs(np.diff(line.y[:50]))
-            assert steps[0] <= steps[1:].max() + 1e-12, (panel.ylabel, line.label)
+            assert steps[0] <= max(steps[1:].max(), 1e-6), (panel.ylabel, line.label)
     rows, ix = result.emulator.telemetry.rows(), result.emulator.telemetry.index
     t = rows[:, 0]
     for s in (1, 2):
