@@ -61,11 +61,11 @@ frame's origin (x radial out, y along the track, z orbit normal).
 undoes it), then drag the gizmo. It is a fingertip: it **presses, never pulls**. Drag an
 arrow and the hand presses the grab point that way, **{k_N_per_cm:g} N per cm** it is
 pressed in, at most **{max_N:g} N** (the sensor ignores under {deadband_N:g} N). Held 10 cm
-in for 1 s, satellite 1 gains about **{dv_cm_s:.1f} cm/s**; once it has caught up with the
+in for 1 s, satellite 1 gains up to **{dv_cm_s:.1f} cm/s**; once it has caught up with the
 hand, the hand lets go by itself, and the satellite drifts on the way it was pushed. Turn
 a ring to **twist**: {kt_Nm_per_deg:.2f} N m per degree, at most {max_Nm:g} N m (the
 sensor ignores under {deadband_Nm:g} N m); held 20 degrees for 1 s about z, satellite 1
-spins up by about **{dw_deg_s:.0f} deg/s**, and the twist lets go once it turns ahead.
+spins up by up to **{dw_deg_s:.1f} deg/s**, and the twist lets go once it turns ahead.
 The arm's F/T sensor measures the push; the ODS applies it scaled ({force_scale:g} x
 force, {torque_scale:g} x torque), so off the centre a press also spins the satellite.
 Let go to stop; to push another way, let go and drag again.
@@ -84,16 +84,18 @@ it is (then scaled as above); there is no tracking error to plot.
 
 def hand_numbers(settings: dict) -> dict:
     """What a drag and a twist do, in numbers, for the help text (app/sim/hand.py): the
-    force per cm and the velocity a 10 cm press held 1 s gives satellite 1 (force_scale
-    (k d - deadband) / m), the torque per degree and the spin-up of a 20 degree twist held
-    1 s about z (torque_scale (k_t a - deadband) / I_zz)."""
+    force per cm and the most a 10 cm press held 1 s gives satellite 1 (force_scale k d
+    / m; nothing under the deadband), the torque per degree and the most a 20 degree twist
+    held 1 s spins it up about z (torque_scale k_t a / I_zz). A little less in fact: the
+    satellite gives way as it speeds up (benchmarks/hand_drag.py)."""
     k, fs, ts = settings["hand_stiffness_Npm"], settings["force_scale"], settings["torque_scale"]
     press_N = min(k * 0.10, settings["hand_max_force_N"])
-    dv = fs * max(0.0, press_N - settings["deadband_force_N"]) / settings["satellite1_mass_kg"]
+    passed_N = press_N if press_N > settings["deadband_force_N"] else 0.0
+    dv = fs * passed_N / settings["satellite1_mass_kg"]
     kt = settings["hand_twist_Nmprad"]
     twist_Nm = min(kt * np.radians(20.0), settings["hand_max_torque_Nm"])
-    dw = ts * max(0.0, twist_Nm - settings["deadband_torque_Nm"]) / settings[
-        "satellite1_inertia_kgm2"][2]
+    passed_Nm = twist_Nm if twist_Nm > settings["deadband_torque_Nm"] else 0.0
+    dw = ts * passed_Nm / settings["satellite1_inertia_kgm2"][2]
     return {"k_N_per_cm": k / 100.0, "max_N": settings["hand_max_force_N"],
             "deadband_N": settings["deadband_force_N"], "dv_cm_s": 100.0 * dv,
             "kt_Nm_per_deg": kt * np.pi / 180.0, "max_Nm": settings["hand_max_torque_Nm"],

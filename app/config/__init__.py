@@ -628,9 +628,10 @@ class HandConfig(_Model):
     on the mockup where it grabbed it, never pulls, and a twist that turns it one way.
 
     Pressing: 1 N per cm the hand has moved into the mockup, at most the scripted push's
-    20 N; with free-floating's force scale (a 200 kg satellite in translation) a 5 cm
-    press sends the satellite off at about 3.5 cm/s (d sqrt(k force_scale / m)); under
-    4 cm the F/T deadband (4 N) keeps most of it out. Twisting: 5 N m per rad (0.09 N m
+    20 N; with free-floating's force scale (a 200 kg satellite in translation) a 10 cm
+    press held sends the satellite off at 6.2 cm/s (benchmarks/hand_drag.py; at most
+    d sqrt(k force_scale / m) = 7.1 cm/s); under 4 cm the F/T deadband (4 N) keeps it
+    out. Twisting: 5 N m per rad (0.09 N m
     per degree) of the gizmo's turn, at most 2 N m (the sensor's range is 10 N m, its
     deadband 0.25 N m: about 3 degrees). Both with Hunt-Crossley damping
     F = k d (1 + c d_dot): continuous at first touch, zero on separation."""
