@@ -24,7 +24,7 @@ since the grab, less how far the grab point has. The twist is the same law about
 of the gizmo's first turn, with the angles turned by the gizmo and by the body. A hand
 held still after a drag therefore pushes the mockup until it has caught up with the
 hand's position, then nothing: the satellite leaves at the speed it has (for a press
-of depth d on an effective mass m: about d sqrt(k / m)), never back.
+of depth d on an effective mass m: at most d sqrt(k / m)), never back.
 
 A force at a point r of the body (from its COM) also turns it: the moment about the COM is
 r × F. That is the wrench the mockup feels; the F/T sensor measures it, and the ODS applies
