@@ -39,8 +39,10 @@ def peak_raw_N(scenario: str, direction_R: np.ndarray, seed: int,
     rate = config.loop.rate_hz
     for _ in range(int(0.1 * rate)):
         em.step()
-    em.post(Push(satellite=0, force_R_N=tuple(limit_N * direction_R), duration_s=push_s))
     p_W = em.satellite_pose_W(0)[:3, 3]
+    em.post(HandAnchor(satellite=0, anchor_W_m=tuple(p_W)))  # the hand grabs, then
+    em.step()  # presses 1 m in along the push: at its cap
+    em.post(Push(satellite=0, force_R_N=tuple(limit_N * direction_R), duration_s=push_s))
     em.post(HandAnchor(satellite=0, anchor_W_m=tuple(p_W + em.T_W_R[:3, :3] @ direction_R)))
     arm = next(a for a in em.arms if a.satellite == 0)
     peak = 0.0

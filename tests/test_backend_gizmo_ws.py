@@ -31,8 +31,10 @@ def _encode(message: _messages.Message) -> bytes:
     return msgspec.msgpack.encode(data)
 
 
-async def _drag(port: int, path: list[tuple[float, float, float]], hold_s: float) -> int:
-    """Connect, wait for the scene (the gizmo must exist), drag along `path`, hold, let go.
+async def _drag(port: int, path: list[tuple[float, float, float]], hold_s: float,
+                turns: list[tuple[float, float, float, float]] | None = None) -> int:
+    """Connect, wait for the scene (the gizmo must exist), drag along `path` (turned as
+    `turns` says, square if None), hold, let go.
 
     Returns the number of frames received from the server (it must talk to us).
     """
@@ -53,9 +55,10 @@ async def _drag(port: int, path: list[tuple[float, float, float]], hold_s: float
             await asyncio.sleep(0.05)
         await asyncio.sleep(0.5)
         await ws.send(_encode(_messages.TransformControlsDragStartMessage(name=GIZMO)))
-        for position in path:
+        for k, position in enumerate(path):
             await ws.send(_encode(_messages.TransformControlsUpdateMessage(
-                name=GIZMO, wxyz=(1.0, 0.0, 0.0, 0.0), position=position)))
+                name=GIZMO, wxyz=(1.0, 0.0, 0.0, 0.0) if turns is None else turns[k],
+                position=position)))
             await asyncio.sleep(0.03)
         await asyncio.sleep(hold_s)
         await ws.send(_encode(_messages.TransformControlsDragEndMessage(name=GIZMO)))
@@ -93,17 +96,45 @@ def test_gizmo_drag_over_websocket_moves_the_satellite(live):
     p1_R = np.array(s1["satellites"][0]["position_m"])
     v1_R = np.array(s1["satellites"][0]["velocity_mps"])
     dp = p1_R - p0_R
-    # the hand's spring (k x 0.15 m, capped), x force_scale on the mass, held ~1 s; less the
+    # the hand's press (k x 0.15 m, capped), x force_scale on the mass, held ~1 s; less the
     # F/T deadband and the way the mockup closes on the hand: at least 40 % of that
     cfg = live.app.state.service.config_for("free-floating")
     force_N = min(cfg.hand.stiffness_Npm * 0.15, cfg.hand.max_force_N)
     assert v1_R[1] > 0.4 * cfg.orbit.force_scale * force_N / cfg.satellites[0].mass_kg, v1_R
     assert dp[1] > 0.01, dp
     assert abs(v1_R[0]) < 0.3 * v1_R[1] and abs(v1_R[2]) < 0.3 * v1_R[1], v1_R
-    # letting go stops the push: the velocity stays (free floating), no more pull
+    # letting go stops the push: the velocity stays (free floating), nothing pulls back
     s2 = live.wait_for(lambda s: s["t_s"] > s1["t_s"] + 0.6)
     v2_R = np.array(s2["satellites"][0]["velocity_mps"])
     assert abs(v2_R[1] - v1_R[1]) < 0.2 * v1_R[1], (v1_R, v2_R)
+    live.client.post("/api/stop")
+
+
+def test_a_gizmo_turned_about_z_twists_the_satellite_one_way(live):
+    """The gizmo turned 30 degrees about the lab's z (= R's z here) in 5 steps and held
+    1 s, without moving: the hand twists the mockup about z (k_t x angle, capped at
+    max_torque_Nm), the satellite spins up about z and keeps spinning after the let-go,
+    never back; no push (the position stays)."""
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/free-floating/start", json={"pulses": []}).json()
+    assert s["status"] == "running"
+    live.wait_for_scene()
+    s0 = live.wait_for(lambda s: s["t_s"] > 0.2)
+    mockup_W = tuple(float(v) for v in s0["robots"][0]["mockup_position_W_m"])
+    angles = np.radians([6.0 * k for k in range(1, 6)])
+    turns = [(float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2))) for a in angles]
+    asyncio.run(_drag(live.port, [mockup_W] * 5, hold_s=1.0, turns=turns))
+    s1 = live.state()
+    w1 = np.array(s1["satellites"][0]["omega_radps"])
+    cfg = live.app.state.service.config_for("free-floating")
+    izz = cfg.satellites[0].principal_inertia()[2]
+    rate_max = cfg.orbit.torque_scale * cfg.hand.max_torque_Nm / izz  # rad/s^2 at the cap
+    assert 0.02 < w1[2] < rate_max * 1.6, w1  # ~1.3 s of twisting at most
+    assert np.hypot(w1[0], w1[1]) < 0.2 * w1[2], w1
+    s2 = live.wait_for(lambda s: s["t_s"] > s1["t_s"] + 1.0)
+    w2 = np.array(s2["satellites"][0]["omega_radps"])
+    assert abs(w2[2] - w1[2]) < 0.1 * w1[2], (w1, w2)  # let go: it spins on
+    assert np.linalg.norm(s2["satellites"][0]["velocity_mps"]) < 1e-3
     live.client.post("/api/stop")
 
 

@@ -951,3 +951,82 @@ def test_the_state_warns_of_a_course_that_leaves_the_arm_s_reach(live):
                         r"shoulder\)|safety volume) in \d+\.\d s: the run stops then unless "
                         r"a push brakes it", warning), warning
     live.client.post("/api/stop")
+
+
+def test_a_push_s_torque_spins_the_satellite_and_bad_torques_change_nothing(live):
+    """POST /api/push with torque_Nm (body axes): free-floating in hil, a 1 N m twist
+    about body z for 0.5 s spins the satellite up by torque_scale x 1 N m x 0.5 s / I_zz
+    (Eq. 7, 0.0375 rad/s; the sensor's 0.25 N m deadband passes it whole), not moving
+    it. Beyond the sensor's 10 N m range, beyond the twist limit (the F/T torque range
+    less the weight's moment, bias, noise and the hand) or the angular-velocity change
+    the arm follows, 422 with the exact reason, and nothing is pushed; a force-only push
+    still answers as before, with a zero torque."""
+    live.client.post("/api/reset")
+    s = live.client.post("/api/scenarios/free-floating/start",
+                         json={"mode": "hil", "loop": {"duration_s": 8.0}}).json()
+    assert s["status"] == "running", s
+    cfg = live.app.state.service.config_for("free-floating")
+    sensor, inertia = cfg.sensor, cfg.satellites[0].principal_inertia()
+    lever = np.linalg.norm(cfg.robots[0].mockup_offset_m)  # 0.07 m
+    hand_Nm = cfg.hand.max_torque_Nm + cfg.hand.max_force_N * (
+        lever + 0.5 * np.linalg.norm(cfg.satellites[0].size_m))
+    twist_limit = (sensor.range_torque_Nm - 1.0 * 9.81 * lever
+                   - np.linalg.norm(sensor.bias_torque_Nm) - 6.0 * sensor.noise_torque_Nm
+                   - hand_Nm)
+    assert s["twist_limits_Nm"][0] == pytest.approx(twist_limit, abs=1e-3)
+    assert s["push_max_dw_radps"] == [0.24]
+    s0 = live.wait_for(lambda s: s["t_s"] >= 0.3)
+    bad = [
+        ({"torque_Nm": [0.0, 0.0, 11.0]},
+         "torque_Nm: magnitude 11.00 N m exceeds the sensor range 10 N m"),
+        ({"torque_Nm": [6.0, 8.0, 0.1]},
+         "torque_Nm: magnitude 10.00 N m exceeds the sensor range 10 N m"),
+        ({"torque_Nm": [0.0, 0.0, 3.0]},
+         f"torque_Nm: magnitude 3.00 N m exceeds satellite 1's twist limit "
+         f"{twist_limit:.2f} N m (the F/T sensor's 10 N m range less the mockup's weight's "
+         f"moment 0.69 N m, the bias 0.06 N m, 6 sigma of noise 0.40 N m and the hand's "
+         f"{hand_Nm:.2f} N m)"),
+        ({"torque_Nm": [0.0, 0.0, 1.0], "force_N": [0.0, 30.0, 0.0]},  # 1 + 2.1 N m
+         f"torque_Nm: magnitude {1.0 + 30.0 * lever:.2f} N m (with its force's moment "
+         f"{30.0 * lever:.2f} N m about the sensor) exceeds satellite 1's twist limit "
+         f"{twist_limit:.2f} N m"),
+        ({"torque_Nm": [2.0, 0.0, 0.0], "duration_s": 2.0},
+         f"torque_Nm, duration_s: the push changes satellite 1's angular velocity by up to "
+         f"{cfg.orbit.torque_scale * 2.0 * 2.0 / inertia.min():.3f} rad/s, beyond its "
+         f"angular-velocity-change limit 0.240 rad/s (0.5 of the smallest angular-velocity "
+         f"step an arm followed less well, scaled to the 250 mrad attitude bound, "
+         f"benchmarks/twist_follow.py; the change is at most torque_scale x (|torque| + "
+         f"|point| |force|) x duration / the smallest moment of inertia)"),
+    ]
+    for extra, message in bad:
+        body = {"satellite": 1, "force_N": [0.0, 0.0, 0.0], "duration_s": 0.5, **extra}
+        r = live.client.post("/api/push", json=body)
+        assert r.status_code == 422, (extra, r.text)
+        assert r.json()["detail"].startswith(message), (extra, r.json())
+    for raw, field in [
+        ('{"satellite": 1, "force_N": [0, 0, 0], "duration_s": 0.3, "torque_Nm": [0, 1]}',
+         "torque_Nm"),
+        ('{"satellite": 1, "force_N": [0, 0, 0], "duration_s": 0.3, "torque_Nm": [0, 1, '
+         'NaN]}', "torque_Nm"),
+        ('{"satellite": 1, "force_N": [0, 0, 0], "duration_s": 0.3, "torque_Nm": "1"}',
+         "torque_Nm"),
+    ]:
+        r = _post_raw(live, "/api/push", raw)
+        assert r.status_code == 422 and field in r.text, (raw, r.text)
+    s1 = live.state()
+    assert s1["generation"] == s0["generation"] and s1["status"] == "running"
+    assert np.linalg.norm(s1["satellites"][0]["omega_radps"]) < 1e-6  # nothing got through
+    r = live.client.post("/api/push", json={"satellite": 1, "force_N": [0.0, 0.0, 0.0],
+                                             "duration_s": 0.5, "torque_Nm": [0.0, 0.0, 1.0]})
+    assert r.status_code == 200, r.text
+    assert r.json()["torque_Nm"] == [0.0, 0.0, 1.0]
+    after = live.wait_for(lambda s: s["t_s"] >= r.json()["t_s"] + 1.0)
+    omega = np.array(after["satellites"][0]["omega_radps"])
+    expected = cfg.orbit.torque_scale * 1.0 * 0.5 / inertia[2]
+    assert omega[2] == pytest.approx(expected, rel=0.1), omega
+    assert np.hypot(omega[0], omega[1]) < 0.1 * expected, omega
+    assert np.linalg.norm(after["satellites"][0]["velocity_mps"]) < 1e-3  # a twist only
+    r = live.client.post("/api/push", json={"satellite": 1, "force_N": [0.0, 5.0, 0.0],
+                                             "duration_s": 0.1})  # force-only, as before
+    assert r.status_code == 200 and r.json()["torque_Nm"] == [0.0, 0.0, 0.0], r.text
+    live.client.post("/api/stop")

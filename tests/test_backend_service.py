@@ -246,6 +246,35 @@ def test_the_push_limit_keeps_room_for_weight_bias_noise_hand_and_overlapping_pu
     assert push_limit(heavy, 0)[0] == 0.0  # a mockup too heavy for any push: never negative
 
 
+def test_the_twist_limit_keeps_room_for_the_weight_s_moment_bias_noise_and_the_hand():
+    """twist_limit: the sensor's torque range less m |g| |mockup_offset| (the weight's
+    moment about the sensor), |bias|, 6 sigma of noise, the gizmo's twist cap and its
+    press cap at the box's far corner (lever + half diagonal); never negative.
+    push_max_dw scales with the attitude bound."""
+    from app.backend.service import push_max_dw, twist_limit
+    from app.config import merge_overrides
+    from app.scenarios import load_scenario
+
+    cfg = merge_overrides(load_scenario("free-floating"), {
+        "sensor": {"range_torque_Nm": 12.0, "bias_torque_Nm": [0.3, 0.0, 0.4],
+                   "noise_torque_Nm": 0.05},
+        "hand": {"max_force_N": 10.0, "max_torque_Nm": 1.0},
+        "lab": {"gravity_mps2": [0.0, 0.0, -10.0]},
+        "satellites": {"0": {"mass_kg": 2.0, "size_m": [0.2, 0.2, 0.1]}},
+        "robots": {"0": {"mockup_offset_m": [0.0, 0.0, 0.1]}}})
+    hand = 1.0 + 10.0 * (0.1 + 0.15)  # the far corner: 0.5 |(0.2, 0.2, 0.1)| = 0.15 m
+    expected = 12.0 - 2.0 * 10.0 * 0.1 - 0.5 - 6 * 0.05 - hand
+    limit, why = twist_limit(cfg, 0)
+    assert limit == pytest.approx(expected)
+    assert why == ("the F/T sensor's 12 N m range less the mockup's weight's moment 2.00 N m, "
+                   "the bias 0.50 N m, 6 sigma of noise 0.30 N m and the hand's 3.50 N m")
+    heavy = merge_overrides(cfg, {"satellites": {"0": {"mass_kg": 20.0}}})
+    assert twist_limit(heavy, 0)[0] == 0.0
+    assert push_max_dw(cfg)[0] == pytest.approx(0.24)
+    tight = merge_overrides(cfg, {"loop": {"max_tracking_error_rad": 0.125}})
+    assert push_max_dw(tight)[0] == pytest.approx(0.12)
+
+
 def test_a_push_s_course_leaves_where_the_straight_line_does_and_bends_under_a_fast_orbit():
     """course_exit: at the real orbit rate (800 km, 1e-3 rad/s) the CW course over 5 s is
     the straight line, so it leaves the reach when seconds_until_beyond says (within its

@@ -89,7 +89,7 @@ def test_a_safety_stop_exits_3_and_names_the_collision_it_never_reached(tmp_path
     assert "error: the run ended in a safety stop at t = " in proc.stderr
     metrics = json.loads((out / "metrics.json").read_text())
     stop = metrics["safety_stop"]
-    assert stop["reason"].startswith("tracking error ") and stop["t_s"] < 3.0
+    assert stop["reason"].startswith("tracking error: position ") and stop["t_s"] < 3.0
     assert metrics["collision"] is None
     [warning] = metrics["warnings"]
     assert warning.startswith("in the ideal run sat1 and sat2 collide at t = 3.1")

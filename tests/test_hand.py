@@ -1,4 +1,5 @@
-"""The operator's hand (app/sim/hand.py): scripted pulses, pushes and the gizmo's spring."""
+"""The operator's hand (app/sim/hand.py): scripted pulses, pushes and the gizmo's
+unilateral press and twist."""
 
 from __future__ import annotations
 
@@ -141,59 +142,187 @@ def test_bad_satellite_index_raises_and_changes_nothing(command, message):
 # --- the gizmo -------------------------------------------------------------------------------
 
 
-def test_gizmo_is_a_spring_from_the_anchor_to_the_com():
+def _grab(hand, sat: int, travel_W, point_B=(0.0, 0.0, 0.0), t: float = 0.0):
+    """Grab satellite `sat` at point_B (the gizmo there), then move the hand by travel_W:
+    the force's wrench at t + DT."""
+    start = P_W_C[sat] + R_W_C[sat] @ np.asarray(point_B)
+    hand.post(HandAnchor(satellite=sat, anchor_W_m=tuple(start), point_B_m=tuple(point_B)))
+    hand.update(t)
+    hand.wrenches_W(t, P_W_C, R_W_C)  # the grab: the fingertip touches the point
+    hand.post(HandAnchor(satellite=sat, anchor_W_m=tuple(start + np.asarray(travel_W)),
+                         point_B_m=tuple(point_B)))
+    hand.update(t + DT)
+    return start
+
+
+def test_the_gizmo_presses_the_grab_point_by_hunt_crossley_along_its_travel():
+    """Pressed in by d along the hand's travel n, the body still: F = k d n (Hunt-Crossley
+    at zero rate); moving towards the hand at v, F = k d (1 + c v) n."""
     hand, _ = _hand()
-    offset = np.array([0.05, -0.1, 0.02])  # k |offset| = 22.9 N, under the saturation
-    hand.post(HandAnchor(satellite=1, anchor_W_m=tuple(P_W_C[1] + offset)))
-    hand.update(0.0)
-    w = hand.wrenches_W(0.0, P_W_C, R_W_C)
-    np.testing.assert_allclose(w[1, :3], HAND.stiffness_Npm * offset, atol=1e-12)
+    travel = np.array([0.03, -0.04, 0.0])  # 5 cm: k d = 10 N, under the 60 N cap
+    _grab(hand, 1, travel)
+    w = hand.wrenches_W(DT, P_W_C, R_W_C)
+    np.testing.assert_allclose(w[1, :3], HAND.stiffness_Npm * travel, atol=1e-12)
     np.testing.assert_array_equal(w[1, 3:], 0.0)
     np.testing.assert_array_equal(w[0], 0.0)
-    # the mockup moves towards the anchor: the spring relaxes, same law
-    p = P_W_C.copy()
-    p[1] += 0.5 * offset
-    w = hand.wrenches_W(0.0, p, R_W_C)
-    np.testing.assert_allclose(w[1, :3], HAND.stiffness_Npm * 0.5 * offset, atol=1e-12)
+    n = travel / 0.05
+    v = np.zeros((2, 3))
+    v[1] = -0.2 * n  # the body runs into the hand at 0.2 m/s
+    w = hand.wrenches_W(2 * DT, P_W_C, R_W_C, v, np.zeros((2, 3)))
+    expected = HAND.stiffness_Npm * 0.05 * (1.0 + HAND.damping_spm * 0.2)
+    np.testing.assert_allclose(w[1, :3], expected * n, atol=1e-12)
 
 
-def test_gizmo_force_saturates_at_max_force_keeping_its_direction():
+def test_the_gizmo_never_pulls_and_lets_go_when_the_satellite_runs_ahead():
+    """The hand pressed 5 cm along n (k = 200 N/m: 10 N). As the body gives way along
+    n the press relaxes; once the grab point has passed the hand the force is zero (no
+    pull back), and a body moving away faster than 1 / c is not pulled either (the
+    damping term would turn the force negative: it is clipped at zero). A drag back,
+    against n, gives no force: the hand only presses."""
     hand, _ = _hand()
-    offset = np.array([0.6, 0.8, 0.0])  # 1 m: k |offset| = 200 N > 60 N
-    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(P_W_C[0] + offset)))
+    n = np.array([1.0, 0.0, 0.0])
+    start = _grab(hand, 0, 0.05 * n)
+    p = P_W_C.copy()
+    for ahead, expected in ((0.0, 10.0), (0.02, 6.0), (0.05, 0.0), (0.08, 0.0), (1.0, 0.0)):
+        p[0] = P_W_C[0] + ahead * n
+        f = hand.wrenches_W(DT, p, R_W_C)[0, :3]
+        np.testing.assert_allclose(f, expected * n, atol=1e-12)
+    p[0] = P_W_C[0] + 0.02 * n
+    v = np.zeros((2, 3))
+    v[0] = 1.0 / HAND.damping_spm * 1.5 * n  # separating fast
+    np.testing.assert_array_equal(hand.wrenches_W(DT, p, R_W_C, v, np.zeros((2, 3))), 0.0)
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(start - 0.1 * n)))  # dragged back
+    hand.update(2 * DT)
+    np.testing.assert_array_equal(hand.wrenches_W(2 * DT, P_W_C, R_W_C), 0.0)
+    # a sideways drag after the direction is set presses only with its part along n
+    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(start + [0.03, 0.2, 0.0])))
+    hand.update(3 * DT)
+    np.testing.assert_allclose(hand.wrenches_W(3 * DT, P_W_C, R_W_C)[0, :3],
+                               [6.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_the_press_is_continuous_in_depth_and_rate():
+    """Hunt-Crossley with a clip at zero: the force along n is continuous across first
+    touch (d = 0), across the clip (1 + c d_dot = 0) and at the cap, never negative."""
+    hand, _ = _hand()
+    n = np.array([0.0, 0.0, 1.0])
+    _grab(hand, 0, 0.1 * n)
+    depths = np.linspace(-0.02, 0.5, 2001)  # body behind/ahead of the hand: 0.1 - depth
+    rates = np.linspace(-1.5, 0.5, 7)
+    for rate in rates:
+        forces = []
+        for d in depths:
+            p = P_W_C.copy()
+            p[0] = P_W_C[0] + (0.1 - d) * n
+            v = np.zeros((2, 3))
+            v[0] = -rate * n
+            forces.append(hand.wrenches_W(DT, p, R_W_C, v, np.zeros((2, 3)))[0, 2])
+        forces = np.array(forces)
+        assert forces.min() >= 0.0 and forces.max() <= HAND.max_force_N + 1e-12
+        step = depths[1] - depths[0]
+        slope = HAND.stiffness_Npm * (1.0 + HAND.damping_spm * max(rate, 0.0))
+        assert np.max(np.abs(np.diff(forces))) <= slope * step * (1 + 1e-9)  # Lipschitz
+
+
+def test_the_press_saturates_at_max_force():
+    hand, _ = _hand()
+    n = np.array([0.6, 0.8, 0.0])
+    _grab(hand, 0, 1.0 * n)  # k d = 200 N > 60 N
+    f = hand.wrenches_W(DT, P_W_C, R_W_C)[0, :3]
+    np.testing.assert_allclose(f, HAND.max_force_N * n, atol=1e-12)
+
+
+def test_a_free_body_pressed_and_held_leaves_along_the_press_never_back():
+    """A 200 kg body (free-floating's lab-equivalent mass) pressed 10 cm along +x, the
+    hand then held still for 30 s: the body accelerates until it has caught up with the
+    hand, then the hand lets go; its velocity never decreases and ends at the closed form
+    of a Hunt-Crossley press, a little under d sqrt(k / m) (the damping's share)."""
+    cfg = EmulatorConfig(satellites=[SatelliteConfig(name="alpha")],
+                         hand=HandConfig(stiffness_Npm=100.0, max_force_N=20.0))
+    hand = OperatorHand(cfg, np.eye(3))
+    m, dt = 200.0, 0.002
+    p, v = np.zeros((1, 3)), np.zeros((1, 3))
+    R = np.eye(3)[None]
+    hand.post(HandAnchor(0, (0.0, 0.0, 0.0)))
     hand.update(0.0)
-    f = hand.wrenches_W(0.0, P_W_C, R_W_C)[0, :3]
-    assert np.linalg.norm(f) == pytest.approx(HAND.max_force_N)
-    np.testing.assert_allclose(f, HAND.max_force_N * offset, atol=1e-12)  # |offset| = 1
+    hand.wrenches_W(0.0, p, R, v, np.zeros((1, 3)))
+    hand.post(HandAnchor(0, (0.1, 0.0, 0.0)))
+    vx, t = [], dt
+    for _ in range(int(30.0 / dt)):
+        hand.update(t)
+        f = hand.wrenches_W(t, p, R, v, np.zeros((1, 3)))[0, :3]
+        v = v + f / m * dt
+        p = p + v * dt
+        vx.append(v[0, 0])
+        t += dt
+    vx = np.array(vx)
+    assert np.all(np.diff(vx) >= 0.0)  # never pulled back
+    undamped = 0.1 * np.sqrt(100.0 / m)  # 7.07 cm/s
+    assert 0.9 * undamped < vx[-1] <= undamped
+    assert p[0, 0] > 0.1 + 25.0 * 0.9 * undamped  # long past the hand, let go
+
+
+def test_the_gizmo_turned_twists_about_its_axis_and_never_back():
+    """The gizmo turned by a about an axis: a torque k_t a about it (no force); once the
+    body has turned further than the gizmo, none."""
+    hand, _ = _hand()
+    axis = np.array([0.0, 0.6, 0.8])
+    start = P_W_C[1]
+    hand.post(HandAnchor(1, tuple(start), attitude_W_wxyz=(1.0, 0.0, 0.0, 0.0)))
+    hand.update(0.0)
+    hand.wrenches_W(0.0, P_W_C, R_W_C)
+    hand.post(HandAnchor(1, tuple(start), attitude_W_wxyz=tuple(rotvec_to_quat(0.2 * axis))))
+    hand.update(DT)
+    w = hand.wrenches_W(DT, P_W_C, R_W_C)
+    np.testing.assert_array_equal(w[1, :3], 0.0)
+    np.testing.assert_allclose(w[1, 3:], HAND.twist_stiffness_Nmprad * 0.2 * axis, atol=1e-12)
+    R = R_W_C.copy()
+    R[1] = rotvec_to_matrix(0.15 * axis) @ R_W_C[1]  # the body turned 0.15 rad after it
+    w = hand.wrenches_W(2 * DT, P_W_C, R)
+    np.testing.assert_allclose(w[1, 3:], HAND.twist_stiffness_Nmprad * 0.05 * axis,
+                               atol=1e-12)
+    for k in range(1, 10):  # the body runs ahead, 1 rad a cycle: past whole turns
+        R[1] = rotvec_to_matrix((0.15 + k) * axis) @ R_W_C[1]
+        np.testing.assert_array_equal(hand.wrenches_W((2 + k) * DT, P_W_C, R)[1], 0.0)
+
+
+def test_a_grab_at_a_point_presses_there_and_turns_the_body():
+    """The hand holds the mockup at r_B: the press acts at that point (not the COM), so
+    a press across the body's surface turns it: moment r × F."""
+    hand, _ = _hand()
+    r_B = np.array([0.1, 0.0, 0.0])
+    _grab(hand, 0, np.array([0.0, 0.0, 0.05]), point_B=r_B)
+    w = hand.wrenches_W(DT, P_W_C, R_W_C)[0]
+    push = HAND.stiffness_Npm * np.array([0.0, 0.0, 0.05])
+    np.testing.assert_allclose(w[:3], push, atol=1e-12)
+    np.testing.assert_allclose(w[3:], np.cross(R_W_C[0] @ r_B, push), atol=1e-12)
 
 
 def test_gizmo_adds_to_a_push_on_the_same_satellite():
     hand, R_W_R = _hand()
-    offset = np.array([0.0, 0.0, 0.1])
-    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(P_W_C[0] + offset)))
-    hand.post(Push(0, (5.0, 0.0, 0.0), 1.0))
-    hand.update(0.0)
-    f = hand.wrenches_W(0.0, P_W_C, R_W_C)[0, :3]
-    np.testing.assert_allclose(f, R_W_R @ [5.0, 0.0, 0.0] + HAND.stiffness_Npm * offset,
-                               atol=1e-12)
+    hand.post(Push(0, (5.0, 0.0, 0.0), 1.0, torque_B_Nm=(0.0, 0.0, 0.5)))
+    _grab(hand, 0, np.array([0.0, 0.0, 0.1]))
+    w = hand.wrenches_W(DT, P_W_C, R_W_C)[0]
+    np.testing.assert_allclose(w[:3], R_W_R @ [5.0, 0.0, 0.0] + [0.0, 0.0, 20.0], atol=1e-12)
+    np.testing.assert_allclose(w[3:], R_W_C[0] @ [0.0, 0.0, 0.5], atol=1e-12)
 
 
-def test_anchor_none_lets_go_and_a_new_anchor_replaces_the_old():
+def test_anchor_none_lets_go_and_a_new_grab_starts_afresh():
     hand, _ = _hand()
-    hand.post(HandAnchor(satellite=1, anchor_W_m=(0.0, 0.0, 0.0)))
-    hand.update(0.0)
-    assert not hand.idle(0.0)
-    hand.post(HandAnchor(satellite=1, anchor_W_m=tuple(P_W_C[1] + [0.1, 0.0, 0.0])))
-    hand.update(DT)
+    start = _grab(hand, 1, np.array([0.1, 0.0, 0.0]))
     np.testing.assert_allclose(hand.wrenches_W(DT, P_W_C, R_W_C)[1, :3], [20.0, 0.0, 0.0])
     hand.post(HandAnchor(satellite=1, anchor_W_m=None))
     assert not hand.idle(DT)  # posted, not yet applied
     hand.update(2 * DT)
     assert hand.idle(2 * DT)
     np.testing.assert_array_equal(hand.wrenches_W(2 * DT, P_W_C, R_W_C), 0.0)
-    hand.post(HandAnchor(satellite=0, anchor_W_m=None))  # letting go of nothing is harmless
+    # grabbed again where the hand was: that is the new touch, no force until it moves
+    hand.post(HandAnchor(satellite=1, anchor_W_m=tuple(start + [0.1, 0.0, 0.0])))
     hand.update(3 * DT)
-    assert hand.idle(3 * DT)
+    np.testing.assert_array_equal(hand.wrenches_W(3 * DT, P_W_C, R_W_C), 0.0)
+    hand.post(HandAnchor(satellite=0, anchor_W_m=None))  # letting go of nothing is harmless
+    hand.update(4 * DT)
+    assert not hand.idle(4 * DT)
 
 
 # --- idle ------------------------------------------------------------------------------------
@@ -214,7 +343,7 @@ def test_idle_means_no_pulse_push_or_gizmo_acts():
     assert not hand.idle(3.0 + DT)
     hand.update(3.0 + 2 * DT)
     assert hand.idle(3.0 + 2 * DT)
-    # an anchor counts even where its spring is relaxed (the hand holds the mockup)
+    # a grip counts even where it does not press (the hand holds the mockup)
     hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(P_W_C[0])))
     hand.update(4.0)
     assert not hand.idle(4.0)
@@ -277,25 +406,6 @@ def test_a_push_at_a_point_adds_the_moment_r_cross_f_about_the_com():
     np.testing.assert_array_equal(w[0], np.zeros(6))
 
 
-def test_the_gizmo_spring_pulls_the_grab_point_and_turns_the_body():
-    """The hand holds the mockup at r_B: the spring runs from its anchor to that point
-    (not the COM), so a pull along the body's surface turns it."""
-    hand, _ = _hand()
-    r_B = np.array([0.1, 0.0, 0.0])
-    grab_W = P_W_C[0] + R_W_C[0] @ r_B
-    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(grab_W), point_B_m=tuple(r_B)))
-    hand.update(0.0)
-    np.testing.assert_allclose(hand.wrenches_W(0.0, P_W_C, R_W_C)[0], np.zeros(6),
-                               atol=1e-12)  # held where it was grabbed: no force
-    pull = np.array([0.0, 0.0, 0.05])  # 5 cm up
-    hand.post(HandAnchor(satellite=0, anchor_W_m=tuple(grab_W + pull), point_B_m=tuple(r_B)))
-    hand.update(0.01)
-    w = hand.wrenches_W(0.01, P_W_C, R_W_C)[0]
-    np.testing.assert_allclose(w[:3], HAND.stiffness_Npm * pull, atol=1e-12)
-    np.testing.assert_allclose(w[3:], np.cross(R_W_C[0] @ r_B, HAND.stiffness_Npm * pull),
-                               atol=1e-12)
-
-
 @pytest.mark.parametrize(
     ("origin", "direction", "hit"),
     [
@@ -329,3 +439,20 @@ def test_a_bad_point_is_refused_where_it_is_made(point):
         Push(satellite=0, force_R_N=(1.0, 0.0, 0.0), duration_s=0.1, point_B_m=point)
     with pytest.raises(ValueError, match="point_B_m: must be 3"):
         HandAnchor(satellite=0, anchor_W_m=(0.0, 0.0, 1.0), point_B_m=point)
+
+
+def test_a_push_s_torque_acts_in_body_axes_and_a_bad_one_is_refused():
+    hand, _ = _hand()
+    hand.post(Push(1, (0.0, 0.0, 0.0), 0.1, torque_B_Nm=(0.0, 0.0, 2.0)))
+    hand.update(0.0)
+    w = hand.wrenches_W(0.0, P_W_C, R_W_C)
+    np.testing.assert_allclose(w[1], [0, 0, 0, *(R_W_C[1] @ [0.0, 0.0, 2.0])], atol=1e-12)
+    with pytest.raises(ValueError, match="torque_B_Nm: must be 3 finite numbers"):
+        Push(0, (0.0, 0.0, 0.0), 0.1, torque_B_Nm=(0.0, float("nan"), 0.0))
+
+
+@pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (1.0, 0.0, float("inf"), 0.0),
+                               (1.0, 0.0, 0.0)])
+def test_a_bad_gizmo_attitude_is_refused(q):
+    with pytest.raises(ValueError, match="attitude_W_wxyz: must be 4 finite numbers, not all"):
+        HandAnchor(satellite=0, anchor_W_m=(0.0, 0.0, 1.0), attitude_W_wxyz=q)

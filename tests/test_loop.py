@@ -1,6 +1,7 @@
 """The emulation loop and the two scenarios, end to end through the loop's API and the CLI."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -12,7 +13,7 @@ from app.config import merge_overrides
 from app.runs.headless import run_scenario
 from app.scenarios import load_scenario, scenario_descriptions
 from app.sim.hand import Push
-from app.sim.loop import Emulator
+from app.sim.loop import Emulator, tracking_stop_reason
 from app.sim.orbital import OrbitalSimulator
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
@@ -249,6 +250,41 @@ def test_running_a_finished_run_again_adds_no_row():
     assert em.status == "finished" and em.telemetry.count == rows == em.cycles + 1
 
 
+def test_a_twist_the_arm_lags_in_attitude_stops_naming_the_attitude():
+    """[loop] max_tracking_error_rad: a 2 N m twist (a push's torque, body z) on the
+    free-floating satellite turns it faster than the arm turns the mockup at first; with
+    a 0.1 mrad bound the stop names the attitude, its value and its limit, the position
+    within its own."""
+    cfg = merge_overrides(load_scenario("free-floating"),
+                          {"loop": {"max_tracking_error_rad": 1e-4}})
+    em = Emulator(cfg)
+    for _ in range(250):
+        em.step()
+    em.post(Push(0, (0.0, 0.0, 0.0), 0.5, torque_B_Nm=(0.0, 0.0, 2.0)))
+    for _ in range(500):
+        em.step()
+    assert em.status == "safety_stop"
+    reason = em.safety_stop["reason"]
+    match = re.fullmatch(r"tracking error: attitude (\d+\.\d+) mrad exceeds its limit "
+                         r"0\.1 mrad \(position (\d+\.\d+) mm within 50 mm\)", reason)
+    assert match, reason
+    assert float(match[1]) > 0.1 and float(match[2]) < 50.0
+
+
+@pytest.mark.parametrize(("d_m", "d_rad", "expected"), [
+    (0.0612, 0.0791, "tracking error: position 61.2 mm exceeds its limit 50 mm (attitude "
+                     "79.1 mrad within 250 mrad)"),
+    (0.01, 0.3, "tracking error: attitude 300.0 mrad exceeds its limit 250 mrad (position "
+                "10.0 mm within 50 mm)"),
+    (0.06, 0.3, "tracking error: position 60.0 mm exceeds its limit 50 mm and attitude "
+                "300.0 mrad exceeds its limit 250 mrad"),
+    (0.05004, 0.0791, "tracking error: position 50.04 mm exceeds its limit 50 mm (attitude "
+                      "79.1 mrad within 250 mrad)"),  # never "50.0 exceeds 50"
+])
+def test_the_tracking_stop_names_the_limit_that_tripped(d_m, d_rad, expected):
+    assert tracking_stop_reason(d_m, d_rad, 0.05, 0.25) == expected
+
+
 def test_a_mockup_that_no_longer_shows_its_satellite_stops_the_run():
     """[loop] max_tracking_error_m: beyond it the arm cannot show the orbit: a stop, named."""
     cfg = merge_overrides(load_scenario("free-floating-scripted"),
@@ -256,8 +292,12 @@ def test_a_mockup_that_no_longer_shows_its_satellite_stops_the_run():
     em = Emulator(cfg)
     em.run(3.0)  # the first push (1.0-1.3 s) makes the arm lag by more than 0.1 mm
     assert em.status == "safety_stop"
-    assert em.safety_stop["reason"].startswith("tracking error ")
-    assert "beyond 0.1 mm / 250 mrad" in em.safety_stop["reason"]
+    reason = em.safety_stop["reason"]  # the position tripped, the attitude did not
+    match = re.fullmatch(r"tracking error: position (\d+\.\d+) mm exceeds its limit 0\.1 mm "
+                         r"\(attitude (\d+\.\d+) mrad within 250 mrad\)", reason)
+    assert match, reason
+    assert float(match[1]) > 0.1 and float(match[2]) < 250.0
+    assert float(match[1]) != 0.1  # enough decimals not to read "0.1 exceeds 0.1"
     assert 1.0 < em.safety_stop["t_s"] < 1.4
     rows = em.telemetry.rows()
     assert rows[-1, 0] == pytest.approx(em.safety_stop["t_s"])  # kept up to the stop

@@ -373,6 +373,13 @@ class LoopCore:
                 "duration_s": cfg.loop.duration_s,
                 "hand_stiffness_Npm": cfg.hand.stiffness_Npm,
                 "hand_max_force_N": cfg.hand.max_force_N,
+                "hand_twist_Nmprad": cfg.hand.twist_stiffness_Nmprad,
+                "hand_max_torque_Nm": cfg.hand.max_torque_Nm,
+                "deadband_force_N": cfg.wrench.deadband_force_N,
+                "deadband_torque_Nm": cfg.wrench.deadband_torque_Nm,
+                "satellite1_mass_kg": cfg.satellites[0].mass_kg,
+                "satellite1_inertia_kgm2": [float(v) for v in
+                                            cfg.satellites[0].principal_inertia()],
                 "force_scale": scaling.force_scale, "torque_scale": scaling.torque_scale,
                 "scaling": summary_line(cfg),
             },

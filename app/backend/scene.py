@@ -58,12 +58,17 @@ mockup on it. Coloured lines: each satellite's course. Orange box: an arm's safe
 frame's origin (x radial out, y along the track, z orbit normal).
 
 **Your hand.** Click a mockup to grab it there (a red dot; "Grab at the centre" below
-undoes it), then drag the gizmo's arrows: the hand is a spring from the gizmo to the grab
-point, **{k_N_per_cm:g} N per cm** of stretch, at most **{max_N:g} N** (the sensor
-ignores under 4 N). The arm's F/T
-sensor measures that push; the ODS applies it scaled ({force_scale:g} × force,
-{torque_scale:g} × torque), so off the centre a push also spins the satellite. Let go to
-stop pushing.
+undoes it), then drag the gizmo. It is a fingertip: it **presses, never pulls**. Drag an
+arrow and the hand presses the grab point that way, **{k_N_per_cm:g} N per cm** it is
+pressed in, at most **{max_N:g} N** (the sensor ignores under {deadband_N:g} N). Held 10 cm
+in for 1 s, satellite 1 gains up to **{dv_cm_s:.1f} cm/s**; once it has caught up with the
+hand, the hand lets go by itself, and the satellite drifts on the way it was pushed. Turn
+a ring to **twist**: {kt_Nm_per_deg:.2f} N m per degree, at most {max_Nm:g} N m (the
+sensor ignores under {deadband_Nm:g} N m); held 20 degrees for 1 s about z, satellite 1
+spins up by up to **{dw_deg_s:.1f} deg/s**, and the twist lets go once it turns ahead.
+The arm's F/T sensor measures the push; the ODS applies it scaled ({force_scale:g} x
+force, {torque_scale:g} x torque), so off the centre a press also spins the satellite.
+Let go to stop; to push another way, let go and drag again.
 
 **Plots.** The ODS's input (force in R, torque in body axes, as measured), the
 satellite's velocity, angular velocity and position, and how far each mockup is from its
@@ -75,6 +80,27 @@ IDEAL_NOTE = """
 satellites, contact is computed between them exactly, and your push goes to the ODS as
 it is (then scaled as above); there is no tracking error to plot.
 """
+
+
+def hand_numbers(settings: dict) -> dict:
+    """What a drag and a twist do, in numbers, for the help text (app/sim/hand.py): the
+    force per cm and the most a 10 cm press held 1 s gives satellite 1 (force_scale k d
+    / m; nothing under the deadband), the torque per degree and the most a 20 degree twist
+    held 1 s spins it up about z (torque_scale k_t a / I_zz). A little less in fact: the
+    satellite gives way as it speeds up (benchmarks/hand_drag.py)."""
+    k, fs, ts = settings["hand_stiffness_Npm"], settings["force_scale"], settings["torque_scale"]
+    press_N = min(k * 0.10, settings["hand_max_force_N"])
+    passed_N = press_N if press_N > settings["deadband_force_N"] else 0.0
+    dv = fs * passed_N / settings["satellite1_mass_kg"]
+    kt = settings["hand_twist_Nmprad"]
+    twist_Nm = min(kt * np.radians(20.0), settings["hand_max_torque_Nm"])
+    passed_Nm = twist_Nm if twist_Nm > settings["deadband_torque_Nm"] else 0.0
+    dw = ts * passed_Nm / settings["satellite1_inertia_kgm2"][2]
+    return {"k_N_per_cm": k / 100.0, "max_N": settings["hand_max_force_N"],
+            "deadband_N": settings["deadband_force_N"], "dv_cm_s": 100.0 * dv,
+            "kt_Nm_per_deg": kt * np.pi / 180.0, "max_Nm": settings["hand_max_torque_Nm"],
+            "deadband_Nm": settings["deadband_torque_Nm"], "dw_deg_s": np.degrees(dw),
+            "force_scale": fs, "torque_scale": ts}
 
 
 def _load_urdf():
@@ -318,12 +344,8 @@ class EmulatorScene:
             settings = snap.get("settings")
             if settings:
                 self._show_settings(settings)
-                self.gui_help.content = HELP.format(
-                    k_N_per_cm=settings["hand_stiffness_Npm"] / 100.0,
-                    max_N=settings["hand_max_force_N"],
-                    force_scale=settings["force_scale"],
-                    torque_scale=settings["torque_scale"]) + (
-                        IDEAL_NOTE if snap["mode"] == "ideal" else "")
+                self.gui_help.content = HELP.format(**hand_numbers(settings)) + (
+                    IDEAL_NOTE if snap["mode"] == "ideal" else "")
         finally:
             self._syncing = False
 
@@ -413,7 +435,7 @@ class EmulatorScene:
             ghost = scene.add_box(f"/ods/{i}_{name}", color=GHOST_COLOR, dimensions=size,
                                   wireframe=True)
             gizmo = scene.add_transform_controls(
-                f"/gizmo/sat{i + 1}", scale=0.35, disable_rotations=True, depth_test=False,
+                f"/gizmo/sat{i + 1}", scale=0.35, depth_test=False,
                 line_width=3.0,
             )
             sv = _SatView(index=i, mockup=mockup, ghost=ghost, gizmo=gizmo, size_m=size)
@@ -436,15 +458,14 @@ class EmulatorScene:
 
         @sv.gizmo.on_update
         async def _(event) -> None:  # async: runs on viser's loop, keeps phase order
-            if event.phase == "start":
+            if event.phase in ("start", "update"):  # the hand presses and twists
                 sv.dragging = True
-                svc.hand(sv.index, tuple(event.target.position), tuple(sv.grab_B))
-            elif event.phase == "update":
-                sv.dragging = True
-                svc.hand(sv.index, tuple(event.target.position), tuple(sv.grab_B))
-            else:
+                svc.hand(sv.index, tuple(event.target.position), tuple(sv.grab_B),
+                         tuple(event.target.wxyz))
+            else:  # it lets go; the next grab starts square again
                 svc.hand(sv.index, None)
                 sv.dragging = False
+                sv.gizmo.wxyz = (1.0, 0.0, 0.0, 0.0)
 
     def _attach_grab(self, sv: _SatView) -> None:
         @sv.mockup.on_click

@@ -45,6 +45,7 @@ from app.backend.runner import RunnerError
 from app.backend.service import (
     MAX_PUSH_DURATION_S,
     MAX_PUSH_FORCE_N,
+    MAX_PUSH_TORQUE_NM,
     EmulatorService,
     InvalidRequest,
     RunnerBusy,
@@ -110,6 +111,19 @@ class PushRequest(BaseModel):
                     "(m, from the COM); off the COM the push also turns it (r x F, scaled "
                     "by [orbit] torque_scale)",
         examples=[[0.1, 0.0, 0.0]],
+    )
+    torque_Nm: list[FiniteFloat] | None = Field(
+        default=None, min_length=3, max_length=3,
+        description=f"a twist with the push: torque in the satellite's body axes (N m, about "
+                    f"its COM; none if left out), magnitude at most {MAX_PUSH_TORQUE_NM:g} "
+                    "N m, and with the twists under way and the force's moment about the "
+                    "sensor at most its twist limit (/api/state twist_limits_Nm: the F/T "
+                    "sensor's torque range less the weight's moment, bias, noise and the "
+                    "hand); scaled by [orbit] torque_scale. On a satellite an arm carries, "
+                    "the angular-velocity change it can give (torque_scale (|torque_Nm| + "
+                    "|point_m| |force_N|) duration_s / smallest inertia), with the pushes "
+                    "under way, is at most /api/state push_max_dw_radps; 422 beyond",
+        examples=[[0.0, 0.0, 1.0]],
     )
 
 
@@ -430,7 +444,7 @@ def create_app(
         point_m (body axes)."""
         try:
             return service(request).push(req.satellite, req.force_N, req.duration_s,
-                                         req.point_m)
+                                         req.point_m, req.torque_Nm)
         except InvalidRequest as err:
             raise _http(422, err) from None
         except RunnerBusy as err:

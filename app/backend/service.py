@@ -26,9 +26,11 @@ from app.sim.scaling import scaling_of
 from app.sim.telemetry import loop_columns
 
 __all__ = ["EmulatorService", "RunnerBusy", "UnknownScenario", "InvalidRequest",
-           "StopQueued", "StillStarting", "push_limit", "push_max_dv", "course_exit"]
+           "StopQueued", "StillStarting", "push_limit", "push_max_dv", "course_exit",
+           "twist_limit", "push_max_dw"]
 
 MAX_PUSH_FORCE_N = 100.0  # the F/T sensor's default range: no push is ever larger
+MAX_PUSH_TORQUE_NM = 10.0  # the F/T sensor's default torque range: no twist is larger
 NOISE_SIGMAS = 6.0
 """The push limit keeps this many standard deviations of the sensor's noise free: a
 reading beyond 6 sigma on one of 3 axes at 500 Hz comes about once in a week."""
@@ -55,6 +57,14 @@ MAX_PUSH_DV_MPS = 0.1
 """The largest velocity change (m/s, lab) the pushes under way on a satellite may give it
 at ``[loop] max_tracking_error_m`` = 0.05 m (it scales with that bound): MOTION_MARGIN of
 the smallest Δv an arm followed in benchmarks/push_follow.py."""
+DEFAULT_TRACKING_ERROR_RAD = 0.25
+"""``[loop] max_tracking_error_rad``'s default, at which MAX_PUSH_DW_RADPS was measured."""
+MAX_PUSH_DW_RADPS = 0.24
+"""The largest angular-velocity change (rad/s) the pushes under way on a satellite may give
+it at ``[loop] max_tracking_error_rad`` = 0.25 rad (it scales with that bound):
+MOTION_MARGIN of the smallest step the ceiling arm of free-floating followed less well,
+0.48 rad/s about body x (attitude error 57 mrad, 1.3 mrad at 0.24 rad/s; about body z
+0.75 rad/s kept it under 5 mrad) in benchmarks/twist_follow.py."""
 FORECASTS_KEPT = 32
 """Forecasts kept (each the configuration's JSON and a small result): every scenario in
 both modes, so that a page or client switching between them does not wait again."""
@@ -115,6 +125,8 @@ class _PushRecord:
     duration_s: float
     force_N: float  # magnitude
     dv_R: np.ndarray  # the velocity change it gives (R, lab m/s)
+    torque_Nm: float = 0.0  # magnitude of its twist
+    dw_radps: float = 0.0  # the most angular-velocity change it can give (rad/s)
 
 
 class EmulatorService:
@@ -162,7 +174,9 @@ class EmulatorService:
         """The loop's latest state; status "fault" with the reason while the loop process
         is dead or stalled."""
         snap = {**self.runner.snapshot(), "push_limits_N": self.push_limits_N(),
-                "push_max_dv_mps": self.push_max_dv_mps()}
+                "push_max_dv_mps": self.push_max_dv_mps(),
+                "twist_limits_Nm": self.twist_limits_Nm(),
+                "push_max_dw_radps": self.push_max_dw_radps()}
         fault = self.runner.fault()
         if fault is not None:
             snap.update(status="fault", reason=fault)
@@ -203,6 +217,17 @@ class EmulatorService:
         (:func:`push_max_dv`)."""
         config = self.last_config
         return [round(push_max_dv(config)[0], 4) for _ in config.satellites]
+
+    def twist_limits_Nm(self) -> list[float]:
+        """Each satellite's twist limit in the current run (:func:`twist_limit`)."""
+        config = self.last_config
+        return [round(twist_limit(config, i)[0], 3) for i in range(len(config.satellites))]
+
+    def push_max_dw_radps(self) -> list[float]:
+        """Each satellite's push angular-velocity-change limit in the current run
+        (:func:`push_max_dw`)."""
+        config = self.last_config
+        return [round(push_max_dw(config)[0], 4) for _ in config.satellites]
 
     def _refuse_if_busy(self) -> None:
         """RunnerBusy while a healthy loop is starting or running a run (what
@@ -371,27 +396,80 @@ class EmulatorService:
         return self.state()
 
     def push(self, satellite: int, force_N, duration_s: float,
-             point_m=None) -> dict[str, Any]:
+             point_m=None, torque_Nm=None) -> dict[str, Any]:
         """A push on satellite `satellite` (1-based), force in R, at point_m (body axes,
-        from the COM; the COM if None); validated here."""
+        from the COM; the COM if None), with a twist torque_Nm (body axes, about the COM;
+        none if None); validated here."""
         state = self.state()
         if state["status"] == "starting":  # the checks below need the run's own state
             raise RunnerBusy("the scenario is starting: push once it runs")
         force = validate_push(satellite, force_N, duration_s, state["n_satellites"])
         point = (0.0, 0.0, 0.0) if point_m is None else validate_point(
             point_m, state["layout"]["satellites"][satellite - 1][1])
+        torque = (0.0, 0.0, 0.0) if torque_Nm is None else validate_torque(torque_Nm)
         with self._push_lock:  # the check and the record of a push, one at a time
             self._pushes = [p for p in self._pushes if p.generation == state["generation"]]
             self._within_push_limit(state, satellite, math.hypot(*force))
+            if any(torque):
+                self._within_twist_limit(state, satellite, torque, force, point)
             dv_R = self._push_dv_R(satellite, force, duration_s)
+            dw = self._push_dw_radps(satellite, force, point, torque, duration_s)
+            if any(torque):
+                self._within_push_turn(state, satellite, dw)
             self._within_push_motion(state, satellite, dv_R)
             self.runner.post(Push(satellite=satellite - 1, force_R_N=force,
-                                  duration_s=duration_s, point_B_m=point))
+                                  duration_s=duration_s, point_B_m=point,
+                                  torque_B_Nm=torque))
             record = _PushRecord(state["generation"], satellite, state["t_s"], duration_s,
-                                 math.hypot(*force), dv_R)
+                                 math.hypot(*force), dv_R, math.hypot(*torque), dw)
             self._pushes.append(record)
         return {"satellite": satellite, "force_N": list(force), "duration_s": duration_s,
-                "point_m": list(point), "t_s": self.state()["t_s"]}
+                "point_m": list(point), "torque_Nm": list(torque), "t_s": self.state()["t_s"]}
+
+    def _within_twist_limit(self, state: dict, satellite: int, torque, force,
+                            point) -> None:
+        """InvalidRequest when this twist and those still twisting the same satellite, with
+        the moment of this push's force about the sensor, would add up beyond its twist
+        limit (:func:`twist_limit`): the F/T torque reading would clip, and the ODS would
+        get less than the hand gave."""
+        under_way = self._under_way(state, satellite)
+        twisting = sum(p.torque_Nm for p in under_way)
+        limit_Nm, why = twist_limit(self.last_config, satellite - 1)
+        lever_m = _sensor_lever_m(self.last_config, satellite - 1) + math.hypot(*point)
+        own_Nm = math.hypot(*torque) + math.hypot(*force) * lever_m
+        if own_Nm + twisting > limit_Nm:
+            moment = (f" (with its force's moment {math.hypot(*force) * lever_m:.2f} N m "
+                      f"about the sensor)" if any(force) else "")
+            already = f" with {twisting:.2f} N m already twisting it" if twisting else ""
+            raise InvalidRequest(
+                f"torque_Nm: magnitude {own_Nm:.2f} N m{moment}{already} exceeds satellite "
+                f"{satellite}'s twist limit {limit_Nm:.2f} N m ({why})")
+
+    def _push_dw_radps(self, satellite: int, force, point, torque,
+                       duration_s: float) -> float:
+        """The most angular-velocity change (rad/s) a push can give the ODS satellite:
+        torque_scale (|torque| + |point| |force|) duration / its smallest principal moment
+        of inertia (Eq. 7, a bound over the axes)."""
+        config = self.last_config
+        inertia = float(np.min(config.satellites[satellite - 1].principal_inertia()))
+        moment = math.hypot(*torque) + math.hypot(*point) * math.hypot(*force)
+        return scaling_of(config).torque_scale * moment * duration_s / inertia
+
+    def _within_push_turn(self, state: dict, satellite: int, dw: float) -> None:
+        """InvalidRequest when the push with a twist, with the pushes still under way on
+        the satellite, could turn it faster than its arm follows (:func:`push_max_dw`).
+        Only for a satellite an arm carries in a running run (hil)."""
+        if state["status"] != "running" or state["mode"] != "hil" or not any(
+                rob["satellite"] == satellite for rob in state["robots"]):
+            return
+        turning = sum(p.dw_radps for p in self._under_way(state, satellite))
+        limit, why = push_max_dw(self.last_config)
+        if dw + turning > limit * (1.0 + 1e-9):
+            already = f" with {turning:.3f} rad/s already under way" if turning else ""
+            raise InvalidRequest(
+                f"torque_Nm, duration_s: the push changes satellite {satellite}'s angular "
+                f"velocity by up to {dw:.3f} rad/s{already}, beyond its angular-velocity-"
+                f"change limit {limit:.3f} rad/s ({why})")
 
     def _under_way(self, state: dict, satellite: int) -> list[_PushRecord]:
         """The run's pushes on ``satellite`` still under way (until PUSH_END_MARGIN_S
@@ -464,15 +542,22 @@ class EmulatorService:
                 f"{horizon_s:.1f} s horizon ({COURSE_HORIZON_S:g} s or the run's time left): "
                 f"the run would stop")
 
-    def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0)) -> bool:
+    def hand(self, satellite0: int, anchor_W_m, point_B_m=(0.0, 0.0, 0.0),
+             attitude_W_wxyz=None) -> bool:
         """Gizmo: move the virtual hand of satellite `satellite0` (0-based), holding it at
-        point_B_m (body axes, from the COM); None lets go."""
+        point_B_m (body axes, from the COM), turned to attitude_W_wxyz (the gizmo's
+        orientation; None: no twist); None lets go. It presses and twists, never pulls
+        (app/sim/hand.py)."""
         anchor = None if anchor_W_m is None else tuple(float(v) for v in anchor_W_m)
         point = tuple(float(v) for v in point_B_m)
-        if anchor is not None and not all(math.isfinite(v) for v in anchor + point):
+        wxyz = None if attitude_W_wxyz is None else tuple(float(v) for v in attitude_W_wxyz)
+        if anchor is not None and not all(math.isfinite(v) for v in anchor + point
+                                          + (wxyz or ())):
+            return False
+        if wxyz is not None and (len(wxyz) != 4 or not any(wxyz)):
             return False
         return self.runner.post_nowait(HandAnchor(satellite=satellite0, anchor_W_m=anchor,
-                                                  point_B_m=point))
+                                                  point_B_m=point, attitude_W_wxyz=wxyz))
 
     # --- heavier reads --------------------------------------------------------------------
 
@@ -720,7 +805,7 @@ def push_limit(config: EmulatorConfig, satellite0: int) -> tuple[float, str]:
     the reading is at most |push| + m·g + |bias| + noise + the hand's force + the scripted
     pulses', so the pushes get the range less the mockup's weight, the bias,
     NOISE_SIGMAS standard deviations of noise, the operator's hand at its cap (``[hand]
-    max_force_N``: it may pull at any time) and the most the scenario's ``[[pulses]]``
+    max_force_N``: it may press at any time) and the most the scenario's ``[[pulses]]``
     push that satellite at once. Never negative."""
     from app.sim.scaling import mockup_mass_kg
 
@@ -738,6 +823,52 @@ def push_limit(config: EmulatorConfig, satellite0: int) -> tuple[float, str]:
            f"{noise_N:.1f} N" + (f", the scripted pulses' {pulses_N:.1f} N" if pulses_N
                                  else "") + f" and the hand's {hand_N:g} N")
     return limit_N, why
+
+
+def _sensor_lever_m(config: EmulatorConfig, satellite0: int) -> float:
+    """How far the satellite's COM is from the F/T sensor of the arm that carries it (its
+    ``mockup_offset_m``; 0 for a satellite no arm carries)."""
+    name = config.satellites[satellite0].name
+    return max((math.hypot(*r.mockup_offset_m) for r in config.robots
+                if r.satellite == name), default=0.0)
+
+
+def twist_limit(config: EmulatorConfig, satellite0: int) -> tuple[float, str]:
+    """(the largest torque (N m) the twists of the pushes on satellite ``satellite0`` may
+    add up to, with their forces' moments about the sensor, how it was derived). Beyond
+    the F/T sensor's torque range a reading clips: the range less the mockup's weight's
+    moment (m g times the COM's lever from the sensor), the torque bias, NOISE_SIGMAS
+    standard deviations of noise, the gizmo's twist at its cap (``[hand] max_torque_Nm``)
+    and its press at its cap at the farthest point of the box (``[hand] max_force_N``
+    times the lever plus the half diagonal). Never negative."""
+    from app.sim.scaling import mockup_mass_kg
+
+    sensor, satellite = config.sensor, config.satellites[satellite0]
+    lever_m = _sensor_lever_m(config, satellite0)
+    weight_Nm = mockup_mass_kg(satellite, config) * float(
+        np.linalg.norm(config.lab.gravity_mps2)) * lever_m
+    bias_Nm = float(np.linalg.norm(sensor.bias_torque_Nm))
+    noise_Nm = NOISE_SIGMAS * sensor.noise_torque_Nm
+    reach_m = lever_m + 0.5 * float(np.linalg.norm(satellite.size_m))
+    hand_Nm = config.hand.max_torque_Nm + config.hand.max_force_N * reach_m
+    limit = max(0.0, sensor.range_torque_Nm - weight_Nm - bias_Nm - noise_Nm - hand_Nm)
+    why = (f"the F/T sensor's {sensor.range_torque_Nm:g} N m range less the mockup's weight's "
+           f"moment {weight_Nm:.2f} N m, the bias {bias_Nm:.2f} N m, {NOISE_SIGMAS:g} sigma "
+           f"of noise {noise_Nm:.2f} N m and the hand's {hand_Nm:.2f} N m")
+    return limit, why
+
+
+def push_max_dw(config: EmulatorConfig) -> tuple[float, str]:
+    """(the largest angular-velocity change (rad/s) the pushes under way on a carried
+    satellite may add up to, how it was derived): MAX_PUSH_DW_RADPS, measured at the
+    default ``[loop] max_tracking_error_rad`` (0.25 rad), scaled with the run's."""
+    bound_rad = config.loop.max_tracking_error_rad
+    limit = MAX_PUSH_DW_RADPS * bound_rad / DEFAULT_TRACKING_ERROR_RAD
+    why = (f"{MOTION_MARGIN:g} of the smallest angular-velocity step an arm followed less "
+           f"well, scaled to the {1e3 * bound_rad:g} mrad attitude bound, "
+           f"benchmarks/twist_follow.py; the change is at most torque_scale x (|torque| + "
+           f"|point| |force|) x duration / the smallest moment of inertia")
+    return limit, why
 
 
 def _most_pulses_at_once_N(config: EmulatorConfig, name: str) -> float:
@@ -799,6 +930,22 @@ def course_exit(state: dict, config: EmulatorConfig, satellite: int, dv_R,
             if out.any() and t[np.argmax(out)] < first:
                 first, where = float(t[np.argmax(out)]), name
     return first, where
+
+
+def validate_torque(torque_Nm) -> tuple[float, float, float]:
+    """A twist (N m, body axes) within the sensor's torque range, or InvalidRequest."""
+    if len(torque_Nm) != 3:
+        raise InvalidRequest("torque_Nm: must have 3 components")
+    torque = tuple(float(v) for v in torque_Nm)
+    if not all(math.isfinite(v) for v in torque):
+        raise InvalidRequest("torque_Nm: must be finite numbers")
+    norm = math.hypot(*torque)
+    if norm > MAX_PUSH_TORQUE_NM:
+        size = f"{norm:.2f} N m" if norm < 1e6 else (
+            f"{norm:.3g} N m" if math.isfinite(norm) else "over 1e308 N m")
+        raise InvalidRequest(f"torque_Nm: magnitude {size} exceeds the sensor range "
+                             f"{MAX_PUSH_TORQUE_NM:g} N m")
+    return torque
 
 
 def validate_push(satellite, force_N, duration_s, n_satellites: int) -> tuple[float, ...]:

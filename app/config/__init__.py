@@ -636,15 +636,26 @@ DEFAULT_MATERIALS = {
 
 
 class HandConfig(_Model):
-    """The operator's virtual hand: spring-coupled to the mockup while it pushes.
+    """The operator's virtual hand (app/sim/hand.py): a compliant fingertip that presses
+    on the mockup where it grabbed it, never pulls, and a twist that turns it one way.
 
-    1 N per cm of drag, at most the scripted push's 20 N: with free-floating's force scale
-    a gentle 5-10 cm drag held a second gives the satellite 2-5 cm/s, as a scripted push
-    gives 3 cm/s (benchmarks/hand_drag.py); under 4 cm the F/T deadband (4 N) keeps most
-    of it out."""
+    Pressing: 1 N per cm the hand has moved into the mockup, at most the scripted push's
+    20 N; with free-floating's force scale (a 200 kg satellite in translation) a 10 cm
+    press held sends the satellite off at 6.2 cm/s (benchmarks/hand_drag.py; at most
+    d sqrt(k force_scale / m) = 7.1 cm/s); under 4 cm the F/T deadband (4 N) keeps it
+    out. Twisting: 5 N m per rad (0.09 N m
+    per degree) of the gizmo's turn, at most 2 N m (the sensor's range is 10 N m, its
+    deadband 0.25 N m: about 3 degrees). Both with Hunt-Crossley damping
+    F = k d (1 + c d_dot): continuous at first touch, zero on separation."""
 
     stiffness_Npm: Positive = 100.0
     max_force_N: Positive = 20.0
+    damping_spm: NonNegative = 2.0
+    """Hunt-Crossley damping of the press (s/m): F = k d (1 + c d_dot), never below 0."""
+    twist_stiffness_Nmprad: Positive = 5.0
+    max_torque_Nm: Positive = 2.0
+    twist_damping_sprad: NonNegative = 2.0
+    """Hunt-Crossley damping of the twist (s/rad): T = k_t a (1 + c_t a_dot), never < 0."""
 
 
 class CaptureConfig(_Model):

@@ -4,11 +4,27 @@ Three ways a hand acts on a mockup:
 
 * **scripted pulses** (``[[pulses]]`` of a scenario): a force in R and a torque in body
   axes, held constant over ``[start_s, end_s)``; the headless free-floating scenario;
-* **pushes** (:class:`Push`, e.g. ``POST /api/push``): a force in R for a duration, from the
-  cycle after it was posted, at a point of the body (its COM unless given);
-* **the gizmo** (:class:`HandAnchor`): the hand is a spring from an anchor in the lab to the
-  point where it grabbed the mockup (:func:`ray_box_hit`: where a click meets its box),
-  saturated at the hand's maximum force.
+* **pushes** (:class:`Push`, e.g. ``POST /api/push``): a force in R and a torque in body
+  axes for a duration, from the cycle after it was posted, the force at a point of the
+  body (its COM unless given);
+* **the gizmo** (:class:`HandAnchor`): a fingertip that *presses* on the mockup at the
+  point where it grabbed it (:func:`ray_box_hit`: where a click meets its box) and a grip
+  that *twists* it, both unilateral: they push, they never pull (:class:`_Grip`).
+
+The gizmo's contact law (:func:`unilateral`) is Hunt-Crossley's, the one the mockups'
+surfaces follow (app/sim/contact.py): for a penetration d > 0 and its rate d_dot,
+
+    F = min(F_max, max(0, k d (1 + c d_dot))),        F = 0 for d <= 0,
+
+continuous in d and d_dot (zero at first touch, no jump), and never negative: when the
+mockup runs ahead of the hand the contact opens and the hand lets go by itself. The
+pressing direction n is the direction of the hand's first millimetre of travel (a finger
+touches the grab point and presses that way); d is how far the hand has gone along n
+since the grab, less how far the grab point has. The twist is the same law about the axis
+of the gizmo's first turn, with the angles turned by the gizmo and by the body. A hand
+held still after a drag therefore pushes the mockup until it has caught up with the
+hand's position, then nothing: the satellite leaves at the speed it has (for a press
+of depth d on an effective mass m: at most d sqrt(k / m)), never back.
 
 A force at a point r of the body (from its COM) also turns it: the moment about the COM is
 r × F. That is the wrench the mockup feels; the F/T sensor measures it, and the ODS applies
@@ -25,9 +41,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.config import EmulatorConfig
+from app.config import EmulatorConfig, HandConfig
+from app.sim.rotations import matrix_to_rotvec, quat_to_matrix
 
-__all__ = ["Command", "HandAnchor", "OperatorHand", "Push", "pulse_wrenches", "ray_box_hit"]
+__all__ = ["Command", "HandAnchor", "OperatorHand", "Push", "pulse_wrenches", "ray_box_hit",
+           "unilateral"]
+
+PRESS_LATCH_M = 1e-3
+"""The hand's travel from where it grabbed that sets the pressing direction."""
+TWIST_LATCH_RAD = 0.01
+"""The gizmo's turn from where it grabbed that sets the twisting axis (0.6 degrees)."""
 
 
 def _satellite_index(value) -> int:
@@ -49,21 +72,25 @@ def _finite_vector3(name: str, value) -> tuple[float, float, float]:
 @dataclass(frozen=True)
 class Push:
     """A hand pushing satellite `satellite` (0-based) with force_R_N (in R) for duration_s,
-    at point_B_m (body axes, from the COM; the COM itself by default).
+    at point_B_m (body axes, from the COM; the COM itself by default), and twisting it
+    with torque_B_Nm (body axes, about the COM; none by default).
 
-    Checked on creation: an index, three finite force components and coordinates, a finite
-    duration > 0.
+    Checked on creation: an index, three finite force and torque components and
+    coordinates, a finite duration > 0.
     """
 
     satellite: int
     force_R_N: tuple[float, float, float]
     duration_s: float
     point_B_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque_B_Nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "satellite", _satellite_index(self.satellite))
         object.__setattr__(self, "force_R_N", _finite_vector3("force_R_N", self.force_R_N))
         object.__setattr__(self, "point_B_m", _finite_vector3("point_B_m", self.point_B_m))
+        object.__setattr__(self, "torque_B_Nm",
+                           _finite_vector3("torque_B_Nm", self.torque_B_Nm))
         d = self.duration_s
         if isinstance(d, bool) or not isinstance(d, int | float) or not (
                 math.isfinite(d) and d > 0.0):
@@ -72,15 +99,20 @@ class Push:
 
 @dataclass(frozen=True)
 class HandAnchor:
-    """The operator's hand (gizmo) at anchor_W_m, spring-coupled to the mockup at point_B_m
-    (body axes, from the COM: where the hand grabbed it); None lets go.
+    """The operator's hand (gizmo) at anchor_W_m, holding the mockup at point_B_m (body
+    axes, from the COM: where the hand grabbed it), turned to attitude_W_wxyz (the
+    gizmo's orientation in W; None: no twist); None lets go. The first anchor after a
+    let-go (or at another point) is where the hand grabbed: it presses and twists from
+    there (:class:`_Grip`).
 
-    Checked on creation: an index, and None or three finite coordinates.
+    Checked on creation: an index, None or three finite coordinates, None or a finite
+    non-zero quaternion.
     """
 
     satellite: int
     anchor_W_m: tuple[float, float, float] | None
     point_B_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    attitude_W_wxyz: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "satellite", _satellite_index(self.satellite))
@@ -88,9 +120,119 @@ class HandAnchor:
             object.__setattr__(self, "anchor_W_m", _finite_vector3("anchor_W_m",
                                                                    self.anchor_W_m))
         object.__setattr__(self, "point_B_m", _finite_vector3("point_B_m", self.point_B_m))
+        if self.attitude_W_wxyz is not None:
+            q = self.attitude_W_wxyz
+            try:
+                q = tuple(float(x) for x in q)
+            except (TypeError, ValueError):
+                raise ValueError(f"attitude_W_wxyz: must be 4 numbers, got {q!r}") from None
+            if len(q) != 4 or not all(math.isfinite(x) for x in q) or not any(q):
+                raise ValueError(f"attitude_W_wxyz: must be 4 finite numbers, not all 0, "
+                                 f"got {self.attitude_W_wxyz!r}")
+            object.__setattr__(self, "attitude_W_wxyz", q)
 
 
 Command = Push | HandAnchor
+
+
+def unilateral(stiffness: float, damping: float, depth: float, rate: float,
+               cap: float) -> float:
+    """Hunt-Crossley's law of a contact that can only push: for a penetration ``depth``
+    > 0 growing at ``rate``, min(cap, max(0, k d (1 + c d_dot))); 0 for d <= 0.
+    Continuous in d and d_dot, never negative (it never pulls)."""
+    if depth <= 0.0:
+        return 0.0
+    return min(cap, max(0.0, stiffness * depth * (1.0 + damping * rate)))
+
+
+@dataclass
+class _Grip:
+    """The gizmo's hand on one mockup, from the grab to the let-go.
+
+    It grabbed the mockup at point_B (body axes) with the gizmo at ``start_W`` turned to
+    ``start_R``, the fingertip touching the grab point, which was at ``grab_W`` then (the
+    grip's first evaluation). **Press**: once the hand has moved PRESS_LATCH_M from
+    ``start_W``, that direction is ``normal_W`` for the rest of the grip; the penetration
+    is d = ((A - start_W) - (P - grab_W)) · n for the hand at A and the grab point at P:
+    how far the hand has pressed in since the grab less how far the point has given way.
+    At the latch the press starts from the hand's travel then (k x 1 mm = 0.1 N at the
+    default for a hand that moves smoothly; a gizmo that jumps further in one update
+    starts from that). **Twist**: once the gizmo has turned TWIST_LATCH_RAD from
+    ``start_R``, its axis is ``axis_W``; the penetration angle is the gizmo's turn about
+    it since the grab less the body's (``body_turn_rad`` from its attitude ``grab_R`` at
+    the grab, accumulated cycle to cycle so that whole turns count). The hand holds still
+    between its updates, so the rates are the body's: d_dot = -v_P · n,
+    a_dot = -omega · axis.
+    """
+
+    point_B: np.ndarray
+    start_W: np.ndarray
+    anchor_W: np.ndarray
+    start_R: np.ndarray | None = None
+    hand_R: np.ndarray | None = None
+    normal_W: np.ndarray | None = None
+    grab_W: np.ndarray | None = None
+    axis_W: np.ndarray | None = None
+    grab_R: np.ndarray | None = None
+    body_turn_rad: float = 0.0
+    body_R_seen: np.ndarray | None = None
+    t_seen_s: float = -math.inf
+
+    def aim(self, anchor: HandAnchor) -> None:
+        """The hand moved (and turned) to where the gizmo now is."""
+        self.anchor_W = np.array(anchor.anchor_W_m)
+        if anchor.attitude_W_wxyz is not None:
+            self.hand_R = quat_to_matrix(np.array(anchor.attitude_W_wxyz))
+            if self.start_R is None:
+                self.start_R = self.hand_R
+
+    def hand_turn_W(self) -> np.ndarray:
+        """The gizmo's turn since the grab, a rotation vector in W."""
+        if self.hand_R is None or self.start_R is None:
+            return np.zeros(3)
+        return matrix_to_rotvec(self.hand_R @ self.start_R.T)
+
+    def wrench_W(self, hand: HandConfig, t_s: float, p_W: np.ndarray, R_W: np.ndarray,
+                 v_W: np.ndarray, w_W: np.ndarray) -> np.ndarray:
+        """The grip's wrench on the body (force in W, moment about the COM), 6 values.
+
+        The first evaluation at a new time (the cycle's actual state) latches the
+        directions and accumulates the body's turn; further ones at the same time (an
+        ideal cycle's sub-steps) only read them."""
+        new_cycle = t_s > self.t_seen_s
+        r_W = R_W @ self.point_B
+        point_W = p_W + r_W
+        wrench = np.zeros(6)
+        if self.grab_W is None:
+            self.grab_W, self.grab_R = point_W.copy(), R_W.copy()
+        if self.normal_W is None and new_cycle:
+            travel = self.anchor_W - self.start_W
+            if np.linalg.norm(travel) >= PRESS_LATCH_M:
+                self.normal_W = travel / np.linalg.norm(travel)
+        if self.normal_W is not None:
+            n = self.normal_W
+            depth = float(((self.anchor_W - self.start_W) - (point_W - self.grab_W)) @ n)
+            rate = -float((v_W + np.cross(w_W, r_W)) @ n)
+            push = unilateral(hand.stiffness_Npm, hand.damping_spm, depth, rate,
+                              hand.max_force_N)
+            _add_force_at(wrench, push * n, r_W)
+        turn_W = self.hand_turn_W()
+        if self.axis_W is None and new_cycle and np.linalg.norm(turn_W) >= TWIST_LATCH_RAD:
+            self.axis_W = turn_W / np.linalg.norm(turn_W)
+            self.body_turn_rad, self.body_R_seen = 0.0, self.grab_R
+        if self.axis_W is not None:
+            axis = self.axis_W
+            body = self.body_turn_rad + float(matrix_to_rotvec(R_W @ self.body_R_seen.T)
+                                              @ axis)
+            if new_cycle:
+                self.body_turn_rad, self.body_R_seen = body, R_W.copy()
+            angle = float(turn_W @ axis) - body
+            twist = unilateral(hand.twist_stiffness_Nmprad, hand.twist_damping_sprad, angle,
+                               -float(w_W @ axis), hand.max_torque_Nm)
+            wrench[3:] += twist * axis
+        self.t_seen_s = max(self.t_seen_s, t_s)
+        return wrench
+
 
 
 def ray_box_hit(origin_W: np.ndarray, direction_W: np.ndarray, T_W_C: np.ndarray,
@@ -127,16 +269,16 @@ def pulse_wrenches(config: EmulatorConfig, t_s: float) -> tuple[np.ndarray, np.n
 
 
 class OperatorHand:
-    """Every hand acting on the satellites: pulses, pushes and gizmo anchors."""
+    """Every hand acting on the satellites: pulses, pushes and the gizmo's grips."""
 
     def __init__(self, config: EmulatorConfig, R_W_R: np.ndarray) -> None:
         self.config = config
         self.R_W_R = R_W_R
         self.n_sat = len(config.satellites)
         self._queue: list[Command] = []
-        # (sat, force_R, until_s, point_B)
-        self._pushes: list[tuple[int, np.ndarray, float, np.ndarray]] = []
-        self._anchors: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # sat -> anchor, point_B
+        # (sat, force_R, until_s, point_B, torque_B)
+        self._pushes: list[tuple[int, np.ndarray, float, np.ndarray, np.ndarray]] = []
+        self._grips: dict[int, _Grip] = {}
         self._pulse_windows = [(p.start_s, p.end_s) for p in config.pulses]
 
     def post(self, command: Command) -> None:
@@ -154,26 +296,42 @@ class OperatorHand:
         for cmd in self._queue:
             if isinstance(cmd, Push):
                 self._pushes.append((cmd.satellite, np.array(cmd.force_R_N),
-                                     t_s + cmd.duration_s, np.array(cmd.point_B_m)))
-            elif cmd.anchor_W_m is None:
-                self._anchors.pop(cmd.satellite, None)
+                                     t_s + cmd.duration_s, np.array(cmd.point_B_m),
+                                     np.array(cmd.torque_B_Nm)))
             else:
-                self._anchors[cmd.satellite] = (np.array(cmd.anchor_W_m),
-                                                np.array(cmd.point_B_m))
+                self._move_grip(cmd)
         self._queue.clear()
         self._pushes = [p for p in self._pushes if t_s < p[2] - 1e-12]
 
+    def _move_grip(self, anchor: HandAnchor) -> None:
+        """Let go (None), grab (no grip yet, or at another point) or move the grip."""
+        grip = self._grips.get(anchor.satellite)
+        if anchor.anchor_W_m is None:
+            self._grips.pop(anchor.satellite, None)
+        elif grip is None or not np.array_equal(grip.point_B, anchor.point_B_m):
+            grip = _Grip(point_B=np.array(anchor.point_B_m),
+                         start_W=np.array(anchor.anchor_W_m),
+                         anchor_W=np.array(anchor.anchor_W_m))
+            grip.aim(anchor)
+            self._grips[anchor.satellite] = grip
+        else:
+            grip.aim(anchor)
+
     def idle(self, t_s: float) -> bool:
         """No pulse, push or gizmo acts at t_s (the hand's wrenches are all zero)."""
-        return not (self._pushes or self._anchors
+        return not (self._pushes or self._grips
                     or any(start <= t_s < end for start, end in self._pulse_windows))
 
-    def wrenches_W(self, t_s: float, p_W_C: np.ndarray, R_W_C: np.ndarray) -> np.ndarray:
-        """(N, 6) wrenches in W about each COM (p_W_C (N, 3), R_W_C (N, 3, 3) of the mockups).
+    def wrenches_W(self, t_s: float, p_W_C: np.ndarray, R_W_C: np.ndarray,
+                   v_W: np.ndarray | None = None, w_W: np.ndarray | None = None,
+                   ) -> np.ndarray:
+        """(N, 6) wrenches in W about each COM (p_W_C (N, 3), R_W_C (N, 3, 3), v_W and
+        w_W (N, 3) of the mockups; velocities zero if not given).
 
-        Pulses act through the COM; pushes at their point, with the force they specify (a
-        hand that keeps its push steady); the gizmo's hand is a spring from its anchor to
-        the point it grabbed. A force F at r (from the COM, in W) adds the moment r × F.
+        Pulses act through the COM; pushes at their point, with the force and torque they
+        specify (a hand that keeps its push steady); the gizmo's grip presses and twists
+        unilaterally (:class:`_Grip`, :func:`unilateral`). A force F at r (from the COM,
+        in W) adds the moment r × F.
         """
         wrench = np.zeros((self.n_sat, 6))
         if self.idle(t_s):
@@ -182,16 +340,14 @@ class OperatorHand:
         wrench[:, :3] = force_R @ self.R_W_R.T
         for i in range(self.n_sat):
             wrench[i, 3:] = R_W_C[i] @ torque_B[i]
-        for sat, f_R, _, point_B in self._pushes:
+        for sat, f_R, _, point_B, torque_B in self._pushes:
             _add_force_at(wrench[sat], self.R_W_R @ f_R, R_W_C[sat] @ point_B)
-        hand = self.config.hand
-        for sat, (anchor, point_B) in self._anchors.items():
-            r_W = R_W_C[sat] @ point_B
-            f = hand.stiffness_Npm * (anchor - (p_W_C[sat] + r_W))
-            norm = float(np.linalg.norm(f))
-            if norm > hand.max_force_N:
-                f *= hand.max_force_N / norm
-            _add_force_at(wrench[sat], f, r_W)
+            wrench[sat, 3:] += R_W_C[sat] @ torque_B
+        still = np.zeros(3)
+        for sat, grip in self._grips.items():
+            wrench[sat] += grip.wrench_W(
+                self.config.hand, t_s, p_W_C[sat], R_W_C[sat],
+                still if v_W is None else v_W[sat], still if w_W is None else w_W[sat])
         return wrench
 
 

@@ -62,7 +62,7 @@ class PhysicalInteraction:
         self.touching: frozenset[frozenset[int]] = frozenset()
         """The pairs of bodies that overlapped in the last call (each a set of two)."""
         self.hand_acting = np.zeros(contact.n, dtype=bool)
-        """Per body, whether the operator's hand pushed on it in the last call."""
+        """Per body, whether the operator's hand pushed (or twisted) it in the last call."""
 
     def wrenches_W(self, bodies: Bodies, t_s: float) -> np.ndarray:
         """(N, 6) external wrench on each body at t_s: force in W, moment about its COM."""
@@ -70,6 +70,7 @@ class PhysicalInteraction:
         contact = self.contact.compute(T_W_C, bodies.v_W, bodies.w_W)
         self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
         self.touching = frozenset(frozenset((c.a, c.b)) for c in contact.contacts)
-        hand_W = self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3])
+        hand_W = self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3], bodies.v_W,
+                                      bodies.w_W)
         self.hand_acting = np.any(hand_W != 0.0, axis=1)
         return contact.wrench_W + hand_W

@@ -62,11 +62,35 @@ from app.sim.scaling import scaling_of
 from app.sim.sensor_models import sample_every_cycles
 from app.sim.telemetry import Recorder
 
-__all__ = ["Emulator", "StartPoseError"]
+__all__ = ["Emulator", "StartPoseError", "tracking_stop_reason"]
 
 
 class StartPoseError(ValueError):
     """A satellite's start pose is out of its arm's reach (a configuration mistake)."""
+
+
+def _beside(value: float, limit: float) -> str:
+    """value with one decimal, or up to three where fewer would read as its limit."""
+    for digits in (1, 2, 3):
+        if round(value, digits) != round(limit, digits):
+            break
+    return f"{value:.{digits}f}"
+
+
+def tracking_stop_reason(d_m: float, d_rad: float, max_m: float, max_rad: float) -> str:
+    """Why a tracking-error stop stopped: the limit (position or attitude, or both) that the
+    error exceeds, with its value and limit, and the other's value within its own, e.g.
+    "tracking error: position 61.2 mm exceeds its limit 50 mm (attitude 79.1 mrad within
+    250 mrad)"."""
+    pos = f"position {_beside(1e3 * d_m, 1e3 * max_m)} mm"
+    att = f"attitude {_beside(1e3 * d_rad, 1e3 * max_rad)} mrad"
+    lim_m, lim_rad = f"{1e3 * max_m:.4g} mm", f"{1e3 * max_rad:.4g} mrad"
+    if d_m > max_m and d_rad > max_rad:
+        return (f"tracking error: {pos} exceeds its limit {lim_m} and {att} exceeds its "
+                f"limit {lim_rad}")
+    if d_rad > max_rad:
+        return f"tracking error: {att} exceeds its limit {lim_rad} ({pos} within {lim_m})"
+    return f"tracking error: {pos} exceeds its limit {lim_m} ({att} within {lim_rad})"
 
 
 class Emulator:
@@ -217,10 +241,8 @@ class Emulator:
         if k < 0:
             return True
         d_m, d_rad = errors[k]
-        self._safety_stop(self.arms[k], f"tracking error {1e3 * d_m:.3g} mm / "
-                                        f"{1e3 * d_rad:.3g} mrad beyond "
-                                        f"{1e3 * loop.max_tracking_error_m:.3g} mm / "
-                                        f"{1e3 * loop.max_tracking_error_rad:.3g} mrad")
+        self._safety_stop(self.arms[k], tracking_stop_reason(
+            d_m, d_rad, loop.max_tracking_error_m, loop.max_tracking_error_rad))
         return False
 
     def _within_sensor_range(self) -> bool:
