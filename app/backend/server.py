@@ -102,8 +102,8 @@ class PushRequest(BaseModel):
                     "gives (force_scale |force_N| duration_s / mass), with the pushes still "
                     "under way, is at most its limit (/api/state push_max_dv_mps: what the "
                     "arm can follow), and its course after the push must not leave the "
-                    "arm's safety volume or reach within 5 s (or the run's time left) "
-                    "unless it did before; 422 beyond",
+                    "arm's safety volume or reach sooner, within 60 s (or the run's time "
+                    "left), than it did before; 422 beyond",
         examples=[0.3])
     point_m: list[FiniteFloat] | None = Field(
         default=None, min_length=3, max_length=3,
