@@ -9,14 +9,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
 from app.config import EmulatorConfig, merge_overrides
+from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
 from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import PLOT_FILES, plot_run
 from app.runs.preflight import preflight
 from app.runs.report import write_json, write_telemetry_csv
-from app.sim.loop import Emulator
 from app.runs.uncertainty import forecast, snapshot_time_s, spread_of_run
+from app.sim.loop import Emulator
 
 
 @dataclass

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.runs.success import success_metrics
 from app.sim.loop import Emulator
 from app.sim.scaling import describe as describe_scaling
 from app.sim.scaling import describe_body, scaling_of
-from app.runs.success import success_metrics
 
 
 def _cols(rows: np.ndarray, index: dict, prefix: str, names) -> np.ndarray:

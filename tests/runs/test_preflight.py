@@ -95,8 +95,8 @@ def test_an_ideal_only_layout_has_nothing_to_check():
 def test_a_sweep_run_the_pre_flight_refuses_is_a_row_refused_and_nothing_runs():
     """The sweep's shared reference carries the pre-flight: a refused configuration is
     the outcome "refused" with the reason, for every seed, and no run starts."""
-    from app.runs.run_config import finish_run_config
     from app.campaign.sweep import compute_ideal, execute_run
+    from app.runs.run_config import finish_run_config
 
     base = merge_overrides(load_scenario("collision"),
                            {"satellites": {"0": {"velocity_mps": [0.6, 0.0, 0.0]}}})

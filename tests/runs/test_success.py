@@ -9,8 +9,8 @@ import pytest
 from scipy.special import ellipk
 
 from app.config import ConfigError, parse_config
-from app.sim.rotations import rotvec_to_quat
 from app.runs.success import libration_period_theory_s, pitch_rad
+from app.sim.rotations import rotvec_to_quat
 from tests.test_cli import EXE
 
 

@@ -10,9 +10,9 @@ import pytest
 
 from app.config import ConfigError, assignment_override, merge_overrides
 from app.runs.headless import checked_reference, headless_config, run_scenario
+from app.runs.uncertainty import Z95, measured_noise, replicate, snapshot_time_s
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
-from app.runs.uncertainty import Z95, measured_noise, replicate, snapshot_time_s
 
 SHORT = ["satellites.0.position_m=[-0.16,0,0]", "satellites.1.position_m=[0.16,0,0]",
          "loop.duration_s=1.2"]
