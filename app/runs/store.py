@@ -191,14 +191,18 @@ class RunStore:
     """The runs kept under ``root`` (created if missing)."""
 
     def __init__(self, root: str | Path = DEFAULT_RUNS_DIR, keep_runs: int = DEFAULT_KEEP_RUNS,
-                 max_bytes: int | None = None) -> None:
+                 max_bytes: int | None = None, create: bool = True) -> None:
         if keep_runs < 1:
             raise ValueError(f"keep_runs: must be at least 1, got {keep_runs}")
         if max_bytes is not None and max_bytes <= 0:
             raise ValueError(f"max_bytes: must be positive, got {max_bytes}")
         self.root = Path(root)
         self.keep_runs, self.max_bytes = keep_runs, max_bytes
-        self.root.mkdir(parents=True, exist_ok=True)
+        if create:
+            self.root.mkdir(parents=True, exist_ok=True)
+        elif not self.root.is_dir():
+            raise RunNotFound(f"no runs directory {str(self.root)!r} (serve --runs-dir "
+                              f"writes one; default {DEFAULT_RUNS_DIR})")
 
     def retention(self) -> str:
         """The retention rule, in words (the page and `serve --help` say it)."""
