@@ -15,20 +15,26 @@ plots from the telemetry.csv on disk.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import logging
+import multiprocessing as mp
 import os
 import queue
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from app.backend.downloads import exit_with_parent
 from app.backend.ring import RingFile, RunTelemetry
 from app.backend.runner import Runner, RunnerError
 from app.config import EmulatorConfig
-from app.runs.store import RunStore, TelemetryAppender, now_utc, write_plots
+from app.runs.report import write_json
+from app.runs.store import RunStore, TelemetryAppender, now_utc, read_telemetry, write_plots
 
 log = logging.getLogger("orbit_emulator.recorder")
 
@@ -71,11 +77,11 @@ class _Active:
 class RunRecorder:
     """Writes the service's runs into ``store`` as they go (thread-safe)."""
 
-    def __init__(self, runner: Runner, store: RunStore, metrics_fn: MetricsFn, worker,
+    def __init__(self, runner: Runner, store: RunStore, metrics_fn: MetricsFn,
                  period_s: float = FLUSH_PERIOD_S) -> None:
         self.runner, self.store = runner, store
         self._metrics_fn = metrics_fn
-        self._worker = worker
+        self._worker: ProcessPoolExecutor | None = None  # draws the plots; made on first use
         self.period_s = period_s
         self._lock = threading.RLock()
         self._run: _Active | None = None
@@ -88,8 +94,15 @@ class RunRecorder:
     # --- lifecycle ----------------------------------------------------------------------
 
     def start(self) -> None:
+        """The recording thread, and the plots' thread, which first finishes the runs a
+        server that stopped left: an interrupted run gets its metrics from what it
+        recorded, a run whose plots were not drawn gets them."""
         for run_id in self.store.recover():
             log.warning("run %s was left unfinished by a server that stopped", run_id)
+            self._plots.put(("recover", run_id))
+        for record in self.store.runs():
+            if record.get("plots") == "pending" and record.get("status") != "interrupted":
+                self._plots.put(("plots", record["id"]))
         self._thread = threading.Thread(target=self._main, name="run-recorder", daemon=True)
         self._thread.start()
         self._plotter = threading.Thread(target=self._plot_main, name="run-plots",
@@ -114,9 +127,11 @@ class RunRecorder:
                     else:
                         self._end(run, status, snap.get("reason"))
                 self._final(run)
-        self._plots.put(None)
+        self._plots.put(None)  # the plots not drawn yet are drawn by the next server
         if self._plotter is not None:
             self._plotter.join(plots_wait_s)
+        if self._worker is not None:
+            self._worker.shutdown(wait=False, cancel_futures=True)
 
     def active_id(self) -> str | None:
         with self._lock:
@@ -134,6 +149,8 @@ class RunRecorder:
             run_id = self.store.create(scenario, mode, config.model_dump(mode="json"),
                                        config.loop.seed)
             folder = self.store.folder(run_id)
+            if ideal is not None:  # what an interrupted run is compared with, later
+                write_json(folder / "ideal.json", ideal)
             fd = os.open(ring.path, os.O_RDONLY | os.O_CLOEXEC)  # the ring, kept readable
             reader = RingFile(f"/proc/{os.getpid()}/fd/{fd}", ring.capacity,
                               len(ring.columns))
@@ -254,22 +271,60 @@ class RunRecorder:
         if self._run is run:
             self._run = None
         self.store.update(run.run_id, plots="pending", telemetry_rows=run.next_row)
-        self._plots.put(run.run_id)
+        self._plots.put(("plots", run.run_id))
 
     def _plot_main(self) -> None:
         while True:
-            run_id = self._plots.get()
-            if run_id is None:
+            task = self._plots.get()
+            if task is None or self._stop.is_set():
                 return
+            what, run_id = task
             try:
+                if what == "recover":
+                    self._recover(run_id)
                 folder = self.store.folder(run_id)
-                names = self._worker.run(write_plots, str(folder))
+                names = self._draw(folder)
                 self.store.update(run_id, plots=names)
             except Exception as err:  # noqa: BLE001 - deleted meanwhile, or a plot failed
                 try:
                     self.store.update(run_id, plots=f"failed: {type(err).__name__}: {err}")
                 except Exception:  # noqa: BLE001 - the run is gone
                     pass
+
+    def _draw(self, folder: Path) -> list[str]:
+        """The run's plots, drawn by a worker process of the recorder's own (matplotlib
+        and the rows stay out of the web process; one process for every run's plots:
+        spawning one each time costs seconds)."""
+        if self._worker is None:
+            self._worker = ProcessPoolExecutor(
+                max_workers=1, mp_context=mp.get_context("spawn"),
+                initializer=exit_with_parent, initargs=(os.getpid(),))
+        try:
+            return self._worker.submit(write_plots, str(folder)).result()
+        except BrokenProcessPool:  # the worker died (e.g. killed for memory): a new one next
+            self._worker = None
+            raise
+
+    def _recover(self, run_id: str) -> None:
+        """The metrics of a run its server left unfinished, from its telemetry.csv (status
+        "interrupted"; the loop's timing and events, which the server kept, are not
+        known)."""
+        folder = self.store.folder(run_id)
+        saved = json.loads((folder / "config.json").read_text())
+        config = EmulatorConfig.model_validate(saved["config"])
+        columns, rows = read_telemetry(folder / "telemetry.csv")
+        ideal_path = folder / "ideal.json"
+        ideal = json.loads(ideal_path.read_text()) if ideal_path.is_file() else None
+        names = [s.name for s in config.satellites]
+        robots = [{"satellite": names.index(r.satellite) + 1} for r in config.robots
+                  if r.satellite in names] if saved["mode"] == "hil" else []
+        record = self.store.run(run_id)
+        metrics = self._metrics_fn({"mode": saved["mode"], "robots": robots}, config,
+                                   columns, rows, "interrupted", record.get("reason"), ideal)
+        ended = dt.datetime.fromtimestamp((folder / "telemetry.csv").stat().st_mtime,
+                                          dt.timezone.utc)
+        self.store.finish(run_id, metrics, "interrupted", record.get("reason"), ended)
+        self.store.update(run_id, telemetry_rows=len(rows))
 
     def info(self) -> dict[str, Any]:
         return {"dir": str(self.store.root), "keep_runs": self.store.keep_runs,

@@ -156,7 +156,7 @@ class EmulatorService:
             from app.backend.recorder import RunRecorder
 
             store = RunStore(runs_dir, keep_runs, max_run_bytes)
-            self.recorder = RunRecorder(self.runner, store, self.metrics_for, self._worker)
+            self.recorder = RunRecorder(self.runner, store, self.metrics_for)
 
     # --- lifecycle ----------------------------------------------------------------------
 
