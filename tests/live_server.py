@@ -34,12 +34,14 @@ class LiveServer:
         self.host = host
         self.port = free_port(host)
         self.token = token
-        # the runs it records: in a temporary folder unless one is given
+        # the runs it records: in a temporary folder unless one is given, and there
+        # without their plots (each run's figures cost seconds of the suite's CPU)
         self._runs_tmp = None if runs_dir is not None else tempfile.TemporaryDirectory(
             prefix="orbit-emulator-runs-")
         self.runs_dir = runs_dir if runs_dir is not None else self._runs_tmp.name
         self.app = create_app(viser_port=0, host=host, default_scenario=default_scenario,
-                              token=token, runs_dir=self.runs_dir, keep_runs=keep_runs)
+                              token=token, runs_dir=self.runs_dir, keep_runs=keep_runs,
+                              run_plots=runs_dir is not None)
         self.url = f"http://{host}:{self.port}"
         self._server = uvicorn.Server(
             uvicorn.Config(self.app, host=host, port=self.port, log_level="warning",

@@ -78,8 +78,11 @@ class RunRecorder:
     """Writes the service's runs into ``store`` as they go (thread-safe)."""
 
     def __init__(self, runner: Runner, store: RunStore, metrics_fn: MetricsFn,
-                 period_s: float = FLUSH_PERIOD_S) -> None:
+                 period_s: float = FLUSH_PERIOD_S, draw_plots: bool = True) -> None:
+        """``draw_plots``: False leaves each run's plots undrawn (``plots`` stays
+        "pending" in run.json; the next server that starts with it draws them)."""
         self.runner, self.store = runner, store
+        self.draw_plots = draw_plots
         self._metrics_fn = metrics_fn
         self._worker: ProcessPoolExecutor | None = None  # draws the plots; made on first use
         self.period_s = period_s
@@ -282,6 +285,8 @@ class RunRecorder:
             try:
                 if what == "recover":
                     self._recover(run_id)
+                if not self.draw_plots:
+                    continue
                 folder = self.store.folder(run_id)
                 names = self._draw(folder)
                 self.store.update(run_id, plots=names)

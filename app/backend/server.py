@@ -200,12 +200,13 @@ def create_app(
     runs_dir: str | Path | None = DEFAULT_RUNS_DIR,
     keep_runs: int = DEFAULT_KEEP_RUNS,
     max_run_bytes: int | None = None,
+    run_plots: bool = True,
 ) -> FastAPI:
     """The FastAPI app for a server bound to `host`; its lifespan runs viser on loopback
     port `viser_port` (0: any free one). With `token`, every request must carry it; a
     `host` beyond loopback requires one (AccessError). Every run is written to
     `runs_dir` as it goes (app/runs/store.py: the newest `keep_runs`, and at most
-    `max_run_bytes`, kept; None: not written)."""
+    `max_run_bytes`, kept; None: not written; `run_plots` False: their plots not drawn)."""
     if token is not None:
         check_token(token)
     elif not is_loopback(host):
@@ -216,7 +217,7 @@ def create_app(
         from app.backend.scene import EmulatorScene
 
         service = await asyncio.to_thread(EmulatorService, default_scenario, runs_dir,
-                                          keep_runs, max_run_bytes)
+                                          keep_runs, max_run_bytes, run_plots)
         await asyncio.to_thread(service.start_thread)  # the loop process: first snapshot
         try:
             server, app.state.viewer_secret = await asyncio.to_thread(start_viser, viser_port)

@@ -123,10 +123,10 @@ class EmulatorService:
 
     def __init__(self, default_scenario: str | None = None, runs_dir: str | Path | None = None,
                  keep_runs: int = DEFAULT_KEEP_RUNS, max_run_bytes: int | None = None,
-                 **runner_kwargs: Any) -> None:
+                 run_plots: bool = True, **runner_kwargs: Any) -> None:
         """``runs_dir``: where every run is written as it goes (app/runs/store.py; the
-        newest ``keep_runs`` kept, and at most ``max_run_bytes`` of them); None: not
-        written."""
+        newest ``keep_runs`` kept, and at most ``max_run_bytes`` of them; ``run_plots``
+        False: their plots not drawn); None: not written."""
         names = scenario_names()
         self.default_scenario = default_scenario or (
             "collision" if "collision" in names else names[0]
@@ -134,6 +134,9 @@ class EmulatorService:
         self._build_lock = threading.Lock()
         self._forecast_lock = threading.Lock()
         self._forecasts: dict = {}
+        """The pre-flight's ideal reference (with its forecast) per configuration and mode."""
+        self._answers: dict = {}
+        """What /forecast answered per configuration and mode."""
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
         self._last_run: tuple[str, EmulatorConfig, str | None] = (
@@ -156,7 +159,8 @@ class EmulatorService:
             from app.backend.recorder import RunRecorder
 
             store = RunStore(runs_dir, keep_runs, max_run_bytes)
-            self.recorder = RunRecorder(self.runner, store, self.metrics_for)
+            self.recorder = RunRecorder(self.runner, store, self.metrics_for,
+                                        draw_plots=run_plots)
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -314,11 +318,21 @@ class EmulatorService:
         without a contact, or in ideal mode); refused as a start would be. Cached per
         configuration: the forecast takes seconds."""
         config, mode = self.build(name, overrides, mode)
-        reference, wall_s = None, 0.0
+        key = (config.model_dump_json(), mode)
+        with self._forecast_lock:
+            if key in self._answers:
+                return self._answers[key]
+        t0 = time.perf_counter()  # (the pre-flight of a start may have computed it)
+        reference = None
         if (mode or config.loop.mode) == "hil":
-            reference, wall_s = self._checked_reference(config, mode)
-        return {"scenario": name, "mode": mode or config.loop.mode,
-                "collision_forecast": (reference or {}).get("forecast"), "wall_s": wall_s}
+            reference = self._checked_reference(config, mode)[0]
+        answer = {"scenario": name, "mode": mode or config.loop.mode,
+                  "collision_forecast": (reference or {}).get("forecast"),
+                  "wall_s": time.perf_counter() - t0}
+        with self._forecast_lock:
+            while len(self._answers) >= FORECASTS_KEPT:  # the oldest goes
+                del self._answers[next(iter(self._answers))]
+            return self._answers.setdefault(key, answer)
 
     # --- commands ---------------------------------------------------------------------
 
