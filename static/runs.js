@@ -121,6 +121,7 @@
   let followed = null;  // the id of the run recording or last recorded, shown in #run-result
   let pinned = false;   // a past run opened by hand: no following until the next run
   let lastList = null;
+  let lastNewest = null;  // the newest run at the last look
 
   async function follow() {
     let list;
@@ -128,8 +129,12 @@
     lastList = list;
     renderList(list);
     const recording = list.recording;
+    const newest = list.runs.length ? list.runs[0].id : null;  // (ids sort by start time)
     if (recording && recording !== followed) { followed = recording; pinned = false; }
-    if (!followed && !recording && list.runs.length) followed = list.runs[0].id;  // the last
+    else if (!recording && newest && newest !== lastNewest) {
+      followed = newest; pinned = false;  // a new last run, even one that began and ended
+    }                                     // between two looks
+    lastNewest = newest;
     if (pinned || !followed) return;
     if (recording === followed) {  // running: the figures so far
       try {

@@ -236,3 +236,83 @@ def test_the_cli_lists_the_runs_and_shows_one(live, capsys):
     assert "run id '../x': not a run's id" in capsys.readouterr().err
     assert cli_main(["runs", "--dir", str(live.runs_dir) + "-none"]) == 2
     assert "no runs directory" in capsys.readouterr().err
+
+
+def test_the_page_shows_the_result_and_compares_two_runs(live):
+    """In a real browser: after a short hil collision the result panel shows its
+    restitution against the ideal run's and its plots, read from the run's folder; two runs
+    chosen in the runs list are compared (settings that differ, plots side by side)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    from tests.test_backend_browser import CHROMIUM, CHROMIUM_ARGS, VIEWPORT
+
+    if not os.path.exists(CHROMIUM):
+        pytest.skip("needs " + CHROMIUM)
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(live.url + "/")
+            page.wait_for_selector("#run-result", state="attached", timeout=60_000)
+            r = live.client.post("/api/scenarios/collision/start",
+                                 json={**SHORT_COLLISION, "mode": "hil"})
+            assert r.status_code == 200, r.text
+            run_id = live.client.get("/api/runs").json()["recording"]
+            record = _ended(live, run_id, 90.0)
+            h = record["headline"]
+            expected = (f"restitution {h['restitution']:.3f} (95 % interval "
+                        f"{h['restitution_interval_95'][0]:.3f} – "
+                        f"{h['restitution_interval_95'][1]:.3f}) · ideal run "
+                        f"{h['restitution_ideal']:.3f}")
+            try:
+                page.wait_for_function(
+                    "([id, text]) => { const r = document.getElementById('run-result');"
+                    " return r && r.dataset.runId === id && r.querySelector('img.run-plot')"
+                    " && r.textContent.includes(text); }", arg=[run_id, expected],
+                    timeout=60_000)
+                page.wait_for_function(  # a plot drawn, served from the run's folder
+                    "() => [...document.querySelectorAll('#run-result img.run-plot')]"
+                    ".some((i) => i.complete && i.naturalWidth > 300)", timeout=60_000)
+            except sync_api.TimeoutError:
+                pytest.fail(f"the result panel shows {page.locator('#run-result').inner_text()!r}"
+                            f"; expected run {run_id} with {expected!r} and a plot; page "
+                            f"errors: {errors}")
+            src = page.locator("#run-result img.run-plot").first.get_attribute("src")
+            assert src.startswith(f"/api/runs/{run_id}/files/") and ".png" in src
+            assert page.locator("#runs-retention").inner_text().startswith("the newest 6 runs")
+            # compare it with an ideal run
+            other = next(x["id"] for x in live.client.get("/api/runs").json()["runs"]
+                         if x["mode"] == "ideal" and x["status"] == "finished")
+            for rid in (run_id, other):
+                page.locator(f"input.run-choose[data-run-id='{rid}']").check()
+            page.locator("#compare-button").click()
+            page.wait_for_function(
+                "() => { const c = document.getElementById('run-compare');"
+                " return c && c.querySelector('.compare-diff') && c.querySelectorAll("
+                "'.compare-pair img.run-plot').length >= 2; }", timeout=60_000)
+            diff = page.locator("#run-compare .compare-diff").inner_text()
+            assert "mode" in diff and "hil" in diff and "ideal" in diff
+            assert "loop.duration_s" in diff  # 1.2 s against the ideal run's
+            assert page.locator("#run-compare .run-summary").count() == 2
+        finally:
+            browser.close()
+
+
+def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
+    """The loop process killed mid-run: the run ends "fault" with the reason, and its
+    rows up to the kill are on disk (read from the ring the recorder keeps open)."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    s = live.wait_for(lambda s: s["t_s"] >= 1.0)
+    os.kill(s["loop"]["pid"], signal.SIGKILL)
+    record = _wait(lambda: (x := _runs(live)[run_id])["status"] != "running" and x, 20.0,
+                   "the dead loop's run was not ended")
+    assert record["status"] == "fault" and "killed by SIGKILL" in record["reason"]
+    rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
+    assert rows[-1, 0] >= s["t_s"]
+    assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"

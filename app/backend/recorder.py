@@ -20,6 +20,7 @@ import logging
 import multiprocessing as mp
 import os
 import queue
+import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -34,7 +35,14 @@ from app.backend.ring import RingFile, RunTelemetry
 from app.backend.runner import Runner, RunnerError
 from app.config import EmulatorConfig
 from app.runs.report import write_json
-from app.runs.store import RunStore, TelemetryAppender, now_utc, read_telemetry, write_plots
+from app.runs.store import (
+    RUN_FILE,
+    RunStore,
+    TelemetryAppender,
+    now_utc,
+    read_telemetry,
+    write_plots,
+)
 
 log = logging.getLogger("orbit_emulator.recorder")
 
@@ -289,6 +297,9 @@ class RunRecorder:
                     continue
                 folder = self.store.folder(run_id)
                 names = self._draw(folder)
+                if not (folder / RUN_FILE).is_file():  # deleted while drawn: no leftovers
+                    shutil.rmtree(folder, ignore_errors=True)
+                    continue
                 self.store.update(run_id, plots=names)
             except Exception as err:  # noqa: BLE001 - deleted meanwhile, or a plot failed
                 try:

@@ -544,7 +544,10 @@ def runs_routes(app: FastAPI, service) -> None:
         the names of its files. 422: not a run id; 404: no such run."""
         return json_safe(store_call(recorder(request).store.run, run_id))
 
-    @app.get("/api/runs/{run_id}/files/{name}", tags=["runs"], responses=bad)
+    @app.get("/api/runs/{run_id}/files/{name}", tags=["runs"], response_class=FileResponse,
+             responses={**bad, 200: {"description": "the file", "content": {
+                 t: {} for t in ("image/png", "text/csv", "application/json", "text/plain",
+                                 "application/octet-stream")}}})
     def get_run_file(run_id: str, name: str, request: Request):
         """A file of a run's folder (telemetry.csv, metrics.json, a plot ...). 422: not a
         run id or not a file name; 404: no such run, or no such file in its folder."""

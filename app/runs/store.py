@@ -175,6 +175,8 @@ def write_plots(folder: str) -> list[str]:
     from app.runs.plots import plot_run
 
     folder_path = Path(folder)
+    if not (folder_path / RUN_FILE).is_file():  # deleted meanwhile (retention, DELETE)
+        return []
     metrics = _read_json(folder_path / "metrics.json") or {}
     columns, rows = read_telemetry(folder_path / "telemetry.csv")
     index = {name: k for k, name in enumerate(columns)}
