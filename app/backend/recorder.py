@@ -296,7 +296,7 @@ class RunRecorder:
                 if not self.draw_plots:
                     continue
                 folder = self.store.folder(run_id)
-                names = self._draw(folder)
+                names = self._draw(folder)  # (with the forecast a start did not wait for)
                 if not (folder / RUN_FILE).is_file():  # deleted while drawn: no leftovers
                     shutil.rmtree(folder, ignore_errors=True)
                     continue
@@ -316,7 +316,7 @@ class RunRecorder:
                 max_workers=1, mp_context=mp.get_context("spawn"),
                 initializer=exit_with_parent, initargs=(os.getpid(),))
         try:
-            return self._worker.submit(write_plots, str(folder)).result()
+            return self._worker.submit(finish_in_worker, str(folder)).result()
         except BrokenProcessPool:  # the worker died (e.g. killed for memory): a new one next
             self._worker = None
             raise
@@ -346,3 +346,41 @@ class RunRecorder:
         return {"dir": str(self.store.root), "keep_runs": self.store.keep_runs,
                 "max_bytes": self.store.max_bytes, "retention": self.store.retention(),
                 "recording": self.active_id()}
+
+
+def finish_in_worker(folder: str) -> list[str]:
+    """In the recorder's worker process, after a run: its fidelity forecast if its start
+    did not have it (:func:`add_forecast`), then its plots; the plots' names."""
+    add_forecast(Path(folder))
+    return write_plots(folder)
+
+
+def add_forecast(folder: Path) -> None:
+    """The restitution's forecast (app/runs/uncertainty.py: what a headless run's
+    metrics.json has in ``collision_forecast``) of a hil run whose start did not compute
+    it, added to its metrics.json, summary.txt and ideal.json."""
+    from app.runs.headless import headless_config
+    from app.runs.report import run_summary
+    from app.runs.uncertainty import forecast
+
+    ideal_path, metrics_path = folder / "ideal.json", folder / "metrics.json"
+    if not ideal_path.is_file() or not metrics_path.is_file():
+        return
+    ideal = json.loads(ideal_path.read_text())
+    if not ideal or "forecast" in ideal:
+        return
+    saved = json.loads((folder / "config.json").read_text())
+    config = EmulatorConfig.model_validate(saved["config"])
+    try:
+        config = headless_config(config, config.loop.duration_s)
+    except ValueError:
+        pass
+    ideal["forecast"] = forecast(config, ideal)
+    metrics = json.loads(metrics_path.read_text())
+    metrics["collision_forecast"] = ideal["forecast"]
+    write_json(ideal_path, ideal)
+    write_json(metrics_path, metrics)
+    try:
+        (folder / "summary.txt").write_text(run_summary(metrics) + "\n")
+    except (KeyError, TypeError, ValueError):
+        pass

@@ -289,20 +289,35 @@ class EmulatorService:
         return snapshot_time_s(config, reference), reference
 
     def _checked_reference(self, config: EmulatorConfig, mode: str | None,
-                           ) -> tuple[dict | None, float]:
-        """(the pre-flight's ideal collision reference with its forecast, as a headless
-        run computes it: app.runs.headless.checked_reference; the seconds it took),
-        cached per configuration and mode; InvalidRequest when the pre-flight refuses."""
+                           with_forecast: bool = False) -> tuple[dict | None, float]:
+        """(the pre-flight's ideal collision reference, as a headless run computes it:
+        app.runs.headless.checked_reference, with its ``forecast`` where asked or already
+        computed; the seconds it took), cached per configuration and mode;
+        InvalidRequest when the pre-flight refuses. A start does not wait for the
+        forecast (seconds, minutes at a high loop rate): its metrics carry it when the
+        page (or a client) asked for it before (/forecast)."""
         key = (config.model_dump_json(), mode)
         with self._forecast_lock:
-            if key in self._forecasts:
-                return self._forecasts[key]
-        from app.runs.headless import checked_reference, headless_config
+            cached = self._forecasts.get(key)
+        if cached is not None and (not with_forecast or not cached[0]  # (no contact)
+                                   or "forecast" in cached[0]):
+            return cached
+        from app.runs.headless import checked_reference, collision_of, headless_config
+        from app.runs.preflight import preflight
 
         t0 = time.perf_counter()
         duration = config.loop.duration_s
+        try:  # sized as a headless run's, where that is valid; else the pre-flight
+            sized = headless_config(config, duration)  # refuses it by name
+        except ConfigError:
+            sized = config
         try:
-            reference = checked_reference(headless_config(config, duration), duration)
+            if with_forecast:
+                reference = checked_reference(sized, duration)
+            else:  # the same without the forecast
+                prediction = preflight(sized, duration)
+                reference = None if len(config.satellites) < 2 or prediction is None \
+                    else collision_of(prediction)
         except PreflightRefused as err:
             raise InvalidRequest(str(err)) from None
         with self._forecast_lock:
@@ -325,7 +340,7 @@ class EmulatorService:
         t0 = time.perf_counter()  # (the pre-flight of a start may have computed it)
         reference = None
         if (mode or config.loop.mode) == "hil":
-            reference = self._checked_reference(config, mode)[0]
+            reference = self._checked_reference(config, mode, with_forecast=True)[0]
         answer = {"scenario": name, "mode": mode or config.loop.mode,
                   "collision_forecast": (reference or {}).get("forecast"),
                   "wall_s": time.perf_counter() - t0}
