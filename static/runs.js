@@ -122,6 +122,7 @@
   let pinned = false;   // a past run opened by hand: no following until the next run
   let lastList = null;
   let lastNewest = null;  // the newest run at the last look
+  let metricsAt = 0;  // when the running figures were last asked for
 
   async function follow() {
     let list;
@@ -136,7 +137,9 @@
     }                                     // between two looks
     lastNewest = newest;
     if (pinned || !followed) return;
-    if (recording === followed) {  // running: the figures so far
+    if (recording === followed) {  // running: the figures so far (every 3 s: they are
+      if (Date.now() - metricsAt < 3000) return;  // computed from the whole ring)
+      metricsAt = Date.now();
       try {
         const m = await getJSON("/api/metrics");
         result.replaceChildren(el("h2", {}, `Run ${followed} (running)`),

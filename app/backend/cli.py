@@ -233,14 +233,14 @@ def register_serve(subparsers) -> argparse.ArgumentParser:
                         "health check")
     p.add_argument("--scenario", default=None,
                    help="scenario shown at start-up (default: collision)")
-    p.add_argument("--runs-dir", default=str(DEFAULT_RUNS_DIR),
+    p.add_argument("--runs-dir", default=str(DEFAULT_RUNS_DIR), metavar="DIR",
                    help="every run (page, panel or REST) is written here as it goes, one "
                         "folder per run, as a headless run's (default: "
                         f"{DEFAULT_RUNS_DIR}); list them with `orbit-emulator runs`")
-    p.add_argument("--keep-runs", type=_at_least_one, default=DEFAULT_KEEP_RUNS,
+    p.add_argument("--keep-runs", type=_at_least_one, default=DEFAULT_KEEP_RUNS, metavar="N",
                    help="keep the newest N runs in --runs-dir; older ones are deleted, "
                         f"oldest first (default {DEFAULT_KEEP_RUNS})")
-    p.add_argument("--max-runs-mib", type=_positive_mib, default=None,
+    p.add_argument("--max-runs-mib", type=_positive_mib, default=None, metavar="MIB",
                    help="also keep the runs within this many MiB, deleting the oldest "
                         "first (default: no size cap)")
     p.set_defaults(func=_cmd_serve)
