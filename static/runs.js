@@ -38,13 +38,14 @@
   const toggle = el("button", { type: "button", id: "runs-toggle",
                                 title: "the run's result, the runs kept on disk, compare two" },
                     "Results & runs");
+  const headline = el("span", { id: "runs-headline", class: "muted" });  // one line, always
   const body = el("div", { id: "runs-body" });
   const result = el("section", { id: "run-result" }, el("p", { class: "muted" },
                     "No run yet: start one; its result shows here."));
   const listBox = el("section", { id: "runs-list" });
   const compareBox = el("section", { id: "run-compare" });
   body.append(result, compareBox, listBox);
-  root.append(toggle, body);
+  root.append(el("div", { id: "runs-bar" }, toggle, headline), body);
   toggle.onclick = () => root.classList.toggle("open");
 
   // --- a run's summary ----------------------------------------------------------------
@@ -145,6 +146,7 @@
         result.replaceChildren(el("h2", {}, `Run ${followed} (running)`),
                                summary(m, "running figures"));
         result.dataset.runId = followed;
+        headline.textContent = headlineText(followed, m);
       } catch (e) { /* not started yet */ }
       return;
     }
@@ -154,7 +156,21 @@
     const run = await getJSON(`/api/runs/${encodeURIComponent(followed)}`);
     showRun(run, `Result of run ${run.id}`);
     result.dataset.shown = String(rec.plots);
-    root.classList.add("open");
+    headline.textContent = headlineText(run.id, run.metrics, run.status);
+  }
+
+  // the line beside the button: the run's result at a glance (the panel opens on a click;
+  // opening it by itself would move the 3D view under the user's hand)
+  function headlineText(id, m, status) {
+    if (!m || !m.satellites) return `run ${id}: ${status || "starting"}`;
+    const c = m.collision;
+    const warnings = (m.warnings || []).length + ((c && c.warnings) || []).length;
+    return `run ${id}: ${status || m.status}` +
+      ` · tracking error max ${m.satellites.map((s) => mm(s.position_error_max_m)).join(", ")}` +
+      (c ? ` · restitution ${num(c.restitution)} (ideal ${num(c.restitution_ideal)}, ` +
+           `error ${pct(c.restitution_error)})` : "") +
+      (m.success ? ` · success ${m.success.passed ? "met" : "NOT met"}` : "") +
+      (warnings ? ` · ${warnings} warning${warnings > 1 ? "s" : ""}` : "");
   }
 
   // --- the runs list ------------------------------------------------------------------
@@ -237,7 +253,8 @@
   // --- style --------------------------------------------------------------------------
   document.head.append(el("style", {}, `
     #runs-panel { background: #151b23; border-bottom: 1px solid #2c3642; font-size: .85rem; }
-    #runs-toggle { margin: .3rem .8rem; }
+    #runs-bar { display: flex; align-items: center; gap: .6rem; padding: .3rem .8rem; }
+    #runs-headline { white-space: nowrap; overflow: hidden; text-overflow: ellipsis; }
     #runs-body { display: none; max-height: 48vh; overflow: auto; padding: 0 .8rem .6rem; }
     #runs-panel.open #runs-body { display: block; }
     #runs-panel h2 { font-size: .95rem; margin: .5rem 0 .2rem; }

@@ -259,6 +259,7 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(live.url + "/")
             page.wait_for_selector("#run-result", state="attached", timeout=60_000)
+            page.locator("#runs-toggle").click()  # the panel opens on a click only
             r = live.client.post("/api/scenarios/collision/start",
                                  json={**SHORT_COLLISION, "mode": "hil"})
             assert r.status_code == 200, r.text
@@ -282,6 +283,8 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
                 pytest.fail(f"the result panel shows {page.locator('#run-result').inner_text()!r}"
                             f"; expected run {run_id} with {expected!r} and a plot; page "
                             f"errors: {errors}")
+            assert (f"restitution {h['restitution']:.3f} (ideal {h['restitution_ideal']:.3f}"
+                    in page.locator("#runs-headline").inner_text())  # the line at a glance
             src = page.locator("#run-result img.run-plot").first.get_attribute("src")
             assert src.startswith(f"/api/runs/{run_id}/files/") and ".png" in src
             assert page.locator("#runs-retention").inner_text().startswith("the newest 6 runs")
