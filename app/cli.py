@@ -12,6 +12,7 @@ from app.backend.cli import register_serve
 from app.campaign.sweep import KEEP
 from app.config import EmulatorConfig, assignment_override, load_config
 from app.runs.run_config import resolve_run_config
+from app.runs.store import DEFAULT_RUNS_DIR
 from app.scenarios import scenario_descriptions, scenario_names
 
 
@@ -278,16 +279,85 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("scenarios", help="list the built-in scenarios")
     p.set_defaults(func=_cmd_scenarios)
 
+    p = sub.add_parser(
+        "runs", help="list the web app's runs kept on disk, or show one's summary",
+        description="List the runs the web app wrote (serve --runs-dir), newest first: "
+                    "id, mode, seed, simulated seconds, status and the restitution against "
+                    "the ideal run; `runs show ID` prints one's summary and files.")
+    p.add_argument("action", nargs="?", choices=("list", "show"), default="list",
+                   help="list (default) or show")
+    p.add_argument("id", nargs="?", metavar="ID", help="with show: the run's id")
+    p.add_argument("--dir", default=str(DEFAULT_RUNS_DIR),
+                   help=f"the runs directory (default {DEFAULT_RUNS_DIR}, as serve's)")
+    p.set_defaults(func=_cmd_runs)
+
     register_serve(sub)
     return parser
+
+
+def _cmd_runs(args: argparse.Namespace) -> int:
+    """`runs`: the web app's runs kept on disk, newest first; `runs show ID`: one's
+    summary (app/runs/store.py)."""
+    from app.runs.store import RunStore
+
+    store = RunStore(args.dir, create=False)
+    if args.action == "show":
+        if args.id is None:
+            raise ValueError("runs show: which run? give its ID (`orbit-emulator runs` "
+                             "lists them)")
+        print(run_text(store.run(args.id), store.folder(args.id)))
+        return 0
+    if args.id is not None:
+        raise ValueError(f"runs: unexpected {args.id!r} (did you mean `runs show {args.id}`?)")
+    records = store.runs()
+    if not records:
+        print(f"no runs in {store.root}")
+        return 0
+    print(f"{'ID':34s} {'MODE':5s} {'SEED':>4s} {'SIM S':>6s} {'STATUS':11s} "
+          f"{'RESTITUTION':>11s} {'IDEAL':>6s} {'ERROR':>7s}")
+    for r in records:
+        h = r.get("headline") or {}
+        print(f"{r['id']:34s} {r.get('mode') or '-':5s} {_cell(r.get('seed'), 'd'):>4s} "
+              f"{_cell(r.get('duration_s'), '.2f'):>6s} {r.get('status') or '-':11s} "
+              f"{_cell(h.get('restitution'), '.3f'):>11s} "
+              f"{_cell(h.get('restitution_ideal'), '.3f'):>6s} "
+              f"{_cell(h.get('restitution_error'), '+.1%'):>7s}")
+    return 0
+
+
+def _cell(value, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def run_text(record: dict, folder: Path) -> str:
+    """What `runs show` prints: the run's facts, its summary (as a headless run prints
+    it) and its files."""
+    from app.runs.report import run_summary
+
+    lines = [f"run {record['id']}  ({folder})",
+             f"scenario {record.get('scenario')}  mode {record.get('mode')}  seed "
+             f"{record.get('seed')}  started {record.get('started_at')}  ended "
+             f"{record.get('ended_at') or '-'}",
+             f"status {record.get('status')}" + (f": {record['reason']}"
+                                                  if record.get("reason") else "")]
+    metrics = record.get("metrics")
+    if metrics and "satellites" in metrics:
+        lines += ["", run_summary(metrics)]
+    elif record.get("status") in ("running", "starting"):
+        lines += ["", "(still being recorded: its metrics come when it ends)"]
+    else:
+        lines += ["", "(no metrics: the run did not end on this server; its telemetry.csv "
+                  "holds what it recorded)"]
+    lines += ["", "files: " + ", ".join(record.get("files", []))]
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except ValueError as err:  # ConfigError included: the user's mistake, named
-        print(f"error: {err}", file=sys.stderr)
+    except (ValueError, LookupError) as err:  # ConfigError included: the user's mistake,
+        print(f"error: {err}", file=sys.stderr)  # named; an unknown run too
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

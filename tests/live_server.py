@@ -11,6 +11,7 @@ emulator loop runs in its own process as always.
 from __future__ import annotations
 
 import socket
+import tempfile
 import threading
 import time
 
@@ -28,12 +29,19 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 class LiveServer:
     def __init__(self, host: str = "127.0.0.1", default_scenario: str | None = None,
-                 startup_timeout_s: float = 90.0, token: str | None = None) -> None:
+                 startup_timeout_s: float = 90.0, token: str | None = None,
+                 runs_dir=None, keep_runs: int = 100) -> None:
         self.host = host
         self.port = free_port(host)
         self.token = token
+        # the runs it records: in a temporary folder unless one is given, and there
+        # without their plots (each run's figures cost seconds of the suite's CPU)
+        self._runs_tmp = None if runs_dir is not None else tempfile.TemporaryDirectory(
+            prefix="orbit-emulator-runs-")
+        self.runs_dir = runs_dir if runs_dir is not None else self._runs_tmp.name
         self.app = create_app(viser_port=0, host=host, default_scenario=default_scenario,
-                              token=token)
+                              token=token, runs_dir=self.runs_dir, keep_runs=keep_runs,
+                              run_plots=runs_dir is not None)
         self.url = f"http://{host}:{self.port}"
         self._server = uvicorn.Server(
             uvicorn.Config(self.app, host=host, port=self.port, log_level="warning",
@@ -71,6 +79,8 @@ class LiveServer:
         self._server.should_exit = True
         if self._thread is not None:
             self._thread.join(20.0)
+        if self._runs_tmp is not None:
+            self._runs_tmp.cleanup()
 
     # --- helpers -----------------------------------------------------------------------
 

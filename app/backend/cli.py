@@ -12,6 +12,7 @@ from pathlib import Path
 from urllib.parse import unquote
 
 from app.backend.access import TOKEN_ENV, access_token
+from app.runs.store import DEFAULT_KEEP_RUNS, DEFAULT_RUNS_DIR
 
 
 def _port(text: str) -> int:
@@ -57,7 +58,10 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     _few_malloc_arenas()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     app = create_app(viser_port=args.viser_port, host=args.host,
-                     default_scenario=args.scenario, token=token)
+                     default_scenario=args.scenario, token=token, runs_dir=args.runs_dir,
+                     keep_runs=args.keep_runs,
+                     max_run_bytes=None if args.max_runs_mib is None
+                     else int(args.max_runs_mib * 2**20))
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     if ":" in shown:
         shown = f"[{shown}]"
@@ -188,6 +192,26 @@ def _write_secret(path: Path, token: str) -> None:
                          f"{err.strerror or err}") from None
 
 
+def _at_least_one(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _positive_mib(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number of MiB, got {text}")
+    return value
+
+
 def register_serve(subparsers) -> argparse.ArgumentParser:
     """Add `serve` to the `orbit-emulator` subcommands (an argparse subparsers object)."""
     p = subparsers.add_parser(
@@ -209,5 +233,15 @@ def register_serve(subparsers) -> argparse.ArgumentParser:
                         "health check")
     p.add_argument("--scenario", default=None,
                    help="scenario shown at start-up (default: collision)")
+    p.add_argument("--runs-dir", default=str(DEFAULT_RUNS_DIR), metavar="DIR",
+                   help="every run (page, panel or REST) is written here as it goes, one "
+                        "folder per run, as a headless run's (default: "
+                        f"{DEFAULT_RUNS_DIR}); list them with `orbit-emulator runs`")
+    p.add_argument("--keep-runs", type=_at_least_one, default=DEFAULT_KEEP_RUNS, metavar="N",
+                   help="keep the newest N runs in --runs-dir; older ones are deleted, "
+                        f"oldest first (default {DEFAULT_KEEP_RUNS})")
+    p.add_argument("--max-runs-mib", type=_positive_mib, default=None, metavar="MIB",
+                   help="also keep the runs within this many MiB, deleting the oldest "
+                        "first (default: no size cap)")
     p.set_defaults(func=_cmd_serve)
     return p

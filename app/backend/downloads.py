@@ -112,7 +112,7 @@ def bag_rows(ring: RingFile, snap: dict, rate_hz: float,
     return np.concatenate(kept), 1.0 / (step * dt_s)
 
 
-def _exit_with_parent(parent_pid: int) -> None:
+def exit_with_parent(parent_pid: int) -> None:
     """In the worker: exit as soon as the web process that started it is gone (a kill -9
     of the server once left the worker, and through it the run's shared memory, behind)."""
     def watch() -> None:
@@ -136,7 +136,7 @@ class DownloadWorker:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(
                     max_workers=1, mp_context=mp.get_context("spawn"), max_tasks_per_child=1,
-                    initializer=_exit_with_parent, initargs=(os.getpid(),))
+                    initializer=exit_with_parent, initargs=(os.getpid(),))
             pool = self._pool
         try:
             return pool.submit(fn, *args).result()

@@ -175,6 +175,23 @@ class RingFile:
             return committed, np.empty((0, self.n_columns))
         return first, rows[first - start:]
 
+    def rows_since(self, first: int) -> tuple[int, np.ndarray]:
+        """(the number of the first row read, a copy of the rows committed from row
+        ``first`` on): only the new rows, for a reader that keeps up (the runs store's
+        recorder); a row the loop overwrote before it was read is left out (the number
+        returned is then larger than ``first``)."""
+        fd = self._open()
+        try:
+            start, end = self._span(fd)
+            start = max(start, first)
+            rows = self._read(fd, start, max(start, end))
+            lost = self._span(fd)[0] - start  # rows overwritten while read
+        finally:
+            os.close(fd)
+        if lost > 0:
+            return start + lost, rows[lost:]
+        return start, rows
+
     def chunks(self, chunk_rows: int = CHUNK_ROWS):
         """(number of the first row, rows) of the rows committed when called, oldest first,
         chunk_rows at a time, each chunk but the first beginning at a multiple of

@@ -57,6 +57,7 @@ from app.backend.viewer import PATH as VIEWER_PATH
 from app.backend.viewer import add_viewer_routes, start_viser
 from app.config import MAX_SATELLITES
 from app.runs.report import json_safe
+from app.runs.store import DEFAULT_KEEP_RUNS, DEFAULT_RUNS_DIR, BadRunName, RunNotFound
 
 log = logging.getLogger("orbit_emulator.server")
 
@@ -210,10 +211,16 @@ def create_app(
     default_scenario: str | None = None,
     scene_rate_hz: float = 30.0,
     token: str | None = None,
+    runs_dir: str | Path | None = DEFAULT_RUNS_DIR,
+    keep_runs: int = DEFAULT_KEEP_RUNS,
+    max_run_bytes: int | None = None,
+    run_plots: bool = True,
 ) -> FastAPI:
     """The FastAPI app for a server bound to `host`; its lifespan runs viser on loopback
     port `viser_port` (0: any free one). With `token`, every request must carry it; a
-    `host` beyond loopback requires one (AccessError)."""
+    `host` beyond loopback requires one (AccessError). Every run is written to
+    `runs_dir` as it goes (app/runs/store.py: the newest `keep_runs`, and at most
+    `max_run_bytes`, kept; None: not written; `run_plots` False: their plots not drawn)."""
     if token is not None:
         check_token(token)
     elif not is_loopback(host):
@@ -223,7 +230,8 @@ def create_app(
     async def lifespan(app: FastAPI):
         from app.backend.scene import EmulatorScene
 
-        service = await asyncio.to_thread(EmulatorService, default_scenario)
+        service = await asyncio.to_thread(EmulatorService, default_scenario, runs_dir,
+                                          keep_runs, max_run_bytes, run_plots)
         await asyncio.to_thread(service.start_thread)  # the loop process: first snapshot
         try:
             server, app.state.viewer_secret = await asyncio.to_thread(start_viser, viser_port)
@@ -493,6 +501,8 @@ def create_app(
         return HTMLResponse(page, headers={
             "Content-Disposition": "attachment; filename=replay.html"})
 
+    runs_routes(app, service)
+
     @app.get("/api/bag", tags=["status"], response_class=ZipResponse, responses=no_run_404)
     def bag(request: Request,
             rate_hz: Annotated[float, Query(gt=0.0, le=1000.0, description=(
@@ -506,3 +516,66 @@ def create_app(
         return _temporary_file(path, "bag.zip", {"X-Bag-Rate-Hz": f"{written_hz:.6g}"})
 
     return app
+
+
+# --- the runs kept on disk (app/runs/store.py) ------------------------------------------
+
+NO_STORE = "this server keeps no runs (started without a runs directory)"
+
+
+def runs_routes(app: FastAPI, service) -> None:
+    """GET /api/runs, /api/runs/{id}, /api/runs/{id}/files/{name}; DELETE /api/runs/{id}
+    (a mutating request: the token and the same-origin rule as any POST)."""
+
+    def recorder(request: Request):
+        rec = service(request).recorder
+        if rec is None:
+            raise HTTPException(status_code=404, detail=NO_STORE)
+        return rec
+
+    def store_call(fn, *args):
+        try:
+            return fn(*args)
+        except BadRunName as err:
+            raise HTTPException(status_code=422, detail=str(err)) from None
+        except RunNotFound as err:
+            raise HTTPException(status_code=404, detail=str(err)) from None
+
+    bad = {404: {"model": Message}, 422: {"model": Message}}
+
+    @app.get("/api/runs", tags=["runs"], responses={404: {"model": Message}})
+    def list_runs(request: Request) -> dict[str, Any]:
+        """The runs kept on disk, newest first: id, scenario, mode, seed, started_at,
+        ended_at, duration_s (simulated), status (running, finished, stopped,
+        safety_stop, error, fault; interrupted: its server stopped first), reason and
+        the headline figures; with the store's directory and retention."""
+        rec = recorder(request)
+        return json_safe({**rec.info(), "runs": rec.store.runs()})
+
+    @app.get("/api/runs/{run_id}", tags=["runs"], responses=bad)
+    def get_run(run_id: str, request: Request) -> dict[str, Any]:
+        """One run: its run.json, its metrics.json (null until it ended), config.json and
+        the names of its files. 422: not a run id; 404: no such run."""
+        return json_safe(store_call(recorder(request).store.run, run_id))
+
+    @app.get("/api/runs/{run_id}/files/{name}", tags=["runs"], response_class=FileResponse,
+             responses={**bad, 200: {"description": "the file", "content": {
+                 t: {} for t in ("image/png", "text/csv", "application/json", "text/plain",
+                                 "application/octet-stream")}}})
+    def get_run_file(run_id: str, name: str, request: Request):
+        """A file of a run's folder (telemetry.csv, metrics.json, a plot ...). 422: not a
+        run id or not a file name; 404: no such run, or no such file in its folder."""
+        path = store_call(recorder(request).store.file, run_id, name)
+        return FileResponse(path, headers={"Cache-Control": "no-cache"})
+
+    @app.delete("/api/runs/{run_id}", tags=["runs"],
+                responses={**bad, 409: {"model": Message}})
+    def delete_run(run_id: str, request: Request) -> dict[str, Any]:
+        """Delete a run from the disk. 409: it is being recorded."""
+        rec = recorder(request)
+        store_call(rec.store.folder, run_id)
+        if rec.active_id() == run_id:
+            raise HTTPException(status_code=409, detail=(
+                f"run {run_id!r} is being recorded; stop it (or start another) first"))
+        store_call(rec.store.delete, run_id)
+        return {"deleted": run_id}

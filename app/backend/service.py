@@ -19,7 +19,8 @@ from app.backend.downloads import DownloadWorker
 from app.backend.ring import COUNTER_BYTES, RingSpaceError, check_ring_space, ring_bytes
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
-from app.runs.preflight import PreflightRefused, preflight
+from app.runs.preflight import PreflightRefused
+from app.runs.store import DEFAULT_KEEP_RUNS, RunStore
 from app.scenarios import load_scenario, scenario_descriptions, scenario_names
 from app.sim.hand import HandAnchor, Push
 from app.sim.scaling import scaling_of
@@ -132,7 +133,12 @@ class _PushRecord:
 class EmulatorService:
     """Builds emulators from scenarios + overrides and drives one :class:`Runner`."""
 
-    def __init__(self, default_scenario: str | None = None, **runner_kwargs: Any) -> None:
+    def __init__(self, default_scenario: str | None = None, runs_dir: str | Path | None = None,
+                 keep_runs: int = DEFAULT_KEEP_RUNS, max_run_bytes: int | None = None,
+                 run_plots: bool = True, **runner_kwargs: Any) -> None:
+        """``runs_dir``: where every run is written as it goes (app/runs/store.py; the
+        newest ``keep_runs`` kept, and at most ``max_run_bytes`` of them; ``run_plots``
+        False: their plots not drawn); None: not written."""
         names = scenario_names()
         self.default_scenario = default_scenario or (
             "collision" if "collision" in names else names[0]
@@ -140,6 +146,9 @@ class EmulatorService:
         self._build_lock = threading.Lock()
         self._forecast_lock = threading.Lock()
         self._forecasts: dict = {}
+        """The pre-flight's ideal reference (with its forecast) per configuration and mode."""
+        self._answers: dict = {}
+        """What /forecast answered per configuration and mode."""
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
         self._last_run: tuple[str, EmulatorConfig, str | None] = (
@@ -154,13 +163,27 @@ class EmulatorService:
         """Every push accepted in the current run (their velocity changes add up; those
         under way, :meth:`_under_way`, also their forces)."""
         self._limits: tuple[Any, list[float]] = (None, [])
+        self._reference: tuple[Any, dict | None] = (None, None)
+        """(the ring of the run started last, the pre-flight's ideal collision it is
+        compared with)."""
+        self.recorder = None
+        if runs_dir is not None:
+            from app.backend.recorder import RunRecorder
+
+            store = RunStore(runs_dir, keep_runs, max_run_bytes)
+            self.recorder = RunRecorder(self.runner, store, self.metrics_for,
+                                        draw_plots=run_plots)
 
     # --- lifecycle ----------------------------------------------------------------------
 
     def start_thread(self) -> None:
         self.runner.start_thread()
+        if self.recorder is not None:
+            self.recorder.start()
 
     def shutdown(self) -> None:
+        if self.recorder is not None:
+            self.recorder.stop()
         self._worker.shutdown()
         self.runner.shutdown()
 
@@ -274,24 +297,59 @@ class EmulatorService:
             raise InvalidRequest(str(err)) from None
         return config, mode
 
-    @staticmethod
-    def preflight(config: EmulatorConfig, mode: str | None) -> float | None:
+    def preflight(self, config: EmulatorConfig, mode: str | None,
+                  ) -> tuple[float | None, dict | None]:
         """Refuse a hil start whose predicted course leaves an arm's reach, safety volume
-        or speed (app/runs/preflight.py; InvalidRequest naming the robot, time and limit); else
-        when the run keeps its snapshot for the restitution's interval (before the
-        contact the prediction has; None: none)."""
+        or speed (app/runs/preflight.py; InvalidRequest naming the robot, time and
+        limit); else (when the run keeps its snapshot for the restitution's interval,
+        before the contact the prediction has, None: none; the pre-flight's ideal
+        collision the run is compared with, as a headless run's: None without one)."""
         if (mode or config.loop.mode) != "hil":
-            return None
-        try:
-            prediction = preflight(config, config.loop.duration_s)
-        except PreflightRefused as err:
-            raise InvalidRequest(str(err)) from None
-        if prediction is None or prediction.n_sat < 2:
-            return None
-        from app.runs.headless import collision_of
+            return None, None
         from app.runs.uncertainty import snapshot_time_s
 
-        return snapshot_time_s(config, collision_of(prediction))
+        reference = self._checked_reference(config, mode)[0]
+        if reference is None or len(config.satellites) < 2:
+            return None, reference
+        return snapshot_time_s(config, reference), reference
+
+    def _checked_reference(self, config: EmulatorConfig, mode: str | None,
+                           with_forecast: bool = False) -> tuple[dict | None, float]:
+        """(the pre-flight's ideal collision reference, as a headless run computes it:
+        app.runs.headless.checked_reference, with its ``forecast`` where asked or already
+        computed; the seconds it took), cached per configuration and mode;
+        InvalidRequest when the pre-flight refuses. A start does not wait for the
+        forecast (seconds, minutes at a high loop rate): its metrics carry it when the
+        page (or a client) asked for it before (/forecast)."""
+        key = (config.model_dump_json(), mode)
+        with self._forecast_lock:
+            cached = self._forecasts.get(key)
+        if cached is not None and (not with_forecast or not cached[0]  # (no contact)
+                                   or "forecast" in cached[0]):
+            return cached
+        from app.runs.headless import checked_reference, collision_of, headless_config
+        from app.runs.preflight import preflight
+
+        t0 = time.perf_counter()
+        duration = config.loop.duration_s
+        try:  # sized as a headless run's, where that is valid; else the pre-flight
+            sized = headless_config(config, duration)  # refuses it by name
+        except ConfigError:
+            sized = config
+        try:
+            if with_forecast:
+                reference = checked_reference(sized, duration)
+            else:  # the same without the forecast
+                prediction = preflight(sized, duration)
+                reference = None if len(config.satellites) < 2 or prediction is None \
+                    else collision_of(prediction)
+        except PreflightRefused as err:
+            raise InvalidRequest(str(err)) from None
+        with self._forecast_lock:
+            while len(self._forecasts) >= FORECASTS_KEPT:  # the oldest goes
+                del self._forecasts[next(iter(self._forecasts))]
+            self._forecasts[key] = (reference, time.perf_counter() - t0)
+            return self._forecasts[key]
 
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
@@ -302,29 +360,19 @@ class EmulatorService:
         config, mode = self.build(name, overrides, mode)
         key = (config.model_dump_json(), mode)
         with self._forecast_lock:
-            if key not in self._forecasts:
-                while len(self._forecasts) >= FORECASTS_KEPT:  # the oldest goes
-                    del self._forecasts[next(iter(self._forecasts))]
-                self._forecasts[key] = self._compute_forecast(name, config, mode)
-            return self._forecasts[key]
-
-    @staticmethod
-    def _compute_forecast(name: str, config: EmulatorConfig, mode: str | None) -> dict:
-        import time
-
-        from app.runs.headless import checked_reference, headless_config
-
-        t0 = time.perf_counter()
-        forecast = None
-        if (mode or config.loop.mode) == "hil" and len(config.satellites) >= 2:
-            duration = config.loop.duration_s
-            try:
-                reference = checked_reference(headless_config(config, duration), duration)
-            except PreflightRefused as err:
-                raise InvalidRequest(str(err)) from None
-            forecast = (reference or {}).get("forecast")
-        return {"scenario": name, "mode": mode or config.loop.mode,
-                "collision_forecast": forecast, "wall_s": time.perf_counter() - t0}
+            if key in self._answers:
+                return self._answers[key]
+        t0 = time.perf_counter()  # (the pre-flight of a start may have computed it)
+        reference = None
+        if (mode or config.loop.mode) == "hil":
+            reference = self._checked_reference(config, mode, with_forecast=True)[0]
+        answer = {"scenario": name, "mode": mode or config.loop.mode,
+                  "collision_forecast": (reference or {}).get("forecast"),
+                  "wall_s": time.perf_counter() - t0}
+        with self._forecast_lock:
+            while len(self._answers) >= FORECASTS_KEPT:  # the oldest goes
+                del self._answers[next(iter(self._answers))]
+            return self._answers.setdefault(key, answer)
 
     # --- commands ---------------------------------------------------------------------
 
@@ -341,9 +389,15 @@ class EmulatorService:
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._refuse_if_busy()  # 409 before a pre-flight's seconds
-            snapshot_at_s = self.preflight(config, mode)
+            snapshot_at_s, reference = self.preflight(config, mode)
+            if self.recorder is not None:
+                self.recorder.settle()  # the last run's rows, before a new loop
             self._revive(config, name, mode)
             gen = self.runner.request_start(name, config, mode, snapshot_at_s)
+            ring = self.runner.ring_of({"generation": gen})
+            self._reference = (ring, reference)
+            if self.recorder is not None and ring is not None:
+                self.recorder.begin(ring, name, config, mode, reference, snapshot_at_s)
             self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
@@ -388,6 +442,8 @@ class EmulatorService:
                 name, config, mode = self._last_run
             else:
                 config, mode = self.build(name, mode=mode)
+            if self.recorder is not None:
+                self.recorder.settle()  # the run's last rows, before the reset ends it
             self._revive(config, name, mode)
             gen = self.runner.request_reset(name, config, mode)
             self._csv_chunks.clear()
@@ -609,26 +665,40 @@ class EmulatorService:
         return self._reads.get("metrics", self._metrics)
 
     def _metrics(self, read=None) -> dict[str, Any]:
-        from app.runs.metrics import RunFacts, metrics_of
-
         snap, ring, _, rows = read or self.runner.run_telemetry()
         columns, rows = self._rows_of(snap, ring, rows)
         config = ring.config if ring is not None else self.last_config
-        loop = snap["loop"]
         fault = self.runner.fault()  # a dead or stalled loop: its run is not "running"
         status = "fault" if fault is not None else snap["status"]
+        error = fault if fault is not None else (
+            snap.get("reason") if status == "error" else None)
+        ideal = self._reference[1] if ring is not None and self._reference[0] is ring else None
+        return self.metrics_for(snap, config, columns, rows, status, error, ideal)
+
+    @staticmethod
+    def metrics_for(snap: dict | None, config: EmulatorConfig, columns: list[str],
+                    rows: np.ndarray, status: str, error: str | None,
+                    ideal: dict | None) -> dict[str, Any]:
+        """The metrics.json of a run of the loop: its rows, the last state it published
+        (``snap``; None: none was seen), its status and error, and the ideal run's
+        collision it is compared with (the pre-flight's, as a headless run's)."""
+        from app.runs.metrics import RunFacts, metrics_of
+
+        snap = snap or {}
+        loop = snap.get("loop") or {"cycles": 0, "wall_s": 0.0}
+        cycles = loop["cycles"]
         facts = RunFacts(
-            mode=snap["mode"], status=status, cycles=loop["cycles"],
-            wall_s=loop["wall_s"],
-            cycle_time_us={"p50": loop["cycle_time_us"]["p50"] if loop["cycles"] else None,
-                           "p99": loop["cycle_time_us"]["p99"] if loop["cycles"] else None},
-            safety_stop=snap["safety_stop"], passivity=snap.get("passivity"),
-            arm_of={r["satellite"] - 1: k for k, r in enumerate(snap["robots"])},
+            mode=snap.get("mode", "hil" if any(c.startswith("rob") for c in columns)
+                          else "ideal"),
+            status=status, cycles=cycles, wall_s=loop["wall_s"],
+            cycle_time_us={"p50": loop["cycle_time_us"]["p50"] if cycles else None,
+                           "p99": loop["cycle_time_us"]["p99"] if cycles else None},
+            safety_stop=snap.get("safety_stop"), passivity=snap.get("passivity"),
+            arm_of={r["satellite"] - 1: k for k, r in enumerate(snap.get("robots", []))},
             capture=snap.get("capture"),
-            error=fault if fault is not None else (
-                snap.get("reason") if status == "error" else None))
+            error=error if status in ("error", "fault") else None)
         index = {name: k for k, name in enumerate(columns)}
-        metrics = metrics_of(config, rows, index, facts)
+        metrics = metrics_of(config, rows, index, facts, ideal)
         interval, coll = snap.get("interval"), metrics.get("collision")
         if interval and coll and coll["pair"] == interval["pair"] \
                 and coll["restitution"] == interval["restitution"]:  # the loop's, after the run

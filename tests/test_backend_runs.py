@@ -1,0 +1,324 @@
+"""Every web run kept on disk (app/backend/recorder.py, app/runs/store.py), end to end.
+
+A first server (`orbit-emulator serve`, a subprocess) records a short ideal run and the
+start of a long one, and is killed with SIGKILL mid-run; a second one (the module's live
+server, on the same runs directory) finds both: the first whole, the second interrupted
+with its rows up to about a second before the kill. On the second server a short hil
+collision is recorded with the ideal run's comparison, the same as `orbit-emulator run`
+gives; Reset and a new Start lose nothing; the files are served safely; the CLI lists the
+runs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+
+import httpx
+import numpy as np
+import pytest
+
+from app.cli import main as cli_main
+from app.runs.store import read_telemetry
+from tests.live_server import LiveServer, free_port
+from tests.test_cli import EXE
+
+SHORT_COLLISION = {"satellites": {"0": {"position_m": [-0.16, 0, 0]},
+                                  "1": {"position_m": [0.16, 0, 0]}},
+                   "loop": {"duration_s": 1.2, "seed": 3},
+                   "uncertainty": {"replicates": 4, "forecast_replicates": 4}}
+"""The shipped collision started closer: its contact at 0.74 s in a 1.2 s run."""
+SHORT_COLLISION_SET = ["satellites.0.position_m=[-0.16,0,0]",
+                       "satellites.1.position_m=[0.16,0,0]", "loop.seed=3",
+                       "uncertainty.replicates=4", "uncertainty.forecast_replicates=4"]
+
+
+def _wait(predicate, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(what)
+        time.sleep(0.1)
+
+
+@pytest.fixture(scope="module")
+def runs_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("runs")
+
+
+@pytest.fixture(scope="module")
+def killed(runs_dir):
+    """The first server: a 0.6 s ideal run recorded whole, then a 60 s one killed (the
+    server, SIGKILL) about 3 s in; (the first run's id, the second's, its last t_s seen
+    before the kill)."""
+    port = free_port()
+    proc = subprocess.Popen([EXE, "serve", "--port", str(port), "--runs-dir", str(runs_dir)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60.0)
+    try:
+        def up():
+            try:
+                return client.get("/api/health").status_code == 200
+            except httpx.HTTPError:
+                return False
+        _wait(up, 120.0, "the first server did not start")
+        r = client.post("/api/scenarios/collision/start",
+                        json={"mode": "ideal", "loop": {"duration_s": 0.6}})
+        assert r.status_code == 200, r.text
+        whole = _wait(lambda: [x for x in client.get("/api/runs").json()["runs"]
+                               if x["status"] == "finished"], 30.0, "no finished run")[0]
+        r = client.post("/api/scenarios/collision/start",
+                        json={"mode": "ideal", "loop": {"duration_s": 60.0}})
+        assert r.status_code == 200, r.text
+        state = _wait(lambda: (s := client.get("/api/state").json())["t_s"] >= 3.0 and s,
+                      30.0, "the long run did not reach 3 s")
+        cut = client.get("/api/runs").json()["recording"]
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        client.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    return whole["id"], cut, state["t_s"]
+
+
+@pytest.fixture(scope="module")
+def live(killed, runs_dir):
+    with LiveServer(runs_dir=runs_dir, keep_runs=6) as server:
+        yield server
+
+
+def _runs(live) -> dict:
+    r = live.client.get("/api/runs")
+    assert r.status_code == 200, r.text
+    return {x["id"]: x for x in r.json()["runs"]}
+
+
+def _ended(live, run_id: str, timeout_s: float = 60.0) -> dict:
+    """The run's record once its plots are drawn."""
+    return _wait(lambda: (x := _runs(live).get(run_id)) and isinstance(x.get("plots"), list)
+                 and x, timeout_s, f"run {run_id} has no plots")
+
+
+def test_a_killed_server_leaves_its_rows_up_to_a_second_before_the_kill(live, killed,
+                                                                        runs_dir):
+    whole, cut, t_seen_s = killed
+    runs = _runs(live)
+    assert runs[cut]["status"] == "interrupted", runs[cut]
+    assert "stopped before the run ended" in runs[cut]["reason"]
+    columns, rows = read_telemetry(runs_dir / cut / "telemetry.csv")
+    assert columns[0] == "t_s"
+    assert rows[-1, 0] >= t_seen_s - 1.0, (rows[-1, 0], t_seen_s)
+    assert np.all(np.diff(rows[:, 0]) > 0) and rows[0, 0] <= 0.01  # whole, in order
+    # the new server gives it the metrics of what it recorded
+    run = _wait(lambda: (x := live.client.get(f"/api/runs/{cut}").json())["metrics"] and x,
+                60.0, "no metrics for the interrupted run")
+    assert run["metrics"]["status"] == "interrupted"
+    assert run["metrics"]["duration_s"] == pytest.approx(rows[-1, 0])
+    # the run the first server finished is there whole after the restart
+    first = _ended(live, whole)
+    assert first["status"] == "finished" and first["mode"] == "ideal"
+    files = live.client.get(f"/api/runs/{whole}").json()["files"]
+    assert {"telemetry.csv", "metrics.json", "config.json", "summary.txt"} <= set(files)
+    assert set(first["plots"]) <= set(files) and first["plots"]
+
+
+def test_a_web_run_is_listed_with_its_figures_and_the_cli_s_numbers(live, tmp_path):
+    r = live.client.post("/api/scenarios/collision/start", json={**SHORT_COLLISION,
+                                                                 "mode": "hil"})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    record = _ended(live, run_id, 90.0)
+    assert (record["scenario"], record["mode"], record["seed"], record["status"]) == (
+        "collision", "hil", 3, "finished")
+    h = record["headline"]
+    assert h["restitution"] is not None and h["restitution_ideal"] is not None
+    assert h["restitution_error"] == pytest.approx(
+        (h["restitution"] - h["restitution_ideal"]) / h["restitution_ideal"])
+    lo, hi = h["restitution_interval_95"]
+    assert lo < h["restitution"] < hi
+    assert any(name.endswith(".png") for name in record["plots"])
+    png = live.client.get(f"/api/runs/{run_id}/files/{record['plots'][0]}")
+    assert png.status_code == 200 and png.content[:8] == b"\x89PNG\r\n\x1a\n"
+    web = live.client.get(f"/api/runs/{run_id}").json()["metrics"]
+    rest = live.client.get("/api/metrics").json()  # REST of the run that is there
+    # (the fidelity forecast a start does not wait for comes after the run, on disk)
+    assert rest["collision_forecast"] is None and web["collision_forecast"] is not None
+    assert {**web, "collision_forecast": None} == rest
+    # the same scenario, settings and seed headless: the same numbers
+    out = tmp_path / "cli"  # (the CLI's own code in this process: no start-up to wait)
+    assert cli_main(["run", "collision", "--quiet", "--out", str(out), "--duration", "1.2",
+                     *[a for s in SHORT_COLLISION_SET for a in ("--set", s)]]) == 0
+    cli = json.loads((out / "metrics.json").read_text())
+    for key in ("restitution", "restitution_ideal", "restitution_error", "true_impulse_ratio",
+                "restitution_interval_95", "peak_force_N"):
+        assert web["collision"][key] == pytest.approx(cli["collision"][key], rel=1e-9), key
+    assert web["collision_forecast"] == pytest.approx(cli["collision_forecast"], rel=1e-9)
+
+
+def test_reset_and_a_new_start_keep_the_runs_files(live, runs_dir):
+    before = _runs(live)
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    reset_one = live.client.get("/api/runs").json()["recording"]
+    live.wait_for(lambda s: s["t_s"] >= 1.0)
+    t_reset = live.state()["t_s"]
+    live.client.post("/api/reset")
+    record = _wait(lambda: (x := _runs(live)[reset_one])["status"] != "running" and x, 10.0,
+                   "the reset run was not ended")
+    assert record["status"] == "stopped" and "reset" in record["reason"]
+    rows = read_telemetry(runs_dir / reset_one / "telemetry.csv")[1]
+    assert rows[-1, 0] >= t_reset - 0.1  # its rows up to the reset
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 0.4}})
+    assert r.status_code == 200, r.text
+    after = _runs(live)
+    assert set(before) | {reset_one} < set(after)  # one more: the new run
+    for run_id in before:
+        assert (runs_dir / run_id / "telemetry.csv").is_file()
+    assert (runs_dir / reset_one / "metrics.json").is_file()
+
+
+def test_retention_removes_the_oldest(live, runs_dir):
+    ids = sorted(_runs(live))
+    for _ in range(7 - len(ids)):
+        live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={"mode": "ideal", "loop": {"duration_s": 0.2}})
+        assert r.status_code == 200, r.text
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    now = sorted(_runs(live))
+    assert len(now) == 6  # keep_runs=6 on this server
+    assert ids[0] not in now and not (runs_dir / ids[0]).exists()
+    assert "newest 6 runs" in live.client.get("/api/runs").json()["retention"]
+
+
+def test_bad_ids_and_names_get_exact_errors(live):
+    run_id = sorted(_runs(live))[0]  # the oldest: not the one being recorded
+    cases = [
+        (f"/api/runs/{run_id[:-1]}X", 422, "not a run's id"),
+        ("/api/runs/20991126T050005123Z-collision", 404,
+         "no run '20991126T050005123Z-collision' in"),
+        (f"/api/runs/{run_id}/files/nope.png", 404, f"run '{run_id}' has no file 'nope.png'"),
+        (f"/api/runs/{run_id}/files/%2E%2E", 422, "file name '..': not a file of a run"),
+        (f"/api/runs/{run_id}/files/.run.json.tmp", 422, "not a file of a run"),
+    ]
+    for path, status, detail in cases:
+        r = live.client.get(path)
+        assert r.status_code == status and detail in r.json()["detail"], (path, r.text)
+    for path in (f"/api/runs/{run_id}/files/..%2F..%2Fetc%2Fpasswd",
+                 f"/api/runs/..%2F{run_id}/files/run.json", "/api/runs/%2E%2E"):
+        assert live.client.get(path).status_code in (404, 422), path
+    gone = live.client.delete(f"/api/runs/{run_id}")
+    assert gone.status_code == 200 and gone.json() == {"deleted": run_id}
+    assert live.client.get(f"/api/runs/{run_id}").status_code == 404
+    assert live.client.delete(f"/api/runs/{run_id}").status_code == 404
+
+
+def test_the_cli_lists_the_runs_and_shows_one(live, capsys):
+    runs = _runs(live)
+    proc = subprocess.run([EXE, "runs", "--dir", str(live.runs_dir)], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    listed = [line.split()[0] for line in proc.stdout.splitlines()[1:]]
+    assert listed == sorted(runs, reverse=True)  # newest first
+    shown = next(i for i, x in runs.items() if x["status"] == "finished")
+    assert cli_main(["runs", "show", shown, "--dir", str(live.runs_dir)]) == 0
+    out = capsys.readouterr().out
+    assert f"run {shown}" in out and "status finished" in out
+    assert "simulated" in out and "telemetry.csv" in out
+    assert cli_main(["runs", "show", "../x", "--dir", str(live.runs_dir)]) == 2
+    assert "run id '../x': not a run's id" in capsys.readouterr().err
+    assert cli_main(["runs", "--dir", str(live.runs_dir) + "-none"]) == 2
+    assert "no runs directory" in capsys.readouterr().err
+
+
+def test_the_page_shows_the_result_and_compares_two_runs(live):
+    """In a real browser: after a short hil collision the result panel shows its
+    restitution against the ideal run's and its plots, read from the run's folder; two runs
+    chosen in the runs list are compared (settings that differ, plots side by side)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    from tests.test_backend_browser import CHROMIUM, CHROMIUM_ARGS, VIEWPORT
+
+    if not os.path.exists(CHROMIUM):
+        pytest.skip("needs " + CHROMIUM)
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport=VIEWPORT)
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(live.url + "/")
+            page.wait_for_selector("#run-result", state="attached", timeout=60_000)
+            page.locator("#runs-toggle").click()  # the panel opens on a click only
+            r = live.client.post("/api/scenarios/collision/start",
+                                 json={**SHORT_COLLISION, "mode": "hil"})
+            assert r.status_code == 200, r.text
+            run_id = live.client.get("/api/runs").json()["recording"]
+            record = _ended(live, run_id, 90.0)
+            h = record["headline"]
+            expected = (f"restitution {h['restitution']:.3f} (95 % interval "
+                        f"{h['restitution_interval_95'][0]:.3f} – "
+                        f"{h['restitution_interval_95'][1]:.3f}) · ideal run "
+                        f"{h['restitution_ideal']:.3f}")
+            try:
+                page.wait_for_function(
+                    "([id, text]) => { const r = document.getElementById('run-result');"
+                    " return r && r.dataset.runId === id && r.querySelector('img.run-plot')"
+                    " && r.textContent.includes(text); }", arg=[run_id, expected],
+                    timeout=60_000)
+                page.wait_for_function(  # a plot drawn, served from the run's folder
+                    "() => [...document.querySelectorAll('#run-result img.run-plot')]"
+                    ".some((i) => i.complete && i.naturalWidth > 300)", timeout=60_000)
+            except sync_api.TimeoutError:
+                pytest.fail(f"the result panel shows {page.locator('#run-result').inner_text()!r}"
+                            f"; expected run {run_id} with {expected!r} and a plot; page "
+                            f"errors: {errors}")
+            assert (f"restitution {h['restitution']:.3f} (ideal {h['restitution_ideal']:.3f}"
+                    in page.locator("#runs-headline").inner_text())  # the line at a glance
+            src = page.locator("#run-result img.run-plot").first.get_attribute("src")
+            assert src.startswith(f"/api/runs/{run_id}/files/") and ".png" in src
+            assert page.locator("#runs-retention").inner_text().startswith("the newest 6 runs")
+            # compare it with an ideal run
+            other = next(x["id"] for x in live.client.get("/api/runs").json()["runs"]
+                         if x["mode"] == "ideal" and x["status"] == "finished")
+            for rid in (run_id, other):
+                page.locator(f"input.run-choose[data-run-id='{rid}']").check()
+            page.locator("#compare-button").click()
+            page.wait_for_function(
+                "() => { const c = document.getElementById('run-compare');"
+                " return c && c.querySelector('.compare-diff') && c.querySelectorAll("
+                "'.compare-pair img.run-plot').length >= 2; }", timeout=60_000)
+            diff = page.locator("#run-compare .compare-diff").inner_text()
+            assert "mode" in diff and "hil" in diff and "ideal" in diff
+            assert "loop.duration_s" in diff  # 1.2 s against the ideal run's
+            assert page.locator("#run-compare .run-summary").count() == 2
+        finally:
+            browser.close()
+
+
+def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
+    """The loop process killed mid-run: the run ends "fault" with the reason, and its
+    rows up to the kill are on disk (read from the ring the recorder keeps open)."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    s = live.wait_for(lambda s: s["t_s"] >= 1.0)
+    os.kill(s["loop"]["pid"], signal.SIGKILL)
+    record = _wait(lambda: (x := _runs(live)[run_id])["status"] != "running" and x, 20.0,
+                   "the dead loop's run was not ended")
+    assert record["status"] == "fault" and "killed by SIGKILL" in record["reason"]
+    rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
+    assert rows[-1, 0] >= s["t_s"]
+    assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"
