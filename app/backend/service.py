@@ -117,6 +117,14 @@ class _PushRecord:
     dv_R: np.ndarray  # the velocity change it gives (R, lab m/s)
 
 
+def _start_settings(config: EmulatorConfig) -> dict[str, Any]:
+    """The settings the page offers to change before a start, as the scenario has them."""
+    return {"altitude_m": config.orbit.altitude_m,
+            "velocity_mps": list(config.satellites[0].velocity_mps),
+            "kp_lin": config.vfdm.kp_lin, "kp_rot": config.vfdm.kp_rot,
+            "duration_s": config.loop.duration_s, "mode": config.loop.mode}
+
+
 class EmulatorService:
     """Builds emulators from scenarios + overrides and drives one :class:`Runner`."""
 
@@ -128,6 +136,10 @@ class EmulatorService:
         self._build_lock = threading.Lock()
         self._forecast_lock = threading.Lock()
         self._forecasts: dict = {}
+        self._preflight_lock = threading.Lock()
+        self._preflights: dict = {}
+        self.pending_start: tuple[str, str] | None = None
+        """(scenario, mode) of a start in its pre-flight (seconds: the panels say so)."""
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
         self._last_run: tuple[str, EmulatorConfig, str | None] = (
@@ -156,7 +168,8 @@ class EmulatorService:
 
     @staticmethod
     def scenarios() -> list[dict[str, str]]:
-        return [{"name": n, "description": d} for n, d in scenario_descriptions().items()]
+        return [{"name": n, "description": d, "settings": _start_settings(load_scenario(n))}
+                for n, d in scenario_descriptions().items()]
 
     def state(self) -> dict[str, Any]:
         """The loop's latest state; status "fault" with the reason while the loop process
@@ -268,6 +281,23 @@ class EmulatorService:
 
         return snapshot_time_s(config, collision_of(prediction))
 
+    def _preflight_cached(self, config: EmulatorConfig, mode: str | None) -> float | None:
+        """preflight(), remembered per configuration and mode (the last 32; it takes 2 to
+        9 s): a Start after the page's forecast of the same choice starts at once."""
+        key = (config.model_dump_json(), mode or config.loop.mode)
+        with self._preflight_lock:  # (a second asker waits for the first one's answer)
+            if key not in self._preflights:
+                while len(self._preflights) >= FORECASTS_KEPT:  # the oldest goes
+                    del self._preflights[next(iter(self._preflights))]
+                try:
+                    self._preflights[key] = (self.preflight(config, mode), None)
+                except InvalidRequest as err:
+                    self._preflights[key] = (None, str(err))
+            snapshot_at_s, refused = self._preflights[key]
+        if refused is not None:
+            raise InvalidRequest(refused)
+        return snapshot_at_s
+
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
         """Before Start: the pre-flight of scenario ``name`` as it would start, with the
@@ -281,7 +311,9 @@ class EmulatorService:
                 while len(self._forecasts) >= FORECASTS_KEPT:  # the oldest goes
                     del self._forecasts[next(iter(self._forecasts))]
                 self._forecasts[key] = self._compute_forecast(name, config, mode)
-            return self._forecasts[key]
+            forecast = self._forecasts[key]
+        self._preflight_cached(config, mode)  # the start's own check, ready for Start
+        return forecast
 
     @staticmethod
     def _compute_forecast(name: str, config: EmulatorConfig, mode: str | None) -> dict:
@@ -316,9 +348,13 @@ class EmulatorService:
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._refuse_if_busy()  # 409 before a pre-flight's seconds
-            snapshot_at_s = self.preflight(config, mode)
-            self._revive(config, name, mode)
-            gen = self.runner.request_start(name, config, mode, snapshot_at_s)
+            self.pending_start = (name, mode or config.loop.mode)
+            try:
+                snapshot_at_s = self._preflight_cached(config, mode)
+                self._revive(config, name, mode)
+                gen = self.runner.request_start(name, config, mode, snapshot_at_s)
+            finally:
+                self.pending_start = None
             self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
