@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -283,20 +284,27 @@ class EmulatorService:
 
     def _preflight_cached(self, config: EmulatorConfig, mode: str | None) -> float | None:
         """preflight(), remembered per configuration and mode (the last 32; it takes 2 to
-        9 s): a Start after the page's forecast of the same choice starts at once."""
+        9 s): a Start after the page's forecast of the same choice starts at once. A second
+        asker of the same one waits for the first one's answer; others do not wait."""
         key = (config.model_dump_json(), mode or config.loop.mode)
-        with self._preflight_lock:  # (a second asker waits for the first one's answer)
-            if key not in self._preflights:
+        with self._preflight_lock:
+            answer = self._preflights.get(key)
+            mine = answer is None
+            if mine:
                 while len(self._preflights) >= FORECASTS_KEPT:  # the oldest goes
                     del self._preflights[next(iter(self._preflights))]
-                try:
-                    self._preflights[key] = (self.preflight(config, mode), None)
-                except InvalidRequest as err:
-                    self._preflights[key] = (None, str(err))
-            snapshot_at_s, refused = self._preflights[key]
-        if refused is not None:
-            raise InvalidRequest(refused)
-        return snapshot_at_s
+                answer = self._preflights[key] = Future()
+        if mine:
+            try:
+                answer.set_result(self.preflight(config, mode))
+            except InvalidRequest as err:  # a refusal is an answer too
+                answer.set_exception(err)
+            except BaseException as err:  # not one: the next asker tries again
+                with self._preflight_lock:
+                    self._preflights.pop(key, None)
+                answer.set_exception(err)
+                raise
+        return answer.result()
 
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
