@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from app.backend.scene import GIZMO_OFFSET_W
 from tests.live_server import LiveServer
 
 playwright = pytest.importorskip("playwright.sync_api")
@@ -55,8 +56,8 @@ def _viewer_box(page) -> dict:
 
 
 def _project(live, page, points_W) -> np.ndarray:
-    """Page pixel coordinates of lab points, seen by viser's initial camera (vertical
-    FOV 75 deg, z up) in the iframe."""
+    """Page pixel coordinates of lab points, seen by viser's initial camera (its vertical
+    field of view, z up) in the iframe."""
     cam = live.app.state.viser.initial_camera
     box = _viewer_box(page)
     pos, look = np.asarray(cam.position, float), np.asarray(cam.look_at, float)
@@ -64,7 +65,7 @@ def _project(live, page, points_W) -> np.ndarray:
     r = np.cross(f, [0.0, 0.0, 1.0])
     r /= np.linalg.norm(r)
     d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(np.radians(75.0) / 2)
+    fpx = (box["height"] / 2) / np.tan(cam.fov / 2)
     out = []
     for p in np.atleast_2d(points_W):
         v = np.asarray(p, float) - pos
@@ -159,7 +160,7 @@ def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     live.wait_for_scene()
     _wait_rendered(page, live)
     s0 = live.wait_for(lambda s: s["t_s"] > 2.0)  # arm settled, the browser caught up
-    m = np.array(s0["robots"][0]["mockup_position_W_m"])
+    m = np.array(s0["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
     scale = 0.35  # the gizmo's scale (scene.py): its arrows are that long in metres
     center, tip = _project(live, page, [m, m + [0.0, 0.7 * scale, 0.0]])
     img = _screenshot(page)
@@ -255,16 +256,16 @@ def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
     assert grab[1] == pytest.approx(-0.1, abs=1e-3), grab  # on the face that was clicked
     np.testing.assert_allclose(grab[[0, 2]], r_B[[0, 2]], atol=0.02)
     page.wait_for_timeout(500)  # the gizmo has moved to the grab point
-    s1 = _drag_arrow(live, page, m + grab, [1.0, 0.0, 0.0],
+    s1 = _drag_arrow(live, page, m + grab + GIZMO_OFFSET_W, [1.0, 0.0, 0.0],
                      lambda s: s["satellites"][0]["omega_radps"][2] > 0.005)
     v, w = s1["satellites"][0]["velocity_mps"], s1["satellites"][0]["omega_radps"]
     assert v[0] > 0.0 and w[2] > abs(w[0]) and w[2] > abs(w[1]), (v, w)
     live.client.post("/api/stop")
 
 
-def test_the_panel_follows_a_rest_start(live, page):
-    """A run started over REST shows in the 3D view's panel (scenario, settings) and on
-    the page (scenario and mode selectors, settings line)."""
+def test_the_page_and_the_panel_follow_a_rest_start(live, page):
+    """A run started over REST shows on the page (scenario and mode selectors, the
+    settings form and line) and in the 3D view's panel (its status names the scenario)."""
     live.client.post("/api/stop")
     s = live.client.post("/api/scenarios/collision/start",
                          json={"mode": "ideal", "loop": {"duration_s": 9.0},
@@ -273,15 +274,16 @@ def test_the_panel_follows_a_rest_start(live, page):
     page.wait_for_function("document.getElementById('mode').value === 'ideal'",
                            timeout=10_000)
     assert page.locator("#scenario").input_value() == "collision"
-    panel = page.frames[1]  # the viewer's panel: its inputs' values
+    assert page.input_value("#set-vx") == "0.05" and page.input_value("#set-duration") == "9"
+    assert "duration 9 s" in page.text_content("#settings")
+    panel = page.frames[1]  # the viewer's panel
     assert "/viewer/" in panel.url
     deadline = time.monotonic() + 15
-    while True:
-        values = panel.eval_on_selector_all("input", "els => els.map(e => e.value)")
-        if {"collision", "ideal", "0.05", "9"} <= set(values) or time.monotonic() > deadline:
-            break
+    while "collision** (ideal)" not in live.app.state.scene._last_status:
+        assert time.monotonic() < deadline, live.app.state.scene._last_status
         page.wait_for_timeout(200)
-    assert {"collision", "ideal", "0.05", "9"} <= set(values), values
+    panel.wait_for_function("document.body.innerText.includes('collision (ideal)')",
+                            timeout=10_000)
     live.client.post("/api/stop")
 
 
