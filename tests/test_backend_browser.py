@@ -98,6 +98,8 @@ def test_viewer_renders_both_arms(live, page):
                            timeout=30_000)
     assert page.locator("#viewer").get_attribute("src") == "/viewer/"  # through the app
     base = _wait_rendered(page, live)
+    # the whole rig in view (the default camera frames the mockups, not the arms' homes)
+    _set_cameras(live, (1.9, -2.3, 1.7), (0.0, 0.0, 0.95))
     page.wait_for_timeout(1500)  # let the meshes settle
     base = _screenshot(page)
     scene = live.app.state.scene
@@ -118,7 +120,16 @@ def test_viewer_renders_both_arms(live, page):
         finally:
             view.root.visible = True
         assert changed > 1500, f"hiding an arm changed only {changed} pixels"
+    cam = live.app.state.viser.initial_camera
+    _set_cameras(live, cam.position, cam.look_at)  # back to the default, which _project uses
     page.wait_for_timeout(1000)
+
+
+def _set_cameras(live, position, look_at) -> None:
+    """Every connected viewer's camera to this pose."""
+    for client in live.app.state.viser.get_clients().values():
+        client.camera.position = tuple(position)
+        client.camera.look_at = tuple(look_at)
 
 
 def test_the_page_shows_the_fidelity_forecast_before_start(live, page):

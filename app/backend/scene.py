@@ -76,6 +76,11 @@ in body axes, as measured), the satellite's velocity, angular velocity and posit
 how far each mockup is from its satellite (tracking error). Colours: x red, y green, z
 blue; satellite 1 solid, satellite 2 dashed.
 
+**Status.** t: scenario time; cycles: control cycles run (2 ms each); p50 / p99: the
+median / 99th percentile of the time a cycle takes to compute (under 2000 µs keeps real
+time); misses: cycles that overran their 2 ms deadline. hil: the arms carry the mockups
+(hardware in the loop, simulated); ideal: no arms.
+
 **Controls** are on the page above the view (scenario, mode, settings, Start, Stop,
 Reset); this panel shows the run and holds what belongs to the 3D view.
 """
