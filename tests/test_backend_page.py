@@ -97,6 +97,10 @@ def offline(browser):
 def page(live, offline):
     context = offline[0]
     page = context.new_page()
+    pending = page.pending = {}  # the requests under way (for a failure's message)
+    page.on("request", lambda r: pending.__setitem__(id(r), (time.monotonic(), r.method, r.url)))
+    page.on("requestfinished", lambda r: pending.pop(id(r), None))
+    page.on("requestfailed", lambda r: pending.pop(id(r), None))
     page.goto(live.url + "/")
     page.wait_for_function("document.getElementById('scenario').options.length > 0",
                            timeout=30_000)
@@ -286,8 +290,16 @@ def free_floating(live, page):
     page.select_option("#mode", "hil")
     _set(page, "#set-duration", "120")
     page.click("#start-button")
-    s = live.wait_for(lambda s: s["status"] == "running" and s["scenario"] == "free-floating",
-                      timeout_s=60)
+    svc = live.app.state.service
+    try:
+        s = live.wait_for(lambda s: s["status"] == "running" and s["scenario"] == "free-floating",
+                          timeout_s=60)
+    except TimeoutError:
+        print("the page's start did not arrive:", page.text_content("#status"),
+              svc.pending_start, page.text_content("#message"))
+        now = time.monotonic()
+        print("PENDING", sorted((round(now - t), m, u) for t, m, u in page.pending.values()))
+        raise
     assert s["settings"]["duration_s"] == 120.0  # the page's one set of controls
     live.wait_for_scene()
     return s
