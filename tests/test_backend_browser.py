@@ -18,6 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
+from app.backend.scene import GIZMO_OFFSET_W
 from tests.live_server import LiveServer
 
 playwright = pytest.importorskip("playwright.sync_api")
@@ -61,8 +62,8 @@ def _viewer_box(page) -> dict:
 
 
 def _project(live, page, points_W) -> np.ndarray:
-    """Page pixel coordinates of lab points, seen by viser's initial camera (vertical
-    FOV 75 deg, z up) in the iframe."""
+    """Page pixel coordinates of lab points, seen by viser's initial camera (its vertical
+    field of view, z up) in the iframe."""
     cam = live.app.state.viser.initial_camera
     box = _viewer_box(page)
     pos, look = np.asarray(cam.position, float), np.asarray(cam.look_at, float)
@@ -70,7 +71,7 @@ def _project(live, page, points_W) -> np.ndarray:
     r = np.cross(f, [0.0, 0.0, 1.0])
     r /= np.linalg.norm(r)
     d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(np.radians(75.0) / 2)
+    fpx = (box["height"] / 2) / np.tan(cam.fov / 2)
     out = []
     for p in np.atleast_2d(points_W):
         v = np.asarray(p, float) - pos
@@ -103,6 +104,8 @@ def test_viewer_renders_both_arms(live, page):
                            timeout=30_000)
     assert page.locator("#viewer").get_attribute("src") == "/viewer/"  # through the app
     base = _wait_rendered(page, live)
+    # the whole rig in view (the default camera frames the mockups, not the arms' homes)
+    _set_cameras(live, (1.9, -2.3, 1.7), (0.0, 0.0, 0.95))
     page.wait_for_timeout(1500)  # let the meshes settle
     base = _screenshot(page)
     scene = live.app.state.scene
@@ -123,7 +126,16 @@ def test_viewer_renders_both_arms(live, page):
         finally:
             view.root.visible = True
         assert changed > 1500, f"hiding an arm changed only {changed} pixels"
+    cam = live.app.state.viser.initial_camera
+    _set_cameras(live, cam.position, cam.look_at)  # back to the default, which _project uses
     page.wait_for_timeout(1000)
+
+
+def _set_cameras(live, position, look_at) -> None:
+    """Every connected viewer's camera to this pose."""
+    for client in live.app.state.viser.get_clients().values():
+        client.camera.position = tuple(position)
+        client.camera.look_at = tuple(look_at)
 
 
 def test_the_page_shows_the_fidelity_forecast_before_start(live, page):
@@ -165,7 +177,7 @@ def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     live.wait_for_scene()
     _wait_rendered(page, live)
     s0 = live.wait_for(lambda s: s["t_s"] > 2.0)  # arm settled, the browser caught up
-    m = np.array(s0["robots"][0]["mockup_position_W_m"])
+    m = np.array(s0["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
     scale = 0.35  # the gizmo's scale (scene.py): its arrows are that long in metres
     # From the initial camera the +y arrow points nearly into the view, 23 px long, over
     # the rotation rings: the camera goes close, looking at the mockup from +x.
@@ -283,16 +295,16 @@ def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
     assert grab[1] == pytest.approx(-0.1, abs=1e-3), grab  # on the face that was clicked
     np.testing.assert_allclose(grab[[0, 2]], r_B[[0, 2]], atol=0.02)
     page.wait_for_timeout(500)  # the gizmo has moved to the grab point
-    s1 = _drag_arrow(live, page, m + grab, [1.0, 0.0, 0.0],
+    s1 = _drag_arrow(live, page, m + grab + GIZMO_OFFSET_W, [1.0, 0.0, 0.0],
                      lambda s: s["satellites"][0]["omega_radps"][2] > 0.005)
     v, w = s1["satellites"][0]["velocity_mps"], s1["satellites"][0]["omega_radps"]
     assert v[0] > 0.0 and w[2] > abs(w[0]) and w[2] > abs(w[1]), (v, w)
     live.client.post("/api/stop")
 
 
-def test_the_panel_follows_a_rest_start(live, page):
-    """A run started over REST shows in the 3D view's panel (scenario, settings) and on
-    the page (scenario and mode selectors, settings line)."""
+def test_the_page_and_the_panel_follow_a_rest_start(live, page):
+    """A run started over REST shows on the page (scenario and mode selectors, the
+    settings form and line) and in the 3D view's panel (its status names the scenario)."""
     live.client.post("/api/stop")
     s = live.client.post("/api/scenarios/collision/start",
                          json={"mode": "ideal", "loop": {"duration_s": 9.0},
@@ -301,15 +313,16 @@ def test_the_panel_follows_a_rest_start(live, page):
     page.wait_for_function("document.getElementById('mode').value === 'ideal'",
                            timeout=10_000)
     assert page.locator("#scenario").input_value() == "collision"
-    panel = page.frames[1]  # the viewer's panel: its inputs' values
+    assert page.input_value("#set-vx") == "0.05" and page.input_value("#set-duration") == "9"
+    assert "duration 9 s" in page.text_content("#settings")
+    panel = page.frames[1]  # the viewer's panel
     assert "/viewer/" in panel.url
     deadline = time.monotonic() + 15
-    while True:
-        values = panel.eval_on_selector_all("input", "els => els.map(e => e.value)")
-        if {"collision", "ideal", "0.05", "9"} <= set(values) or time.monotonic() > deadline:
-            break
+    while "collision** (ideal)" not in live.app.state.scene._last_status:
+        assert time.monotonic() < deadline, live.app.state.scene._last_status
         page.wait_for_timeout(200)
-    assert {"collision", "ideal", "0.05", "9"} <= set(values), values
+    panel.wait_for_function("document.body.innerText.includes('collision (ideal)')",
+                            timeout=10_000)
     live.client.post("/api/stop")
 
 

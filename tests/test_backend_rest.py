@@ -372,14 +372,17 @@ def test_a_failing_start_reports_error_and_the_loop_lives_on(live):
     live.client.post("/api/stop")
 
 
-def test_the_viewer_panels_start_settings_are_a_valid_override(live):
-    """The 3D viewer's panel (viser GUI) starts a run with its fields as overrides: they
-    merge into the scenario and the first satellite takes the panel's velocity."""
-    scene = live.app.state.scene
-    scene.gui_velocity.value = (0.02, -0.01, 0.0)
-    config = live.app.state.service.config_for("collision", scene._gui_overrides())
-    assert config.satellites[0].velocity_mps == pytest.approx((0.02, -0.01, 0.0))
-    assert len(config.satellites) == 2
+def test_the_scenarios_list_gives_each_scenario_s_start_settings(live):
+    """/api/scenarios lists what a start without overrides runs with (the page shows them
+    as the settings form's defaults): the same values the run then reports."""
+    listed = {s["name"]: s for s in live.client.get("/api/scenarios").json()}
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/collision/start", json={"mode": "ideal"}).json()
+    live.client.post("/api/stop")
+    offered, ran = listed["collision"]["settings"], s["settings"]
+    for key in ("altitude_m", "velocity_mps", "kp_lin", "kp_rot", "duration_s"):
+        assert offered[key] == ran[key], key
+    assert offered["velocity_mps"] != [0.0, 0.0, 0.0]  # (collision's satellite 1 moves)
 
 
 @pytest.mark.parametrize(("headers", "status", "detail"), [

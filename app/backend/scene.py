@@ -23,15 +23,7 @@ import numpy as np
 import viser
 
 from app.backend.replay import ReplayRecorder
-from app.backend.service import (
-    EmulatorService,
-    InvalidRequest,
-    RunnerBusy,
-    StillStarting,
-    StopQueued,
-    UnknownScenario,
-)
-from app.scenarios import load_scenario, scenario_names
+from app.backend.service import EmulatorService
 from app.sim.hand import ray_box_hit
 from app.sim.rotations import matrix_to_quat, quat_to_matrix
 from app.sim.servo import seconds_until_beyond, seconds_until_outside
@@ -47,6 +39,19 @@ AXIS_COLORS = ("#e03131", "#2f9e44", "#1971c2")
 GRAB_COLOR = (230, 40, 40)
 BOX_COLOR = (255, 140, 0)
 PLOT_WINDOW_S = 60.0
+"""The live plots show the last this many seconds of scenario time."""
+CAMERA_FOV_RAD = np.radians(50.0)
+"""The default camera's vertical field of view."""
+CAMERA_DISTANCE_M = 1.3
+"""From the mockups' midpoint: a 0.2 m mockup spans about 100 px of a 630 px-high view."""
+CAMERA_DIRECTION_W = np.array([0.45, -1.0, 0.5]) / np.linalg.norm([0.45, -1.0, 0.5])
+"""From the mockups towards the camera: in front (-y), to the right and above."""
+CAMERA_SHIFT_M = 0.15
+"""The view looks this far right of the mockups: they sit left of the viewer's panel."""
+GIZMO_OFFSET_W = np.array([0.0, 0.0, -0.36])
+"""The gizmo (the hand's handle) sits this far from the point it holds: under the mockup,
+its arrows (0.25 m) end below it, clear of the mockup (a click there grabs) and of frame
+R's axes (which start at or above the mockups' height)."""
 WARN_HORIZON_S = 5.0
 """The panel warns when a satellite's course leaves its arm's safety volume this soon."""
 
@@ -58,7 +63,8 @@ mockup on it. Coloured lines: each satellite's course. Orange box: an arm's safe
 frame's origin (x radial out, y along the track, z orbit normal).
 
 **Your hand.** Click a mockup to grab it there (a red dot; "Grab at the centre" below
-undoes it), then drag the gizmo. It is a fingertip: it **presses, never pulls**. Drag an
+undoes it), then drag the gizmo (the hand's handle: it sits {below_cm:g} cm below the
+point it holds). It is a fingertip: it **presses, never pulls**. Drag an
 arrow and the hand presses the grab point that way, **{k_N_per_cm:g} N per cm** it is
 pressed in, at most **{max_N:g} N** (the sensor ignores under {deadband_N:g} N). Held 10 cm
 in for 1 s, satellite 1 gains up to **{dv_cm_s:.1f} cm/s**; once it has caught up with the
@@ -70,9 +76,18 @@ The arm's F/T sensor measures the push; the ODS applies it scaled ({force_scale:
 force, {torque_scale:g} x torque), so off the centre a press also spins the satellite.
 Let go to stop; to push another way, let go and drag again.
 
-**Plots.** The ODS's input (force in R, torque in body axes, as measured), the
-satellite's velocity, angular velocity and position, and how far each mockup is from its
-satellite (tracking error).
+**Plots** (the last {window_s:g} s of scenario time). The ODS's input (force in R, torque
+in body axes, as measured), the satellite's velocity, angular velocity and position, and
+how far each mockup is from its satellite (tracking error). Colours: x red, y green, z
+blue; satellite 1 solid, satellite 2 dashed.
+
+**Status.** t: scenario time; cycles: control cycles run (2 ms each); p50 / p99: the
+median / 99th percentile of the time a cycle takes to compute (under 2000 µs keeps real
+time); misses: cycles that overran their 2 ms deadline. hil: the arms carry the mockups
+(hardware in the loop, simulated); ideal: no arms.
+
+**Controls** are on the page above the view (scenario, mode, settings, Start, Stop,
+Reset); this panel shows the run and holds what belongs to the 3D view.
 """
 
 IDEAL_NOTE = """
@@ -101,6 +116,46 @@ def hand_numbers(settings: dict) -> dict:
             "kt_Nm_per_deg": kt * np.pi / 180.0, "max_Nm": settings["hand_max_torque_Nm"],
             "deadband_Nm": settings["deadband_torque_Nm"], "dw_deg_s": np.degrees(dw),
             "force_scale": fs, "torque_scale": ts}
+
+
+PLOT_DASH = (6.0, 4.0)
+"""Satellite 2's lines in the plots (dash, gap in px)."""
+PLOT_Y_AXIS_PX = 64
+PLOT_PADDING_PX = (12, 12, 0, 0)
+
+
+def _key_line(dash: tuple | None) -> str:
+    pattern = f' stroke-dasharray="{dash[0]:g} {dash[1]:g}"' if dash else ""
+    return (f'<svg width="30" height="8" style="vertical-align:middle"><line x1="0" y1="4" '
+            f'x2="30" y2="4" stroke="currentColor" stroke-width="2"{pattern}/></svg>')
+
+
+PLOT_KEY = (
+    '<div class="plot-key" style="font-size:0.8em;padding:0 0.5em">'
+    f'{_key_line(None)} satellite 1 &nbsp; {_key_line(PLOT_DASH)} satellite 2 &nbsp; '
+    '<span style="color:#e03131">x</span> <span style="color:#2f9e44">y</span> '
+    '<span style="color:#1971c2">z</span></div>')
+"""The plots' key: uPlot's legend marks every line solid, whatever its dash."""
+
+
+def default_camera(points_W: list) -> tuple[np.ndarray, np.ndarray]:
+    """(position, look-at point) of the default camera for mockups at points_W: their
+    midpoint seen from CAMERA_DIRECTION_W at CAMERA_DISTANCE_M (plus half their spread),
+    the look-at point moved CAMERA_SHIFT_M to the camera's right."""
+    pts = np.atleast_2d(np.asarray(points_W, float))
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    spread = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    distance = CAMERA_DISTANCE_M + 0.5 * max(0.0, spread - 0.7)
+    right = np.cross(-CAMERA_DIRECTION_W, [0.0, 0.0, 1.0])
+    look_at = centre + CAMERA_SHIFT_M * right / np.linalg.norm(right)
+    return look_at + distance * CAMERA_DIRECTION_W, look_at
+
+
+def trim_window(history: deque, window_s: float) -> None:
+    """Drop the snapshots older than window_s of scenario time before the newest (the
+    plots span a time, whatever the rate their samples came at)."""
+    while len(history) > 2 and history[-1]["t_s"] - history[1]["t_s"] >= window_s:
+        history.popleft()
 
 
 def _load_urdf():
@@ -179,6 +234,8 @@ class _SatView:
     grab_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
     """Where the hand holds the mockup (body axes, from the COM): a click picks it."""
     grab_marker: Any = None
+    gizmo_offset_W: np.ndarray = field(default_factory=lambda: GIZMO_OFFSET_W.copy())
+    """From the grab point to the gizmo."""
     T_W_C: np.ndarray = field(default_factory=lambda: np.eye(4))
     """The mockup's pose as last drawn."""
     trace_points: deque = field(default_factory=lambda: deque(maxlen=600))
@@ -208,11 +265,11 @@ class EmulatorScene:
         self._layout_key: tuple | None = None
         self._generation: int | None = None
         self._built_generation: int | None = None
-        self._history: deque = deque(maxlen=int(PLOT_WINDOW_S * rate_hz) + 1)
+        self._history: deque = deque()  # the snapshots of the last PLOT_WINDOW_S
+        self.plot_window_s = PLOT_WINDOW_S
         self._plots_have_data = False
         self._frame_R = None
         self._boxes: list = []
-        self._syncing = False  # the panel is being set to the run's values, not by a user
         self.replay = ReplayRecorder(server)
         """The 3D replay of the run going on, or of the last one (app/backend/replay.py)."""
         self._recorded_generation: int | None = None
@@ -233,12 +290,25 @@ class EmulatorScene:
         scene.add_light_hemisphere("/lights/hemi", intensity=0.5)
         scene.set_up_direction("+z")
         scene.add_grid("/floor", width=4.0, height=4.0, cell_size=0.25, position=(0, 0, 0))
-        self.server.initial_camera.position = (1.9, -2.3, 1.7)
-        self.server.initial_camera.look_at = (0.0, 0.0, 0.95)
+        self.server.initial_camera.fov = float(CAMERA_FOV_RAD)
+        self._frame_camera([np.array([0.0, 0.0, 1.0])])
+
+    def _frame_camera(self, points_W: list) -> None:
+        """The default camera: looking at the mockups' midpoint from CAMERA_DIRECTION_W,
+        CAMERA_DISTANCE_M away, shifted right so that they sit left of the panel; set for
+        the viewers connected too (a new layout: a new scene to look at)."""
+        position, look_at = default_camera(points_W)
+        self.server.initial_camera.position = tuple(position)
+        self.server.initial_camera.look_at = tuple(look_at)
+        for client in self.server.get_clients().values():  # (the initial camera is only
+            try:                                            # a new client's)
+                client.camera.position = tuple(position)
+                client.camera.look_at = tuple(look_at)
+            except (AssertionError, ValueError):  # its camera not reported yet
+                log.debug("client %s: camera not set", client.client_id)
 
     def _build_gui(self) -> None:
         gui = self.server.gui
-        svc = self.service
         self.gui_status = gui.add_markdown("**status** idle")
         self.gui_warning = gui.add_markdown("")
         with gui.add_folder("Help", expand_by_default=False):
@@ -246,53 +316,14 @@ class EmulatorScene:
         with gui.add_folder("Hand"):
             self.gui_grab = gui.add_markdown("grabbing: the centre of mass")
             self.gui_grab_centre = gui.add_button("Grab at the centre")
-        with gui.add_folder("Scenario"):
-            names = scenario_names()
-            self.gui_scenario = gui.add_dropdown(
-                "Scenario", names, initial_value=svc.default_scenario
-            )
-            self.gui_mode = gui.add_dropdown("Mode", ("hil", "ideal"), initial_value="hil")
-            self.gui_altitude = gui.add_number("Altitude (km)", 800.0, min=100.0, max=40000.0,
-                                               step=10.0)
-            self.gui_velocity = gui.add_vector3("Sat 1 v0 (m/s)", (0.0, 0.0, 0.0), step=0.001)
-            self.gui_kp_lin = gui.add_number("VFDM kp_lin", 10.0, min=0.0, max=1000.0, step=0.5)
-            self.gui_kp_rot = gui.add_number("VFDM kp_rot", 1.0, min=0.0, max=1000.0, step=0.1)
-            self.gui_duration = gui.add_number("Duration (s)", 30.0, min=1.0, max=3600.0, step=1.0)
-            self.gui_start = gui.add_button("Start", color="green")
-            self.gui_stop = gui.add_button("Stop", color="red")
-            self.gui_reset = gui.add_button("Reset")
-            self.gui_message = gui.add_markdown("")
-        self._fill_gui_from(svc.default_scenario)
-
-        @self.gui_scenario.on_update
-        def _(event) -> None:
-            if event.client is None or self._syncing:  # set by the code, not a user
-                return
-            self._fill_gui_from(self.gui_scenario.value)
-            if svc.runner.status not in ("running", "starting"):
-                self._guarded(lambda: svc.reset(self.gui_scenario.value,
-                                                mode=self.gui_mode.value))
 
         @self.gui_grab_centre.on_click
         def _(_event) -> None:
             for sv in self._sats:
                 self._set_grab(sv, np.zeros(3))
 
-        @self.gui_start.on_click
-        def _(_event) -> None:
-            self._guarded(lambda: svc.start(
-                self.gui_scenario.value, self._gui_overrides(), mode=self.gui_mode.value
-            ))
-
-        @self.gui_stop.on_click
-        def _(_event) -> None:
-            self._guarded(svc.stop)
-
-        @self.gui_reset.on_click
-        def _(_event) -> None:
-            self._guarded(svc.reset)  # what runs (or ran), back to its start
-
         with gui.add_folder("Plots"):
+            self.gui_plot_key = gui.add_html(PLOT_KEY)
             self.plots = {
                 key: self._add_plot(title)
                 for key, title in (
@@ -312,61 +343,20 @@ class EmulatorScene:
             series=({"label": "t (s)"}, {"label": "-", "stroke": "#888"}),
             title=title,
             scales={"x": {"time": False}},
+            # room for a signed label ("-0.0035") left of the y axis, and for the top
+            # label's upper half above the plot area (uPlot's 50 px and 0 px cut both)
+            axes=({}, {"size": PLOT_Y_AXIS_PX}),
+            padding=PLOT_PADDING_PX,
             aspect=1.6,
         )
 
-    def _fill_gui_from(self, name: str) -> None:
-        try:
-            cfg = load_scenario(name)
-        except Exception:  # pragma: no cover - names come from scenario_names()
-            return
-        self._show_settings({
-            "altitude_m": cfg.orbit.altitude_m,
-            "velocity_mps": cfg.satellites[0].velocity_mps,
-            "kp_lin": cfg.vfdm.kp_lin, "kp_rot": cfg.vfdm.kp_rot,
-            "duration_s": cfg.loop.duration_s,
-        })
-
-    def _show_settings(self, settings: dict) -> None:
-        self.gui_altitude.value = settings["altitude_m"] / 1e3
-        self.gui_velocity.value = tuple(float(v) for v in settings["velocity_mps"])
-        self.gui_kp_lin.value = settings["kp_lin"]
-        self.gui_kp_rot.value = settings["kp_rot"]
-        self.gui_duration.value = settings["duration_s"]
-
     def _sync_gui(self, snap: dict) -> None:
-        """The panel shows the run that is there, whoever started it (page, REST, panel)."""
-        self._syncing = True
-        try:
-            if snap["scenario"] in self.gui_scenario.options:
-                self.gui_scenario.value = snap["scenario"]
-            self.gui_mode.value = snap["mode"]
-            settings = snap.get("settings")
-            if settings:
-                self._show_settings(settings)
-                self.gui_help.content = HELP.format(**hand_numbers(settings)) + (
-                    IDEAL_NOTE if snap["mode"] == "ideal" else "")
-        finally:
-            self._syncing = False
-
-    def _gui_overrides(self) -> dict:
-        return {
-            "orbit": {"altitude_m": float(self.gui_altitude.value) * 1e3},
-            "satellites": {"0": {"velocity_mps": [float(v) for v in self.gui_velocity.value]}},
-            "vfdm": {"kp_lin": float(self.gui_kp_lin.value),
-                     "kp_rot": float(self.gui_kp_rot.value)},
-            "loop": {"duration_s": float(self.gui_duration.value)},
-        }
-
-    def _guarded(self, fn) -> None:
-        try:
-            fn()
-            self.gui_message.content = ""
-        except (RunnerBusy, InvalidRequest, UnknownScenario, StopQueued, StillStarting) as err:
-            self.gui_message.content = f"**{type(err).__name__}**: {err}"
-        except Exception as err:  # pragma: no cover
-            log.exception("GUI action failed")
-            self.gui_message.content = f"**error**: {err}"
+        """The panel's help says what the run that is there does (its hand, its scales)."""
+        settings = snap.get("settings")
+        if settings:
+            self.gui_help.content = HELP.format(
+                **hand_numbers(settings), below_cm=-100.0 * GIZMO_OFFSET_W[2],
+                window_s=PLOT_WINDOW_S) + (IDEAL_NOTE if snap["mode"] == "ideal" else "")
 
     def _arm_view(self, name: str, T_W_B: np.ndarray) -> _ArmView:
         key = (name, tuple(np.round(T_W_B, 6).ravel()))
@@ -407,8 +397,10 @@ class EmulatorScene:
             for sv in self._sats:
                 sv.trace_points.clear()
                 sv.trace_version += 1
+                self._set_grab(sv, np.zeros(3))  # a new run: the hand holds the centre
             return
         self._layout_key = key
+        self._frame_camera([np.asarray(sat["position_W_m"]) for sat in snap["satellites"]])
         scene = self.server.scene
         T_W_R = info["T_W_R"]
         if self._frame_R is None:
@@ -458,10 +450,10 @@ class EmulatorScene:
 
         @sv.gizmo.on_update
         async def _(event) -> None:  # async: runs on viser's loop, keeps phase order
+            hand_W = tuple(np.asarray(event.target.position) - sv.gizmo_offset_W)
             if event.phase in ("start", "update"):  # the hand presses and twists
                 sv.dragging = True
-                svc.hand(sv.index, tuple(event.target.position), tuple(sv.grab_B),
-                         tuple(event.target.wxyz))
+                svc.hand(sv.index, hand_W, tuple(sv.grab_B), tuple(event.target.wxyz))
             else:  # it lets go; the next grab starts square again
                 svc.hand(sv.index, None)
                 sv.dragging = False
@@ -482,7 +474,7 @@ class EmulatorScene:
         sv.grab_B = np.asarray(point_B, float)
         sv.grab_marker.position = tuple(sv.grab_B)
         if not sv.dragging:
-            p = sv.T_W_C[:3, :3] @ sv.grab_B + sv.T_W_C[:3, 3]
+            p = sv.T_W_C[:3, :3] @ sv.grab_B + sv.T_W_C[:3, 3] + sv.gizmo_offset_W
             sv.gizmo.position = tuple(p)
             sv.last_gizmo = tuple(np.round(p, 4))
         text = "; ".join(
@@ -539,6 +531,7 @@ class EmulatorScene:
         if snap["loop"]["cycles"] and (not self._history
                                        or self._history[-1]["t_s"] != snap["t_s"]):
             self._history.append(snap)  # (nothing to plot before the first cycle)
+            trim_window(self._history, self.plot_window_s)
         running = snap["status"] == "running"
         if running and self._recorded_generation != snap["generation"]:
             self.replay.start(snap["generation"])
@@ -569,7 +562,8 @@ class EmulatorScene:
                     sv.T_W_C = np.eye(4)
                     sv.T_W_C[:3, :3] = quat_to_matrix(np.array(mock[1]))
                     sv.T_W_C[:3, 3] = mock[0]
-                grab = tuple(np.round(sv.T_W_C[:3, :3] @ sv.grab_B + sv.T_W_C[:3, 3], 4))
+                grab = tuple(np.round(sv.T_W_C[:3, :3] @ sv.grab_B + sv.T_W_C[:3, 3]
+                                      + sv.gizmo_offset_W, 4))
                 if not sv.dragging and grab != sv.last_gizmo:
                     sv.gizmo.position = grab
                     sv.last_gizmo = grab
@@ -626,7 +620,8 @@ class EmulatorScene:
                     for a, axis in enumerate("xyz"):
                         s = {"label": f"s{i + 1} {axis}", "stroke": AXIS_COLORS[a], "width": 1.5}
                         if i:
-                            s["dash"] = (6.0, 4.0)
+                            s["dash"] = PLOT_DASH
+                            s["label"] += " (dashed)"  # uPlot's legend draws all solid
                         ser.append(s)
                 self._series[key] = tuple(ser)
             self._series["tracking"] = tuple(
@@ -664,7 +659,11 @@ class EmulatorScene:
 
     def _update_status(self, snap: dict) -> None:
         loop = snap["loop"]
-        if loop["cycles"] == 0 and snap["status"] in ("idle", "starting"):
+        pending = self.service.pending_start
+        if pending is not None:
+            text = (f"**{pending[0]}** ({pending[1]}) — **checking its course before the "
+                    "start** (pre-flight, a few seconds)")
+        elif loop["cycles"] == 0 and snap["status"] in ("idle", "starting"):
             text = (f"**{snap['scenario']}** ({snap['mode']}) — **not started**  \n"
                     "On Start each arm first carries its mockup onto its cyan wireframe "
                     "(the satellite's start pose); then the orbit runs.")

@@ -10,6 +10,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import re
+import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -29,7 +31,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 from starlette.background import BackgroundTask
 
-from app.backend import openapi
+from app.backend import docs_ui, openapi
 from app.backend.access import (
     AccessError,
     BodyLimit,
@@ -131,6 +133,9 @@ class PushRequest(BaseModel):
 class ScenarioInfo(BaseModel):
     name: str
     description: str
+    settings: dict[str, Any] = Field(
+        default_factory=dict, description="what a start without overrides runs with: "
+        "altitude_m, velocity_mps (satellite 1), kp_lin, kp_rot, duration_s, mode")
 
 
 NO_RUN = "no run to download yet: start one (a reset begins a new run)"
@@ -195,10 +200,23 @@ class ZipResponse(Response):
     media_type = "application/zip"
 
 
+def download_name(state: dict, what: str, now_s: float | None = None) -> str:
+    """A download's file name: scenario, mode and the UTC minute, then what it is, e.g.
+    collision-hil-20261126T0530Z-run.zip (only [A-Za-z0-9._-]: safe in a header and on
+    any file system)."""
+    stamp = time.strftime("%Y%m%dT%H%MZ", time.gmtime(now_s))
+    name = f"{state['scenario']}-{state['mode']}-{stamp}-{what}"
+    return re.sub(r"[^A-Za-z0-9._-]", "_", name)
+
+
+def attachment(filename: str) -> dict[str, str]:
+    return {"Content-Disposition": f'attachment; filename="{filename}"'}
+
+
 def _temporary_file(path: Path, filename: str, headers: dict | None = None) -> FileResponse:
     """A download built into a temporary file: streamed from disk in chunks, then deleted."""
     return FileResponse(path, media_type=ZipResponse.media_type, headers={
-        "Content-Disposition": f"attachment; filename={filename}", **(headers or {})},
+        **attachment(filename), **(headers or {})},
         background=BackgroundTask(path.unlink, missing_ok=True))
 
 
@@ -262,8 +280,11 @@ def create_app(
         ),
         version="0.1.0",
         lifespan=lifespan,
+        docs_url=None,  # FastAPI's pages load from a CDN: /docs is app/backend/docs_ui.py
+        redoc_url=None,
     )
     openapi.install(app, token_required=token is not None)
+    docs_ui.install(app)
     # outermost last: Host/Origin, then the token, then the body's size
     app.add_middleware(BodyLimit)
     if token is not None:
@@ -461,8 +482,10 @@ def create_app(
     @app.get("/api/metrics", tags=["status"], responses=no_run_404)
     def metrics(request: Request) -> dict[str, Any]:
         """The metrics.json of the current (or last) run; 404 before its first cycle."""
+        svc = the_run(request)
         try:
-            return json_safe(jsonable_encoder(the_run(request).metrics()))
+            return JSONResponse(json_safe(jsonable_encoder(svc.metrics())), headers=attachment(
+                download_name(svc.state(), "metrics.json")))
         except ImportError as err:  # pragma: no cover
             raise _http(503, err) from None
 
@@ -471,9 +494,10 @@ def create_app(
     def telemetry(request: Request, format: Literal["csv"] = "csv"):
         """Telemetry of the current (or last) run as CSV (one row per cycle); 404 before
         its first cycle."""
+        svc = the_run(request)
         return StreamingResponse(
-            the_run(request).telemetry_csv(), media_type=CsvResponse.media_type,
-            headers={"Content-Disposition": "attachment; filename=telemetry.csv"})
+            svc.telemetry_csv(), media_type=CsvResponse.media_type,
+            headers=attachment(download_name(svc.state(), "telemetry.csv")))
 
     @app.get("/api/run.zip", tags=["status"], response_class=ZipResponse,
              responses=no_run_404)
@@ -481,7 +505,9 @@ def create_app(
         """The current (or last) run to take home: telemetry.csv, metrics.json,
         summary.txt, config.json and plots/*.png (the headless run's figures), zipped;
         404 before its first cycle."""
-        return _temporary_file(the_run(request).run_archive(), "run.zip")
+        svc = the_run(request)
+        name = download_name(svc.state(), "run.zip")
+        return _temporary_file(svc.run_archive(), name)
 
     @app.get("/api/replay.html", tags=["status"], response_class=HTMLResponse,
              responses=no_run_404)
@@ -498,8 +524,7 @@ def create_app(
         title = f"orbit-emulator replay: {snap['scenario']} ({snap['mode']})" + (
             ", first 10 min" if truncated else "")
         page = service(request).exclusive(lambda: replay_html(data, title))
-        return HTMLResponse(page, headers={
-            "Content-Disposition": "attachment; filename=replay.html"})
+        return HTMLResponse(page, headers=attachment(download_name(snap, "replay.html")))
 
     runs_routes(app, service)
 
@@ -512,8 +537,10 @@ def create_app(
         true contact force and the satellites' twists, in standard messages (Foxglove,
         PlotJuggler, ros2 bag play). A long run's bag is thinned to about 60,000 messages;
         the X-Bag-Rate-Hz header says the rate it was written at."""
-        path, written_hz = the_run(request).run_bag(rate_hz)
-        return _temporary_file(path, "bag.zip", {"X-Bag-Rate-Hz": f"{written_hz:.6g}"})
+        svc = the_run(request)
+        name = download_name(svc.state(), "bag.zip")
+        path, written_hz = svc.run_bag(rate_hz)
+        return _temporary_file(path, name, {"X-Bag-Rate-Hz": f"{written_hz:.6g}"})
 
     return app
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -130,6 +131,14 @@ class _PushRecord:
     dw_radps: float = 0.0  # the most angular-velocity change it can give (rad/s)
 
 
+def _start_settings(config: EmulatorConfig) -> dict[str, Any]:
+    """The settings the page offers to change before a start, as the scenario has them."""
+    return {"altitude_m": config.orbit.altitude_m,
+            "velocity_mps": list(config.satellites[0].velocity_mps),
+            "kp_lin": config.vfdm.kp_lin, "kp_rot": config.vfdm.kp_rot,
+            "duration_s": config.loop.duration_s, "mode": config.loop.mode}
+
+
 class EmulatorService:
     """Builds emulators from scenarios + overrides and drives one :class:`Runner`."""
 
@@ -149,6 +158,10 @@ class EmulatorService:
         """The pre-flight's ideal reference (with its forecast) per configuration and mode."""
         self._answers: dict = {}
         """What /forecast answered per configuration and mode."""
+        self._preflight_lock = threading.Lock()
+        self._preflights: dict = {}
+        self.pending_start: tuple[str, str] | None = None
+        """(scenario, mode) of a start in its pre-flight (seconds: the panels say so)."""
         config = load_scenario(self.default_scenario)
         self.last_config: EmulatorConfig = config
         self._last_run: tuple[str, EmulatorConfig, str | None] = (
@@ -191,7 +204,8 @@ class EmulatorService:
 
     @staticmethod
     def scenarios() -> list[dict[str, str]]:
-        return [{"name": n, "description": d} for n, d in scenario_descriptions().items()]
+        return [{"name": n, "description": d, "settings": _start_settings(load_scenario(n))}
+                for n, d in scenario_descriptions().items()]
 
     def state(self) -> dict[str, Any]:
         """The loop's latest state; status "fault" with the reason while the loop process
@@ -351,6 +365,31 @@ class EmulatorService:
             self._forecasts[key] = (reference, time.perf_counter() - t0)
             return self._forecasts[key]
 
+    def _preflight_cached(self, config: EmulatorConfig, mode: str | None,
+                          ) -> tuple[float | None, dict | None]:
+        """preflight(), remembered per configuration and mode (the last 32; it takes 2 to
+        9 s): a Start after the page's forecast of the same choice starts at once. A second
+        asker of the same one waits for the first one's answer; others do not wait."""
+        key = (config.model_dump_json(), mode or config.loop.mode)
+        with self._preflight_lock:
+            answer = self._preflights.get(key)
+            mine = answer is None
+            if mine:
+                while len(self._preflights) >= FORECASTS_KEPT:  # the oldest goes
+                    del self._preflights[next(iter(self._preflights))]
+                answer = self._preflights[key] = Future()
+        if mine:
+            try:
+                answer.set_result(self.preflight(config, mode))
+            except InvalidRequest as err:  # a refusal is an answer too
+                answer.set_exception(err)
+            except BaseException as err:  # not one: the next asker tries again
+                with self._preflight_lock:
+                    self._preflights.pop(key, None)
+                answer.set_exception(err)
+                raise
+        return answer.result()
+
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
         """Before Start: the pre-flight of scenario ``name`` as it would start, with the
@@ -369,6 +408,7 @@ class EmulatorService:
         answer = {"scenario": name, "mode": mode or config.loop.mode,
                   "collision_forecast": (reference or {}).get("forecast"),
                   "wall_s": time.perf_counter() - t0}
+        self._preflight_cached(config, mode)  # the start's own check, ready for Start
         with self._forecast_lock:
             while len(self._answers) >= FORECASTS_KEPT:  # the oldest goes
                 del self._answers[next(iter(self._answers))]
@@ -389,11 +429,15 @@ class EmulatorService:
         with self._build_lock:
             config, mode = self.build(name, overrides, mode)  # 404 / 422 before 409
             self._refuse_if_busy()  # 409 before a pre-flight's seconds
-            snapshot_at_s, reference = self.preflight(config, mode)
-            if self.recorder is not None:
-                self.recorder.settle()  # the last run's rows, before a new loop
-            self._revive(config, name, mode)
-            gen = self.runner.request_start(name, config, mode, snapshot_at_s)
+            self.pending_start = (name, mode or config.loop.mode)
+            try:
+                snapshot_at_s, reference = self._preflight_cached(config, mode)
+                if self.recorder is not None:
+                    self.recorder.settle()  # the last run's rows, before a new loop
+                self._revive(config, name, mode)
+                gen = self.runner.request_start(name, config, mode, snapshot_at_s)
+            finally:
+                self.pending_start = None
             ring = self.runner.ring_of({"generation": gen})
             self._reference = (ring, reference)
             if self.recorder is not None and ring is not None:
