@@ -473,11 +473,12 @@ def rig_cell(runs: list[dict], ideal: dict) -> dict:
 
 
 def rig_table(pool, seeds: list[int], sensors=RIG_SENSORS, placements=RIG_PLACEMENTS,
-              servos=RIG_SERVOS, materials=tuple(RIG_MATERIALS), preflight=False
-              ) -> list[str]:
+              servos=RIG_SERVOS, materials=tuple(RIG_MATERIALS), preflight=False,
+              assignments=()) -> list[str]:
     """Sensor model x placement x servo model x material on the collision scenario's
-    chain: restitution error (mean, SE, sd, worst), off-normal share, interval coverage and
-    forecast / across-seed sd (columns "—" while the metrics lack them)."""
+    chain (with ``assignments`` on top, e.g. ``compensation.enabled=false``): restitution
+    error (mean, SE, sd, worst), off-normal share, interval coverage and forecast /
+    across-seed sd (columns "—" while the metrics lack them)."""
     lines = ["| material | sensor | placement | servo | restitution error: mean % (SE) ± sd "
              "(worst) | within ±5 % / ±10 % | stops | off-normal share | interval holds "
              "the ideal | forecast sd / seeds' sd |",
@@ -489,8 +490,8 @@ def rig_table(pool, seeds: list[int], sensors=RIG_SENSORS, placements=RIG_PLACEM
         for sensor in sensors:
             for placement in placements:
                 for servo in servos:
-                    jobs = [(extra + rig_assignments(sensor, placement, servo), s, ideal,
-                             preflight) for s in seeds]
+                    jobs = [(extra + rig_assignments(sensor, placement, servo)
+                             + list(assignments), s, ideal, preflight) for s in seeds]
                     cell = rig_cell(pool.map(rig_run, jobs), ideal)
                     lines.append(_rig_line(material, ideal, sensor, placement, servo, cell))
                     print(lines[-1], flush=True)
@@ -659,7 +660,7 @@ def main() -> None:
                              "forecast against the spread over seeds (sponge 0-29, rigid "
                              "0-19)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="with --calibration-check: a setting for every run")
+                        help="with --calibration-check or --rig-table: a setting for every run")
     parser.add_argument("--seeds", action="store_true",
                         help="instead: the shipped collision over 30 (sponge) and 20 (rigid) "
                              "seeds, without and with noise")
@@ -670,17 +671,19 @@ def main() -> None:
     parser.add_argument("--no-perfect-emulator", action="store_true",
                         help="with --seeds: skip the perfect emulator + noise table")
     parser.add_argument("--first-seed", type=int, default=0,
-                        help="with --seeds or --calibration-check: the first seed (1000: "
-                             "the chain's tuning seeds)")
+                        help="with --seeds, --calibration-check or --rig-table: the first "
+                             "seed (1000: the chain's tuning seeds)")
     args = parser.parse_args()
     seeds = [0] if args.quick else SEEDS
     t0 = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
         if args.rig_table:
-            print(f"## The lab's rig (collision scenario, seeds 0-{args.rig_seeds - 1})\n")
-            rig_table(pool, list(range(args.rig_seeds)), args.sensor or RIG_SENSORS,
+            first, last = args.first_seed, args.first_seed + args.rig_seeds - 1
+            print(f"## The lab's rig (collision scenario, seeds {first}-{last}"
+                  + (f"; {' '.join(args.set)}" if args.set else "") + ")\n")
+            rig_table(pool, list(range(first, last + 1)), args.sensor or RIG_SENSORS,
                       args.placement or RIG_PLACEMENTS, args.servo or RIG_SERVOS,
-                      args.material or list(RIG_MATERIALS), args.preflight)
+                      args.material or list(RIG_MATERIALS), args.preflight, args.set)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.calibration_check or args.seeds:

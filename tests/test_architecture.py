@@ -167,7 +167,7 @@ def test_one_implementation_per_stage_and_pinocchio_only_in_the_tests():
 LAB_SIDE = ("app.sim.ft_sensor", "app.sim.contact_gate", "app.sim.contact_estimator",
             "app.sim.contact_identification",
             "app.sim.coupling", "app.sim.passivity", "app.sim.compensation", "app.sim.vfdm",
-            "app.sim.orbital")
+            "app.sim.orbital", "app.sim.feedforward")
 SIMULATED_WORLD = ("app.sim.interaction", "app.sim.hand", "app.sim.reference")
 
 

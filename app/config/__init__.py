@@ -558,12 +558,19 @@ class CompensationConfig(_Model):
     """None: the loop's own lag model (servo delay and bandwidth, VFDM, sensor delay,
     filter, zero-order hold). Only with ``enabled`` (a lead of 0 would be ``enabled =
     false``)."""
+    servo_feedforward: StrictBool | None = None
+    """Invert the servo's known tracking law (app/sim/feedforward.py): send
+    ``q_d + (k_d/k_p) q̇_d + q̈_d/k_p`` (servoj: ``q_d + lookahead · q̇_d + q̈_d / gain``)
+    so that the arm follows the VFDM's set-points ``q_d`` instead of lagging and ringing
+    behind them; the lead is left the transport delay. None: on with ``[servo] model =
+    "servoj"``, off with "second-order". Only with ``enabled``."""
 
     @model_validator(mode="after")
     def _lead_needs_enabled(self) -> CompensationConfig:
-        if self.lead_s is not None and not self.enabled:
-            raise ValueError("lead_s is set but enabled is false: it would have no effect "
-                             "(set enabled = true, or leave lead_s out)")
+        for key in ("lead_s", "servo_feedforward"):
+            if getattr(self, key) is not None and not self.enabled:
+                raise ValueError(f"{key} is set but enabled is false: it would have no "
+                                 f"effect (set enabled = true, or leave {key} out)")
         return self
 
 

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.sim.feedforward import servo_feedforward
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.orbital import OrbitalSimulator
 from app.sim.sensor_models import hold_lag_cycles
@@ -80,12 +81,14 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
                             q0_rad: np.ndarray, tick=None) -> float:
     """How far behind a steady ramp target the mockup follows, in seconds.
 
-    Copies of the arm's VFDM and servo model (not the arm itself) start at rest at
+    Copies of the arm's VFDM, servo feedforward (if on) and servo model (not the arm
+    itself) start at rest at
     ``q0_rad`` and follow a TCP target that moves at RAMP_SPEED_MPS along the base x axis,
     in the loop's order: the target of t_k+1 → VFDM → one servo step → the mockup at t_k+1.
     The ramp lasts RAMP_S, doubled while the lag still moves by more than CONVERGED_S over
-    its last quarter. Raises LagModelError if it never settles, or if the mockup does not
-    trail the target (a lag ≤ 0 is no lag a lead could make up).
+    its last quarter. Raises LagModelError if it never settles. The lag may be negative: with
+    the servo feedforward the arm follows the VFDM's set-points, and the VFDM's velocity
+    feedforward puts them slightly ahead of the target (:func:`lag_model` checks the total).
     """
     dt_s = 1.0 / config.loop.rate_hz
     ramp_s = RAMP_S
@@ -102,12 +105,7 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
                 f"oscillates at this rate, and no lead would steady it; raise loop.rate_hz "
                 f"(it settles at 500 Hz and above) or set compensation.enabled = false")
         ramp_s *= 2.0
-    lag_s = float(lags_s[-1])
-    if not lag_s > 0.0:
-        raise LagModelError(f"the mockup does not trail its target (lag {1e3 * lag_s:.2f} "
-                            f"ms): set compensation.lead_s by hand, or "
-                            f"compensation.enabled = false")
-    return lag_s
+    return float(lags_s[-1])
 
 
 def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
@@ -116,6 +114,7 @@ def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
     (a supervisor's heartbeat)."""
     vfdm = Vfdm(config.vfdm, T_F_C, q0_rad, JointLimits.of_servo(config.servo, dt_s))
     servo = UR10eServo(config.servo, dt_s, q0_rad)
+    feedforward = servo_feedforward(config, q0_rad)
     T0 = vfdm.tcp_pose()
     T = T0.copy()
     cycles = max(4, int(round(ramp_s / dt_s)))
@@ -125,7 +124,8 @@ def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
         T[0, 3] = T0[0, 3] + RAMP_SPEED_MPS * k * dt_s
         if config.vfdm.sync_to_measured:  # as ArmRig.command does
             vfdm.q_rad[:] = servo.state.q_rad
-        servo.step(vfdm.solve(T))
+        q_d = vfdm.solve(T)
+        servo.step(q_d if feedforward is None else feedforward.setpoint(q_d))
         if k % 50 == 0:
             tick()
         if k in check:
@@ -166,9 +166,14 @@ def force_lag_s(config: EmulatorConfig, hold: bool = True) -> float:
 def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
               tick=None) -> LagModel:
     """The lags of the arm with mockup offset T_F_C, identified around posture q0_rad.
-    Raises LagModelError if their sum is beyond MAX_LEAD_S (the largest lead the
-    configuration accepts: a prediction that far ahead is no longer a small correction)."""
+    Raises LagModelError if their sum is not positive (no lag a lead could make up), or
+    beyond MAX_LEAD_S (the largest lead the configuration accepts: a prediction that far
+    ahead is no longer a small correction)."""
     model = LagModel(identify_position_lag_s(config, T_F_C, q0_rad, tick), force_lag_s(config))
+    if not model.lead_s > 0.0:
+        raise LagModelError(f"the ODS's input does not trail the satellites (lag "
+                            f"{1e3 * model.lead_s:.2f} ms): set compensation.lead_s by hand, "
+                            f"or compensation.enabled = false")
     if model.lead_s > MAX_LEAD_S:
         raise LagModelError(
             f"the loop's lag is {1e3 * model.lead_s:.0f} ms ({1e3 * model.position_s:.0f} ms "

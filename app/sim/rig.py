@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
+from app.sim.feedforward import ServoFeedforward, servo_feedforward
 from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
 from app.sim.rotations import invert_transform
@@ -64,6 +65,9 @@ class ArmRig:
     lead_s: float = 0.0
     """Lag compensation: the arm is sent where the ODS predicts its satellite this much
     later (app/sim/compensation.py); set at start-up."""
+    feedforward: ServoFeedforward | None = None
+    """``[compensation] servo_feedforward``: the VFDM's set-points pass the inverse of the
+    servo's tracking law (app/sim/feedforward.py) before they are sent."""
     q_start_rad: np.ndarray = field(default_factory=lambda: np.zeros(6))
     v_W_prev: np.ndarray = field(default_factory=lambda: np.zeros(3))
     last_raw_S: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -153,11 +157,13 @@ class ArmRig:
         return T
 
     def command(self, T_B_C_target: np.ndarray) -> None:
-        """VFDM set-points towards the target, one servo step (which may stop the arm).
-        With ``[vfdm] sync_to_measured`` the virtual arm first takes the measured joints."""
+        """VFDM set-points towards the target (through the servo feedforward, if on), one
+        servo step (which may stop the arm). With ``[vfdm] sync_to_measured`` the virtual
+        arm first takes the measured joints."""
         if self.vfdm.cfg.sync_to_measured:
             self.vfdm.q_rad[:] = self.servo.state.q_rad
-        self.servo.step(self.vfdm.solve(T_B_C_target))
+        q_d = self.vfdm.solve(T_B_C_target)
+        self.servo.step(q_d if self.feedforward is None else self.feedforward.setpoint(q_d))
 
     # --- start-up -------------------------------------------------------------------------
 
@@ -210,6 +216,8 @@ class ArmRig:
                                  mass_kg=self.carried_mass_kg, com_F_m=com_S)
         self.processor.reset()
         self.vfdm.reset(self.servo.state.q_rad)
+        if self.feedforward is not None:
+            self.feedforward.reset(self.servo.state.q_rad)
 
 
 def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.ndarray,
@@ -242,4 +250,5 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
         mockup_mass_kg=mass,
         carried_mass_kg=carried,
         T_C_S=T_C_S,
+        feedforward=servo_feedforward(config, q_home),
     )
