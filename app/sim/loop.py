@@ -552,12 +552,13 @@ class Emulator:
             q, error_m = arm.solve_start_posture(arm.tcp_target_B(y_start), steps, tick)
             if q is None:
                 where = "" if run_up is None else (
-                    f" (where its {self.config.loop.run_up_s:g} s run-up begins: "
-                    f"loop.run_up_s = 0 starts at rest)")
+                    f" (its {self.config.loop.run_up_s:g} s run-up begins there, "
+                    f"v0·run_up_s/2 before the initial pose; loop.run_up_s = 0 starts at "
+                    f"the initial pose)")
                 raise StartPoseError(
                     f"robot {arm.index + 1}: start pose of satellite "
-                    f"{self.config.satellites[arm.satellite].name!r}{where} not reached "
-                    f"(error {error_m:.4f} m): is it within reach?"
+                    f"{self.config.satellites[arm.satellite].name!r} not reached "
+                    f"(error {error_m:.4f} m): is it within reach?{where}"
                 )
             arm.q_start_rad = q
             if self.config.compensation.enabled:
