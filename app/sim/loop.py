@@ -547,24 +547,19 @@ class Emulator:
             settle_s = self.config.wrench.calibration_s
         steps = int(self.config.loop.approach_timeout_s * self.config.loop.rate_hz)
         run_up = self._run_up()
-        y_start = self.ods.y if run_up is None else run_up(-self.config.loop.run_up_s)
         for arm in self.arms:
-            q, error_m = arm.solve_start_posture(arm.tcp_target_B(y_start), steps, tick)
-            if q is None:
-                where = "" if run_up is None else (
-                    f" (its {self.config.loop.run_up_s:g} s run-up begins there, "
-                    f"v0·run_up_s/2 before the initial pose; loop.run_up_s = 0 starts at "
-                    f"the initial pose)")
-                raise StartPoseError(
-                    f"robot {arm.index + 1}: start pose of satellite "
-                    f"{self.config.satellites[arm.satellite].name!r} not reached "
-                    f"(error {error_m:.4f} m): is it within reach?{where}"
-                )
-            arm.q_start_rad = q
-            if self.config.compensation.enabled:
+            q = self._start_posture(arm, self.ods.y, steps, tick)
+            if self.config.compensation.enabled:  # the lag where the run begins
                 lead = self.config.compensation.lead_s
                 arm.lead_s = (lag_model(self.config, arm.T_F_C, q, tick).lead_s
                               if lead is None else lead)
+            if run_up is not None:  # the run-up begins v0·run_up_s/2 before it
+                q = self._start_posture(arm, run_up(-self.config.loop.run_up_s), steps,
+                                        tick, note=(
+                    f" (its {self.config.loop.run_up_s:g} s run-up begins there, "
+                    f"v0·run_up_s/2 before the initial pose; loop.run_up_s = 0 starts at "
+                    f"the initial pose)"))
+            arm.q_start_rad = q
             tick()
             arm.move_to(q, self.dt_s)
             tick()
@@ -585,6 +580,18 @@ class Emulator:
                 return
             self._sensed_before = True
         self.status = "running"
+
+    def _start_posture(self, arm: ArmRig, y: np.ndarray, steps: int, tick,
+                       note: str = "") -> np.ndarray:
+        """The joints that put ``arm``'s mockup on its satellite in state ``y``, or
+        StartPoseError (``note`` says which pose it was)."""
+        q, error_m = arm.solve_start_posture(arm.tcp_target_B(y), steps, tick)
+        if q is None:
+            raise StartPoseError(
+                f"robot {arm.index + 1}: start pose of satellite "
+                f"{self.config.satellites[arm.satellite].name!r} not reached "
+                f"(error {error_m:.4f} m): is it within reach?{note}")
+        return q
 
     def _run_up(self):
         """τ ↦ the satellites' state at τ ≤ 0 of the flying start (app/sim/run_up.py), or
