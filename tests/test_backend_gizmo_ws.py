@@ -19,9 +19,11 @@ import viser
 import websockets
 from viser import _messages
 
+from app.backend.scene import GIZMO_OFFSET_W
 from tests.live_server import LiveServer
 
 GIZMO = "/gizmo/sat1"
+"""(Its handle sits GIZMO_OFFSET_W from the point the hand holds: app/backend/scene.py.)"""
 
 
 def _encode(message: _messages.Message) -> bytes:
@@ -87,7 +89,7 @@ def test_gizmo_drag_over_websocket_moves_the_satellite(live):
     live.wait_for_scene()
     s0 = live.wait_for(lambda s: s["t_s"] > 0.2)
     p0_R = np.array(s0["satellites"][0]["position_m"])
-    mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"])
+    mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # handle
     # drag 15 cm along +y of the lab (= +y of R here: R is not rotated) in 5 steps
     path = [tuple(float(v) for v in mockup_W + [0.0, 0.03 * k, 0.0]) for k in range(1, 6)]
     received = asyncio.run(_drag(live.port, path, hold_s=1.0))
@@ -120,7 +122,8 @@ def test_a_gizmo_turned_about_z_twists_the_satellite_one_way(live):
     assert s["status"] == "running"
     live.wait_for_scene()
     s0 = live.wait_for(lambda s: s["t_s"] > 0.2)
-    mockup_W = tuple(float(v) for v in s0["robots"][0]["mockup_position_W_m"])
+    mockup_W = tuple(float(v) for v in np.array(s0["robots"][0]["mockup_position_W_m"])
+                     + GIZMO_OFFSET_W)  # the handle, under the mockup
     angles = np.radians([6.0 * k for k in range(1, 6)])
     turns = [(float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2))) for a in angles]
     asyncio.run(_drag(live.port, [mockup_W] * 5, hold_s=1.0, turns=turns))
@@ -141,7 +144,7 @@ def test_a_gizmo_turned_about_z_twists_the_satellite_one_way(live):
 def test_gizmo_drag_when_stopped_changes_nothing(live):
     live.client.post("/api/stop")
     s0 = live.state()
-    mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"])
+    mockup_W = np.array(s0["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W
     target = tuple(float(v) for v in mockup_W + [0.0, 0.1, 0.0])
     asyncio.run(_drag(live.port, [target], hold_s=0.2))
     s1 = live.state()
