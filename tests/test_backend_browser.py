@@ -553,7 +553,8 @@ def test_with_a_token_the_cookie_from_another_port_does_not_help(page):
 
 def _project_from(page, position_W, look_at_W, points_W) -> np.ndarray:
     """Page pixels of lab points seen from a camera at position_W looking at look_at_W
-    (vertical FOV 75 deg, z up), as :func:`_project` for the initial camera."""
+    (vertical FOV 75 deg, z up: a camera a client is sent keeps viser's default field of
+    view), as :func:`_project` for the initial camera."""
     box = _viewer_box(page)
     pos, look = np.asarray(position_W, float), np.asarray(look_at_W, float)
     f = (look - pos) / np.linalg.norm(look - pos)
@@ -585,7 +586,7 @@ def test_a_press_held_5_s_pushes_one_way_and_a_twist_on_a_ring_spins(live, page)
     sat_view = live.app.state.scene._sats[0]
     s0 = live.wait_for(lambda s: s["t_s"] > 2.0)
     assert not sat_view.grab_B.any()
-    m = np.array(s0["robots"][0]["mockup_position_W_m"])
+    m = np.array(s0["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
     eye = m + [0.5, -0.7, 0.45]
     with _camera_at(live, page, eye, m):
         _twist_about_z(live, page, eye, m)
@@ -606,8 +607,8 @@ def _twist_about_z(live, page, eye, m) -> None:
     # (few moves: each takes ~1-2 s in software WebGL while a gizmo is dragged)
     ring = _project_from(page, eye, m, [m + 0.65 * scale * np.array([np.cos(a), np.sin(a), 0])
                                         for a in angles])
-    r, g, b = _screenshot(page)[int(round(ring[0, 1])), int(round(ring[0, 0]))]
-    assert b > 180 and b > r + 60 and b > g + 40, f"no blue ring at {ring[0]}: {(r, g, b)}"
+    ring[0] = _nearest_pixel(_screenshot(page), ring[0], lambda r, g, b: b > 180 and
+                             b > r + 60 and b > g + 40, "the blue ring")
     page.mouse.move(*ring[0])
     page.mouse.down()
     for point in ring[1:]:
@@ -624,10 +625,24 @@ def _twist_about_z(live, page, eye, m) -> None:
     assert np.hypot(w2[0], w2[1]) < 0.3 * w2[2], w2
 
 
+def _nearest_pixel(img, at, wanted, what: str, radius_px: int = 10) -> np.ndarray:
+    """The pixel nearest ``at`` (x, y) within radius_px whose colour is ``wanted``: a
+    thin gizmo line drawn a pixel or two from where its projection puts it."""
+    x0, y0 = int(round(at[0])), int(round(at[1]))
+    best = None
+    for dy in range(-radius_px, radius_px + 1):
+        for dx in range(-radius_px, radius_px + 1):
+            r, g, b = (int(c) for c in img[y0 + dy, x0 + dx][:3])
+            if wanted(r, g, b) and (best is None or dx * dx + dy * dy < best[0]):
+                best = (dx * dx + dy * dy, (x0 + dx, y0 + dy))
+    assert best is not None, f"no {what} within {radius_px} px of {at}: {img[y0, x0]}"
+    return np.array(best[1], float)
+
+
 def _press_along_x_and_hold(live, page, eye, m) -> None:
     scale = 0.35
     s = live.state()
-    m = np.array(s["robots"][0]["mockup_position_W_m"])  # the gizmo is at the grab point
+    m = np.array(s["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
     center, tip = _project_from(page, eye, m, [m, m + [ARROW_HEAD * scale, 0.0, 0.0]])
     direction = (tip - center) / np.linalg.norm(tip - center)
     gizmo = live.app.state.scene._sats[0].gizmo

@@ -177,15 +177,18 @@ def write_plots(folder: str) -> list[str]:
     folder_path = Path(folder)
     if not (folder_path / RUN_FILE).is_file():  # deleted meanwhile (retention, DELETE)
         return []
+    from app.config import EmulatorConfig
+
     metrics = _read_json(folder_path / "metrics.json") or {}
+    saved = _read_json(folder_path / "config.json") or {}
+    config = EmulatorConfig.model_validate(saved["config"])
+    if saved.get("mode"):  # the mode it ran in, which the start may have chosen
+        config = config.model_copy(update={"loop": config.loop.model_copy(
+            update={"mode": saved["mode"]})})
     columns, rows = read_telemetry(folder_path / "telemetry.csv")
     index = {name: k for k, name in enumerate(columns)}
-    n_sat = len(metrics.get("satellites") or []) or len(
-        {c.split("_")[0] for c in columns if re.match(r"sat\d+_x_m$", c)})
-    n_arms = len({c.split("_")[0] for c in columns if re.match(r"rob\d+_", c)})
     note = (metrics.get("scaling") or {}).get("text", "")
-    paths = plot_run(rows, index, folder_path, n_sat, n_arms, metrics.get("collision"),
-                     note=note)
+    paths = plot_run(rows, index, folder_path, config, metrics, note=note)
     return [p.name for p in paths]
 
 
