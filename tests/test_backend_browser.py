@@ -18,7 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
-from app.backend.scene import GIZMO_OFFSET_W
+from app.backend.scene import CAMERA_FOV_RAD, GIZMO_OFFSET_W
 from tests.live_server import LiveServer
 
 playwright = pytest.importorskip("playwright.sync_api")
@@ -551,7 +551,8 @@ def test_with_a_token_the_cookie_from_another_port_does_not_help(page):
         _attack_and_own_page(server, page.context.browser, token=token)
 
 
-def _project_from(page, position_W, look_at_W, points_W) -> np.ndarray:
+def _project_from(page, position_W, look_at_W, points_W,
+                  fov_rad: float = np.radians(75.0)) -> np.ndarray:
     """Page pixels of lab points seen from a camera at position_W looking at look_at_W
     (vertical FOV 75 deg, z up: a camera a client is sent keeps viser's default field of
     view), as :func:`_project` for the initial camera."""
@@ -561,7 +562,7 @@ def _project_from(page, position_W, look_at_W, points_W) -> np.ndarray:
     r = np.cross(f, [0.0, 0.0, 1.0])
     r /= np.linalg.norm(r)
     d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(np.radians(75.0) / 2)
+    fpx = (box["height"] / 2) / np.tan(fov_rad / 2)
     v = np.atleast_2d(points_W) - pos
     return np.column_stack([box["x"] + box["width"] / 2 + fpx * (v @ r) / (v @ f),
                             box["y"] + box["height"] / 2 + fpx * (v @ d) / (v @ f)])
@@ -588,9 +589,14 @@ def test_a_press_held_5_s_pushes_one_way_and_a_twist_on_a_ring_spins(live, page)
     assert not sat_view.grab_B.any()
     m = np.array(s0["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
     eye = m + [0.5, -0.7, 0.45]
-    with _camera_at(live, page, eye, m):
-        _twist_about_z(live, page, eye, m)
-        _press_along_x_and_hold(live, page, eye, m)
+    size = page.viewport_size
+    page.set_viewport_size({"width": 1400, "height": 800})  # the +x arrow clear of the panel
+    try:
+        with _camera_at(live, page, eye, m):
+            _twist_about_z(live, page, eye, m)
+            _press_along_x_and_hold(live, page, eye, m)
+    finally:
+        page.set_viewport_size(size)
     cfg = live.app.state.service.config_for("free-floating")
     dv = 100 * cfg.orbit.force_scale * min(0.1 * cfg.hand.stiffness_Npm, cfg.hand.max_force_N)
     assert dv == pytest.approx(5.0)  # 10 N over the 4 N deadband: passed whole, 1 kg
@@ -606,7 +612,7 @@ def _twist_about_z(live, page, eye, m) -> None:
     angles = np.radians([70.0, 90.0, 110.0])  # 40 degrees round the ring, in two moves
     # (few moves: each takes ~1-2 s in software WebGL while a gizmo is dragged)
     ring = _project_from(page, eye, m, [m + 0.65 * scale * np.array([np.cos(a), np.sin(a), 0])
-                                        for a in angles])
+                                        for a in angles], CAMERA_FOV_RAD)
     ring[0] = _nearest_pixel(_screenshot(page), ring[0], lambda r, g, b: b > 180 and
                              b > r + 60 and b > g + 40, "the blue ring")
     page.mouse.move(*ring[0])
@@ -643,8 +649,11 @@ def _press_along_x_and_hold(live, page, eye, m) -> None:
     scale = 0.35
     s = live.state()
     m = np.array(s["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
-    center, tip = _project_from(page, eye, m, [m, m + [ARROW_HEAD * scale, 0.0, 0.0]])
+    center, tip = _project_from(page, eye, m, [m, m + [ARROW_HEAD * scale, 0.0, 0.0]],
+                                CAMERA_FOV_RAD)
     direction = (tip - center) / np.linalg.norm(tip - center)
+    tip = _nearest_pixel(_screenshot(page), tip, lambda r, g, b: r > 180 and r > g + 60
+                         and r > b + 60, "the red arrow")
     gizmo = live.app.state.scene._sats[0].gizmo
     x0 = float(gizmo.position[0])
     px_per_m = np.linalg.norm(tip - center) / (ARROW_HEAD * scale)
