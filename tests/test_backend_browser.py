@@ -273,24 +273,20 @@ def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
     """Click the mockup's front face left of and below its centre: the hand holds it
     there (the gizmo moves to that point). Dragging the gizmo's +x arrow pulls that point
     along +x: the satellite moves along +x and, through the sensed torque r × F with
-    r = (-0.06, -0.1, -0.02) m, turns mostly about +z (r_y F_x < 0: τ_z = 0.1 F)."""
+    r = (-0.02, -0.1, -0.02) m, turns mostly about +z (r_y F_x < 0: τ_z = 0.1 F)."""
     s = live.state()
     if s["status"] != "running" or s["scenario"] != "free-floating":
         s = live.client.post("/api/scenarios/free-floating/start", json={}).json()
     _wait_rendered(page, live)
     s0 = live.wait_for(lambda s: s["t_s"] > 2.0)
     m = np.array(s0["robots"][0]["mockup_position_W_m"])
-    r_B = np.array([-0.06, -0.1, -0.02])  # on the -y face (body = lab axes at rest)
+    r_B = np.array([-0.02, -0.1, -0.02])  # on the -y face (body = lab axes at rest),
+    # well inside it (the mockup is ~85 px across in the test's 1000 px wide page)
     (click,) = _project(live, page, [m + r_B])
     sat_view = live.app.state.scene._sats[0]
-    for _ in range(3):
-        page.mouse.click(*click)
-        for _ in range(20):
-            if sat_view.grab_B.any():
-                break
-            page.wait_for_timeout(100)
-        if sat_view.grab_B.any():
-            break
+    cam = live.app.state.viser.initial_camera  # (a viewer whose camera was not reported
+    with _camera_at(live, page, cam.position, cam.look_at):  # yet keeps its own: known)
+        _click_until_grabbed(page, click, sat_view)
     grab = sat_view.grab_B.copy()
     assert grab[1] == pytest.approx(-0.1, abs=1e-3), grab  # on the face that was clicked
     np.testing.assert_allclose(grab[[0, 2]], r_B[[0, 2]], atol=0.02)
@@ -300,6 +296,17 @@ def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
     v, w = s1["satellites"][0]["velocity_mps"], s1["satellites"][0]["omega_radps"]
     assert v[0] > 0.0 and w[2] > abs(w[0]) and w[2] > abs(w[1]), (v, w)
     live.client.post("/api/stop")
+
+
+def _click_until_grabbed(page, click, sat_view) -> None:
+    for _ in range(3):
+        page.mouse.click(*click)
+        for _ in range(20):
+            if sat_view.grab_B.any():
+                break
+            page.wait_for_timeout(100)
+        if sat_view.grab_B.any():
+            break
 
 
 def test_the_page_and_the_panel_follow_a_rest_start(live, page):

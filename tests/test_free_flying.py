@@ -98,7 +98,7 @@ def test_its_thrust_keeps_its_limits_and_never_passes_the_sensor(runs):
 def test_its_bag_carries_the_gnc_wrench(runs):
     """``/sat1/gnc_wrench``: the recorded GNC wrench, in the body frame, at the bag's 5 Hz."""
     pytest.importorskip("rosbags")
-    from tests.test_bag import _read
+    from tests.runs.test_bag import _read
 
     _, _, rows, ix = runs["hil"]
     types, messages = _read(runs["hil_bag"])
