@@ -996,7 +996,7 @@ def test_a_push_s_torque_spins_the_satellite_and_bad_torques_change_nothing(live
         ({"torque_Nm": [2.0, 0.0, 0.0], "duration_s": 2.0},
          f"torque_Nm, duration_s: the push changes satellite 1's angular velocity by up to "
          f"{cfg.orbit.torque_scale * 2.0 * 2.0 / inertia.min():.3f} rad/s, beyond its "
-         f"angular-velocity-change limit 0.240 rad/s (0.5 of the smallest angular-velocity "
+         f"angular-velocity limit 0.240 rad/s (0.5 of the smallest angular-velocity "
          f"step an arm followed less well, scaled to the 250 mrad attitude bound, "
          f"benchmarks/twist_follow.py; the change is at most torque_scale x (|torque| + "
          f"|point| |force|) x duration / the smallest moment of inertia)"),
@@ -1029,6 +1029,15 @@ def test_a_push_s_torque_spins_the_satellite_and_bad_torques_change_nothing(live
     assert omega[2] == pytest.approx(expected, rel=0.1), omega
     assert np.hypot(omega[0], omega[1]) < 0.1 * expected, omega
     assert np.linalg.norm(after["satellites"][0]["velocity_mps"]) < 1e-3  # a twist only
+    # twists do not stack past the limit: one that alone gives 95 % of it is refused on
+    # top of the spin the satellite has now (the reviewer's six 0.237 rad/s twists)
+    ts, i_min = cfg.orbit.torque_scale, inertia.min()
+    duration = 0.95 * 0.24 * i_min / (ts * 2.0)
+    r = live.client.post("/api/push", json={"satellite": 1, "force_N": [0.0, 0.0, 0.0],
+                                             "duration_s": duration,
+                                             "torque_Nm": [0.0, 0.0, 2.0]})
+    assert r.status_code == 422, r.text
+    assert "on top of its spin of 0.03" in r.json()["detail"], r.json()
     r = live.client.post("/api/push", json={"satellite": 1, "force_N": [0.0, 5.0, 0.0],
                                              "duration_s": 0.1})  # force-only, as before
     assert r.status_code == 200 and r.json()["torque_Nm"] == [0.0, 0.0, 0.0], r.text

@@ -515,7 +515,7 @@ class EmulatorService:
             dv_R = self._push_dv_R(satellite, force, duration_s)
             dw = self._push_dw_radps(satellite, force, point, torque, duration_s)
             if any(torque):
-                self._within_push_turn(state, satellite, dw)
+                self._within_push_turn(state, satellite, dw, torque)
             self._within_push_motion(state, satellite, dv_R)
             self.runner.post(Push(satellite=satellite - 1, force_R_N=force,
                                   duration_s=duration_s, point_B_m=point,
@@ -555,21 +555,28 @@ class EmulatorService:
         moment = math.hypot(*torque) + math.hypot(*point) * math.hypot(*force)
         return scaling_of(config).torque_scale * moment * duration_s / inertia
 
-    def _within_push_turn(self, state: dict, satellite: int, dw: float) -> None:
+    def _within_push_turn(self, state: dict, satellite: int, dw: float,
+                          torque=(0.0, 0.0, 0.0)) -> None:
         """InvalidRequest when the push with a twist, with the pushes still under way on
-        the satellite, could turn it faster than its arm follows (:func:`push_max_dw`).
+        the satellite and the spin it has now, could turn it faster than its arm follows
+        (:func:`push_max_dw`); a twist against its spin (slowing it) is let through.
         Only for a satellite an arm carries in a running run (hil)."""
         if state["status"] != "running" or state["mode"] != "hil" or not any(
                 rob["satellite"] == satellite for rob in state["robots"]):
             return
         turning = sum(p.dw_radps for p in self._under_way(state, satellite))
+        omega = np.asarray(state["satellites"][satellite - 1]["omega_radps"], float)
+        spin = float(np.linalg.norm(omega))
+        if spin > 0.0 and float(np.dot(omega, torque)) < 0.0:
+            spin = 0.0  # against the spin: it slows the satellite first
         limit, why = push_max_dw(self.last_config)
-        if dw + turning > limit * (1.0 + 1e-9):
+        if dw + turning + spin > limit * (1.0 + 1e-9):
             already = f" with {turning:.3f} rad/s already under way" if turning else ""
+            now = f" on top of its spin of {spin:.3f} rad/s" if spin else ""
             raise InvalidRequest(
                 f"torque_Nm, duration_s: the push changes satellite {satellite}'s angular "
-                f"velocity by up to {dw:.3f} rad/s{already}, beyond its angular-velocity-"
-                f"change limit {limit:.3f} rad/s ({why})")
+                f"velocity by up to {dw:.3f} rad/s{already}{now}, beyond its angular-"
+                f"velocity limit {limit:.3f} rad/s ({why})")
 
     def _under_way(self, state: dict, satellite: int) -> list[_PushRecord]:
         """The run's pushes on ``satellite`` still under way (until PUSH_END_MARGIN_S
