@@ -104,6 +104,10 @@ def _report_run(result) -> int:
     metrics = result.metrics
     print(run_summary(metrics))
     print(f"\nwrote {', '.join(str(p) for p in result.files)}")
+    written = [p for p in result.files if str(p).endswith("figures.json")]
+    if written and not any(str(p).endswith(".png") for p in result.files):
+        print("no figure: nothing in this run moved beyond what a figure could show "
+              "(docs/outputs.md)")
     if result.unwritten is not None:
         for problem in result.unwritten.problems:
             print(f"error: {problem}", file=sys.stderr)

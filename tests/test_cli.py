@@ -314,3 +314,14 @@ def test_an_extends_longer_than_a_file_name_is_an_error_line_not_a_traceback(tmp
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr == (f"error: mine.toml: extends: not a scenario's file name: "
                            f"{'x' * 60!r}... (5000 characters)\n")
+
+
+def test_a_run_with_nothing_to_show_says_why_it_wrote_no_figure(tmp_path):
+    """free-floating at rest (ideal, untouched): no figure is written, and the run says
+    why rather than leaving the folder without one silently."""
+    proc = subprocess.run([EXE, "run", "free-floating", "--mode", "ideal", "--duration", "1",
+                           "--out", str(tmp_path / "o")], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "no figure: nothing in this run moved" in proc.stdout
+    assert not list((tmp_path / "o").glob("*.png"))

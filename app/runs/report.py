@@ -112,7 +112,8 @@ def run_summary(metrics: dict) -> str:
     if success:
         judged = [k for k, v in success.items() if isinstance(v, dict) and "passed" in v]
         lines += ["", "success: " + ("passed" if success["passed"] else "NOT MET")
-                  + f" ({len(judged)} criteria judged: " + ", ".join(
+                  + f" ({len(judged)} {'criterion' if len(judged) == 1 else 'criteria'} "
+                  + "judged: " + ", ".join(
                       f"{k} {'passed' if success[k]['passed'] else 'NOT MET'}"
                       for k in judged) + ")"]
         touch = success.get("no_contact")

@@ -183,7 +183,7 @@ def test_the_summary_labels_net_and_pushed_delta_v_and_lists_the_criteria(runs):
     assert "(limits 10 mm, 1.00 deg)" in summary
     assert "reached in order (required: all)" in summary
     libration = run_summary(runs["gravity-stabilised"][0].metrics)
-    assert "1 criteria judged: libration" in libration and "(limit 2 %)" in libration
+    assert "1 criterion judged: libration" in libration and "(limit 2 %)" in libration
     rendezvous = run_summary(runs["rendezvous"][0].metrics)
     assert "no_contact passed" in rendezvous and "final_position" in rendezvous
     assert "(limit 0.5 m)" in rendezvous
