@@ -467,3 +467,30 @@ def test_downloads_are_greyed_out_while_the_server_is_unreachable(live, page, of
         refused.clear()
     page.wait_for_function("!document.getElementById('downloads').classList.contains('none')",
                            timeout=10_000)
+
+
+def test_the_help_says_when_a_press_is_more_than_the_arm_follows(live, page):
+    """The collision's mockups are their satellites (force scale 1, 1 kg): a 10 cm press
+    held 1 s would give 1000 cm/s, a hundred times what an arm follows; the help says so
+    in the page and the panel (free-floating's 5 cm/s is within it: no such note)."""
+    live.client.post("/api/reset", json=None)
+    s = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "hil", "loop": {"duration_s": 8.0}}).json()
+    assert s["status"] == "running", s
+    live.wait_for_scene()
+    limit_cm_s = 100 * s["push_max_dv_mps"][0]
+    page.wait_for_function("document.querySelector('#hand-strength').textContent"
+                           ".includes('more than the arm follows')", timeout=10_000)
+    assert f"about {limit_cm_s:.0f} cm/s" in page.text_content("#hand-strength")
+    deadline = time.monotonic() + 10
+    while "more than the arm follows" not in live.app.state.scene.gui_help.content:
+        assert time.monotonic() < deadline, live.app.state.scene.gui_help.content
+        time.sleep(0.1)
+    live.client.post("/api/stop")
+    s = live.client.post("/api/scenarios/free-floating/start", json={"mode": "hil"}).json()
+    assert s["status"] == "running", s
+    live.wait_for_scene()
+    page.wait_for_function("document.querySelector('#hand-strength').textContent"
+                           ".includes('5.0 cm/s')", timeout=10_000)
+    assert "more than the arm follows" not in page.text_content("#hand-strength")
+    live.client.post("/api/stop")

@@ -67,9 +67,9 @@ undoes it), then drag the gizmo (the hand's handle: it sits {below_cm:g} cm belo
 point it holds). It is a fingertip: it **presses, never pulls**. Drag an
 arrow and the hand presses the grab point that way, **{k_N_per_cm:g} N per cm** it is
 pressed in, at most **{max_N:g} N** (the sensor ignores under {deadband_N:g} N). Held 10 cm
-in for 1 s, satellite 1 gains up to **{dv_cm_s:.1f} cm/s**; once it has caught up with the
-hand, the hand lets go by itself, and the satellite drifts on the way it was pushed. Turn
-a ring to **twist**: {kt_Nm_per_deg:.2f} N m per degree, at most {max_Nm:g} N m (the
+in for 1 s, satellite 1 gains up to **{dv_cm_s:.1f} cm/s**{follow_note}; once it has caught
+up with the hand, the hand lets go by itself, and the satellite drifts on the way it was
+pushed. Turn a ring to **twist**: {kt_Nm_per_deg:.2f} N m per degree, at most {max_Nm:g} N m (the
 sensor ignores under {deadband_Nm:g} N m); held 20 degrees for 1 s about z, satellite 1
 spins up by up to **{dw_deg_s:.1f} deg/s**, and the twist lets go once it turns ahead.
 The arm's F/T sensor measures the push; the ODS applies it scaled ({force_scale:g} x
@@ -354,8 +354,13 @@ class EmulatorScene:
         """The panel's help says what the run that is there does (its hand, its scales)."""
         settings = snap.get("settings")
         if settings:
+            numbers = hand_numbers(settings)
+            follow_cm_s = 100.0 * self.service.push_max_dv_mps()[0]
+            note = (f" (**more than the arm follows**, about {follow_cm_s:.0f} cm/s at a "
+                    f"time: press lightly and briefly)"
+                    if snap["mode"] == "hil" and numbers["dv_cm_s"] > follow_cm_s else "")
             self.gui_help.content = HELP.format(
-                **hand_numbers(settings), below_cm=-100.0 * GIZMO_OFFSET_W[2],
+                **numbers, follow_note=note, below_cm=-100.0 * GIZMO_OFFSET_W[2],
                 window_s=PLOT_WINDOW_S) + (IDEAL_NOTE if snap["mode"] == "ideal" else "")
 
     def _arm_view(self, name: str, T_W_B: np.ndarray) -> _ArmView:
