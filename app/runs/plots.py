@@ -368,9 +368,9 @@ def _desired_actual(run: _Run, stem: str, fields, unit: str, span: str,
         lines = _xyz(run.t, run.cols(f"sat{s}", fields), "ODS")
         if run.carried(s):
             lines += _xyz(run.t, run.cols(f"rob{s}", fields), "mockup", "--")
-        panels.append(Panel(unit, lines, MIN_SPAN[span],
-                            title=f"{run.name(s)}: ODS (desired, solid), mockup on its arm "
-                                  "(actual, dashed)"))
+        title = (f"{run.name(s)}: ODS (desired, solid), mockup on its arm (actual, dashed)"
+                 if run.carried(s) else f"{run.name(s)}: ODS (no arm carries it in this run)")
+        panels.append(Panel(unit, lines, MIN_SPAN[span], title=title))
         if extra is not None:
             panels.append(extra(s))
     return Figure(stem, run.title(stem), panels)
@@ -594,11 +594,18 @@ def _target_spin(run: _Run) -> Figure | None:
     w_T = np.degrees(attitude_track(run.config, run.rows, run.index, target)[1])
     w_C = np.degrees(attitude_track(run.config, run.rows, run.index, sat)[1])
     name = run.name(target + 1)
-    lines = _xyz(t, w_T, f"{name} ω") + [
-        Line(t, np.linalg.norm(w_T, axis=1), f"|{name} ω|", "-", "k"),
-        Line(t, np.linalg.norm(w_C, axis=1), f"|{run.name(sat + 1)} ω|", "--", "0.5")]
+    components = [Line(t, w_T[:, k], f"{name} ω {a}", style, f"C{k}", width)
+                  for k, (a, style, width) in enumerate(zip(AXES, ("-", "--", ":"),
+                                                            (2.5, 1.8, 1.2), strict=True))]
+    magnitudes = [Line(t, np.linalg.norm(w_T, axis=1), f"|{name} ω|", "-", "k", 2.5),
+                  Line(t, np.linalg.norm(w_C, axis=1), f"|{run.name(sat + 1)} ω|", "--",
+                       "C3", 1.5)]
     return Figure("target_spin", run.title("target_spin", name),
-                  [Panel("angular velocity [deg/s]", lines, MIN_SPAN["rate"])],
+                  [Panel("angular velocity [deg/s]", components, MIN_SPAN["rate"],
+                         title=f"{name}: components (a line under another is drawn wider)",
+                         magnitude=True),  # a steady spin is what this figure shows
+                   Panel("angular velocity [deg/s]", magnitudes, MIN_SPAN["rate"],
+                         title="magnitudes: the target's and the chaser's", magnitude=True)],
                   xlabel="orbit time [s]")
 
 

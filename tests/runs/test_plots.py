@@ -124,8 +124,9 @@ def test_no_figure_is_empty_or_degenerate_and_no_legend_covers_data(runs):
                     assert hi / lo >= 9.99, what
                 else:
                     floor = FLOOR[_unit(ax.get_ylabel())]
-                    size = ((lambda y: np.max(np.abs(y))) if "error" in ax.get_ylabel()
-                            else np.ptp)  # an error's steady level is a finding
+                    steady = any(k in ax.get_ylabel() for k in ("error", "angular"))
+                    size = ((lambda y: np.max(np.abs(y))) if steady  # an error's or a
+                            else np.ptp)  # spin's steady level is a finding
                     assert any(size(y) > 0.01 * floor for y in curves), what
                     assert hi - lo >= floor, what
                 box = ax.get_legend().get_window_extent(renderer)
@@ -138,8 +139,10 @@ def test_the_tumbling_target_shows_the_target_s_spin(runs):
                                         result.emulator.telemetry.index,
                                         result.emulator.config, result.metrics)
                 if f.name == "target_spin")
-    magnitude = next(line for line in spin.panels[0].lines if line.label == "|target ω|")
+    components, magnitudes = spin.panels  # both shown: a steady spin is the finding
+    magnitude = next(line for line in magnitudes.lines if line.label == "|target ω|")
     np.testing.assert_allclose(magnitude.y, 2.0, rtol=1e-3)  # its 2 deg/s, throughout
+    assert [line.style for line in components.lines] == ["-", "--", ":"]  # none hidden
 
 
 def test_no_jump_at_the_start_of_the_velocity_figure(runs):
