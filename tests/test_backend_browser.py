@@ -284,8 +284,8 @@ def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
     # well inside it (the mockup is ~85 px across in the test's 1000 px wide page)
     (click,) = _project(live, page, [m + r_B])
     sat_view = live.app.state.scene._sats[0]
-    cam = live.app.state.viser.initial_camera  # (a viewer whose camera was not reported
-    with _camera_at(live, page, cam.position, cam.look_at):  # yet keeps its own: known)
+    cam = live.app.state.viser.initial_camera  # the layout's camera, whatever the
+    with _camera_at(live, page, cam.position, cam.look_at):  # test before left
         _click_until_grabbed(page, click, sat_view)
     grab = sat_view.grab_B.copy()
     assert grab[1] == pytest.approx(-0.1, abs=1e-3), grab  # on the face that was clicked

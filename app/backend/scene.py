@@ -264,6 +264,8 @@ class EmulatorScene:
         self._sats: list[_SatView] = []
         self._layout_key: tuple | None = None
         self._generation: int | None = None
+        self._camera_for: tuple | None = None  # the layout's default camera
+        self._framed: set = set()  # the viewers sent it
         self._built_generation: int | None = None
         self._history: deque = deque()  # the snapshots of the last PLOT_WINDOW_S
         self.plot_window_s = PLOT_WINDOW_S
@@ -300,12 +302,25 @@ class EmulatorScene:
         position, look_at = default_camera(points_W)
         self.server.initial_camera.position = tuple(position)
         self.server.initial_camera.look_at = tuple(look_at)
-        for client in self.server.get_clients().values():  # (the initial camera is only
-            try:                                            # a new client's)
-                client.camera.position = tuple(position)
-                client.camera.look_at = tuple(look_at)
+        self._camera_for = (tuple(position), tuple(look_at))
+        self._framed = set()  # the viewers sent this camera (the initial camera is only a
+        self._frame_viewers()  # new viewer's)
+
+    def _frame_viewers(self) -> None:
+        """Send the layout's camera to each viewer not sent it yet: one whose camera was
+        not reported when the layout changed gets it at a later update."""
+        if self._camera_for is None:
+            return
+        position, look_at = self._camera_for
+        for client in self.server.get_clients().values():
+            if client.client_id in self._framed:
+                continue
+            try:
+                client.camera.position = position
+                client.camera.look_at = look_at
+                self._framed.add(client.client_id)
             except (AssertionError, ValueError):  # its camera not reported yet
-                log.debug("client %s: camera not set", client.client_id)
+                log.debug("client %s: camera not set yet", client.client_id)
 
     def _build_gui(self) -> None:
         gui = self.server.gui
@@ -542,6 +557,7 @@ class EmulatorScene:
             self.replay.start(snap["generation"])
             self._recorded_generation = snap["generation"]
         self.replay.tick(snap["t_s"])
+        self._frame_viewers()
         now = time.monotonic()
         with self.server.atomic():
             for view, rob in zip(self._active_arms, snap["robots"], strict=False):
