@@ -817,7 +817,8 @@ def test_a_push_the_arm_cannot_follow_is_refused_and_the_largest_taken_leaves_th
         "force_N, duration_s: the pushes of this run would change satellite 1's velocity by "
         "0.200 m/s together (their vector sum, 0.100 m/s before this one), beyond its "
         "velocity-change limit 0.100 m/s"), r3.json()
-    assert _push(live, [5.0, 0.0, 0.0], 0.004).status_code == 200
+    r4 = _push(live, [5.0, 0.0, 0.0], 0.004)
+    assert r4.status_code == 200, r4.text
     live.client.post("/api/stop")
 
 
