@@ -41,7 +41,10 @@ COPY static ./static
 # keeps no pip cache)
 RUN --mount=type=cache,target=/root/.cache/pip pip install . pycollada \
     && useradd --create-home --uid 1000 emulator \
-    && mkdir -p /opt/numba-cache && chmod 1777 /opt/numba-cache
+    && mkdir -p /opt/numba-cache && chmod 1777 /opt/numba-cache \
+    && mkdir -p /app/runs && chmod 1777 /app/runs
+# (/app/runs: where `serve` keeps its web runs, runs/web, whatever the user it runs as;
+# mount a volume there to keep them)
 
 USER emulator
 # static/ is found in the working directory (the installed package lives elsewhere)
