@@ -10,9 +10,9 @@ import pytest
 from app.backend.service import SharedReads
 
 
-def _ring_with_rows(n_rows: int, capacity: int = 100):
-    """A run's ring (app/backend/ring.py) into which n_rows rows were written as the loop
-    writes them (TelemetryBuffer over the shared storage), and the rows it must hold."""
+def _ring_and_writer(capacity: int):
+    """A run's ring (app/backend/ring.py), its shared memory, and a TelemetryBuffer over
+    that storage that writes rows as the loop does."""
     from app.backend.ring import RunTelemetry, attach_ring
     from app.scenarios import load_scenario
     from app.sim.telemetry import TelemetryBuffer
@@ -24,11 +24,18 @@ def _ring_with_rows(n_rows: int, capacity: int = 100):
     shm, data, counters = attach_ring(ring.name, capacity, len(ring.columns))
     buffer = TelemetryBuffer(ring.columns, capacity)
     buffer.use_storage(data, counters)
+    return ring, shm, buffer
+
+
+def _ring_with_rows(n_rows: int, capacity: int = 100):
+    """A run's ring into which n_rows rows were written as the loop writes them, and the
+    rows it must hold."""
+    ring, shm, buffer = _ring_and_writer(capacity)
     k = np.arange(n_rows, dtype=float)[:, None]
     written = 0.002 * k + np.arange(len(ring.columns)) / 7.0
     for row in written:
         buffer.append(row)
-    del data, counters, buffer
+    del buffer
     shm.close()
     return ring, written[max(0, n_rows - capacity):]
 
@@ -60,18 +67,8 @@ def test_a_wrapped_ring_streamed_while_the_loop_writes_has_no_gap():
     """A CSV stream pauses between chunks as its client takes them while the loop goes on
     overwriting the ring's oldest rows: the rows streamed are contiguous all the same
     (the soak once found 27 rows missing mid-stream, at a burst of slow cycles)."""
-    from app.backend.ring import RunTelemetry, attach_ring
-    from app.scenarios import load_scenario
-    from app.sim.telemetry import TelemetryBuffer
-
     capacity, chunk = 160, 8
-    config = load_scenario("collision")
-    config = config.model_copy(update={"loop": config.loop.model_copy(
-        update={"telemetry_capacity": capacity})})
-    ring = RunTelemetry(config, "ideal")
-    shm, data, counters = attach_ring(ring.name, capacity, len(ring.columns))
-    buffer = TelemetryBuffer(ring.columns, capacity)
-    buffer.use_storage(data, counters)
+    ring, shm, buffer = _ring_and_writer(capacity)
     row = np.zeros(len(ring.columns))
     written = 0
 
@@ -92,7 +89,7 @@ def test_a_wrapped_ring_streamed_while_the_loop_writes_has_no_gap():
         steps = np.diff(numbers)
         assert len(numbers) > capacity // 2 and np.all(steps == 1), steps[steps != 1]
     finally:
-        del data, counters, buffer
+        del buffer
         shm.close()
         ring.release()
 
