@@ -45,7 +45,7 @@ class ReplayRecorder:
         """Begin recording run `generation` (the scene as it is now, then every change)."""
         with self._lock:
             self._finish_locked(truncated=False)
-            self._serializer = self.server.get_scene_serializer()
+            self._serializer = _compact(self.server.get_scene_serializer())
             self._generation, self._last_time, self._recorded_s = generation, 0.0, 0.0
 
     def tick(self, t_s: float) -> None:
@@ -83,14 +83,83 @@ class ReplayRecorder:
             return self._generation, _serialize_copy(self._serializer), False
 
 
+def _compact(serializer):
+    """``serializer`` (viser's), made a :class:`_CompactSerializer`: what it records
+    from now on is held encoded."""
+    serializer.__class__ = _compact_class()
+    return serializer
+
+
+def _compact_class():
+    """The class of a compact recording (made on first use: viser is imported late)."""
+    global _COMPACT
+    if _COMPACT is None:
+        import array
+        import zlib
+
+        import msgspec
+        from viser.infra._infra import StateSerializer
+
+        encode = msgspec.msgpack.Encoder().encode
+
+        class _CompactSerializer(StateSerializer):
+            """A scene recording that holds what it records compressed: each message,
+            with its time, as its msgpack encoding, CHUNK_MESSAGES of them at a time
+            deflated (zlib) with their lengths; serialize() embeds them as they are
+            (``msgspec.Raw``): the same file as viser's. The scene sends about 160
+            messages a second while a satellite moves, and the recording of a run (up to
+            MAX_REPLAY_S) stays in the web process until the run ends: held as viser
+            holds it (a tuple and a dict each) it grew the web process by about 3.6 MB a
+            minute, held so by about a tenth of that (a private part of viser 1.x, as
+            :func:`_serialize_copy`; tests/test_backend_replay.py checks both)."""
+
+            def _insert_message(self, message) -> None:
+                if self._filter(message):
+                    data = message.as_serializable_dict(self._binary_buffers)
+                    pending = self.__dict__.setdefault("_pending", [])
+                    pending.append(encode((self._time, data)))
+                    if len(pending) >= CHUNK_MESSAGES:
+                        self.__dict__.setdefault("_chunks", []).append(
+                            (zlib.compress(b"".join(pending), 1),
+                             array.array("I", map(len, pending))))
+                        self._pending = []
+
+            def serialize(self) -> bytes:
+                encoded = []
+                for blob, lengths in getattr(self, "_chunks", []):
+                    data, at = zlib.decompress(blob), 0
+                    for n in lengths:
+                        encoded.append(msgspec.Raw(data[at:at + n]))
+                        at += n
+                encoded += [msgspec.Raw(m) for m in getattr(self, "_pending", [])]
+                self._messages = list(self._messages) + encoded
+                self._chunks, self._pending = [], []
+                return super().serialize()
+
+            def copy(self):
+                """A copy to serialize while this one goes on recording."""
+                clone = copy.copy(self)
+                clone._messages = list(self._messages)
+                clone._binary_buffers = list(self._binary_buffers)
+                clone._chunks = list(getattr(self, "_chunks", []))
+                clone._pending = list(getattr(self, "_pending", []))
+                return clone
+
+        _COMPACT = _CompactSerializer
+    return _COMPACT
+
+
+_COMPACT = None
+CHUNK_MESSAGES = 512
+"""A compact recording deflates its messages this many at a time (about 3 s of a run)."""
+
+
 def _serialize_copy(serializer) -> bytes:
     """What ``serializer`` recorded so far, leaving it recording. viser's serialize() ends
     a recording, so a copy of it (its message and buffer lists) is serialized instead; the
     copy is registered with the websocket handler for the moment, as serialize() expects
     (a private part of viser 1.x: tests/test_backend_rest.py checks it)."""
-    clone = copy.copy(serializer)
-    clone._messages = list(serializer._messages)
-    clone._binary_buffers = list(serializer._binary_buffers)
+    clone = serializer.copy()
     handler = serializer._handler
     with handler._record_lock:
         handler._record_handles.append(clone)

@@ -38,6 +38,7 @@ from typing import Any
 
 from app.backend import snapshots
 from app.backend.loop_process import _loop_main
+from app.backend.memory import TRIM_EVERY_S, give_back_memory
 from app.backend.ring import RunTelemetry
 from app.config import EmulatorConfig
 from app.sim.hand import Command
@@ -177,9 +178,14 @@ class Runner:
 
     def _watchdog(self) -> None:
         """Every 0.1 s: is the loop process alive, has its heartbeat moved; and a sample
-        of its (cycles, deadline misses) for :meth:`miss_ratio`."""
+        of its (cycles, deadline misses) for :meth:`miss_ratio`; every TRIM_EVERY_S, the
+        web process's freed memory handed back (:func:`give_back_memory`)."""
+        trimmed = time.monotonic()
         while True:
             time.sleep(0.1)
+            if time.monotonic() - trimmed > TRIM_EVERY_S:
+                give_back_memory()
+                trimmed = time.monotonic()
             if self.fault() is None:
                 try:
                     snap = self.snapshot()

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from app.backend.downloads import DownloadWorker
+from app.backend.memory import give_back_memory
 from app.backend.ring import COUNTER_BYTES, RingSpaceError, check_ring_space, ring_bytes
 from app.backend.runner import Runner, RunnerBusy
 from app.config import ConfigError, EmulatorConfig, merge_overrides
@@ -807,18 +808,6 @@ class EmulatorService:
             columns = loop_columns(len(snap["satellites"]), len(snap["robots"]))
             return snap, self.last_config, columns, None
         return snap, ring.config, ring.columns, ring.reader()
-
-
-def give_back_memory() -> None:
-    """Hand the memory freed by a heavy read back to the system (glibc's malloc_trim):
-    without it the allocator keeps what the copies of a big ring used, and the web
-    process's resident size stays tens of MiB up after each download."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc: nothing to do
-        pass
 
 
 class CsvChunks:
