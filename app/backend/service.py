@@ -186,6 +186,7 @@ class EmulatorService:
             store = RunStore(runs_dir, keep_runs, max_run_bytes)
             self.recorder = RunRecorder(self.runner, store, self.metrics_for,
                                         draw_plots=run_plots)
+            self.recorder.on_forecast = self._reads.forget  # /api/metrics with it, anew
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -441,7 +442,8 @@ class EmulatorService:
             ring = self.runner.ring_of({"generation": gen})
             self._reference = (ring, reference)
             if self.recorder is not None and ring is not None:
-                self.recorder.begin(ring, name, config, mode, reference, snapshot_at_s)
+                self.recorder.begin(ring, name, config, mode, reference, snapshot_at_s,
+                                    generation=gen)
             self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
@@ -799,6 +801,23 @@ class EmulatorService:
             raise
         return path, written_hz
 
+    def stored_bag(self, folder: Path, rate_hz: float) -> tuple[Path, float]:
+        """A run kept on disk (its folder) as a ROS 2 bag, zipped into a temporary file
+        (the caller deletes it), and the rate written (as :meth:`run_bag`, from its
+        telemetry.csv: app/backend/downloads.py build_stored_bag); built by the download
+        worker in the heavy reads' turn."""
+        from app.backend.downloads import build_stored_bag, temporary_zip
+
+        def build() -> tuple[Path, float]:
+            path = temporary_zip("orbit-emulator-bag-")
+            try:
+                return path, self._worker.run(build_stored_bag, str(path), str(folder),
+                                              rate_hz, MAX_BAG_MESSAGES)
+            except BaseException:
+                path.unlink(missing_ok=True)
+                raise
+        return self._reads.exclusive(build)
+
     def _download_source(self):
         """(state, config, columns, the ring's file or None) of the current run."""
         snap = self.runner.snapshot()
@@ -886,6 +905,12 @@ class SharedReads:
                 return compute()
             finally:
                 give_back_memory()
+
+    def forget(self) -> None:
+        """The answers kept are computed anew at the next ask (what they are computed
+        from changed without a cycle: a run's forecast came after it)."""
+        with self._lock:
+            self._last.clear()
 
     def get(self, name: str, compute):
         with self._lock:
