@@ -107,15 +107,16 @@ class RunRecorder:
         self._plots: queue.SimpleQueue = queue.SimpleQueue()
         self._plotter: threading.Thread | None = None
         self._plotting = threading.Event()
-        self._generations: dict[int, tuple[str, str, str]] = {}
+        self._names_lock = threading.Lock()  # (not the recording's lock: the scene's
+        self._generations: dict[int, tuple[str, str, str]] = {}  # thread takes this one)
         """Loop generation -> (run id, scenario, mode) of the runs begun last."""
         self._replay_writers: list[threading.Thread] = []
         self._ideals: dict[str, dict] = {}
-        """Run id -> the pre-flight's ideal collision it is compared with (the service's own
-        object: the forecast computed after the run is added to it, :meth:`_share_forecast`)."""
-        self.on_forecast: Callable[[], None] | None = None
-        """Called when a run's forecast was added to its ideal collision (the service then
-        computes /api/metrics anew)."""
+        """Run id -> the pre-flight's ideal collision it is compared with (the service's
+        object, which :meth:`_share_forecast` hands back with the forecast)."""
+        self.on_forecast: Callable[[dict, dict], None] | None = None
+        """Called with (a run's ideal collision, the forecast computed after the run): the
+        service then compares its runs with the ideal collision and the forecast."""
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -153,7 +154,9 @@ class RunRecorder:
                     else:
                         self._end(run, status, snap.get("reason"))
                 self._final(run)
-        for writer in list(self._replay_writers):  # the replays being written
+        with self._names_lock:
+            writers = list(self._replay_writers)
+        for writer in writers:  # the replays being written
             writer.join(10.0)
         self._plots.put(None)  # the plots not drawn yet are drawn by the next server
         if self._plotter is not None:
@@ -189,28 +192,29 @@ class RunRecorder:
                 appender=TelemetryAppender(folder / "telemetry.csv", ring.columns),
                 config=config, mode=mode, ideal=ideal,
                 expect_interval=mode == "hil" and snapshot_at_s is not None)
-            if ideal is not None:
-                self._ideals[run_id] = ideal
-                while len(self._ideals) > GENERATIONS_KEPT:
-                    del self._ideals[next(iter(self._ideals))]
-            if generation is not None:
-                self._generations[generation] = (run_id, scenario, mode)
-                while len(self._generations) > GENERATIONS_KEPT:
-                    del self._generations[next(iter(self._generations))]
+            with self._names_lock:
+                if ideal is not None:
+                    self._ideals[run_id] = ideal
+                    while len(self._ideals) > GENERATIONS_KEPT:
+                        del self._ideals[next(iter(self._ideals))]
+                if generation is not None:
+                    self._generations[generation] = (run_id, scenario, mode)
+                    while len(self._generations) > GENERATIONS_KEPT:
+                        del self._generations[next(iter(self._generations))]
             return run_id
 
     def save_replay(self, generation: int, recording: bytes, truncated: bool) -> None:
         """The scene's recording of run ``generation`` (app/backend/replay.py) is done:
         written to the run's folder as replay.html, the standalone file that plays
         offline, by a thread of its own (the scene's thread, which calls this, goes on)."""
-        with self._lock:
+        with self._names_lock:
             known = self._generations.get(generation)
         if known is None:  # a run not recorded (a reset's idle scene, say)
             return
         writer = threading.Thread(target=self._write_replay, args=(*known, recording,
                                                                    truncated),
                                   name="run-replay", daemon=True)
-        with self._lock:
+        with self._names_lock:
             self._replay_writers = [w for w in self._replay_writers if w.is_alive()]
             self._replay_writers.append(writer)
         writer.start()
@@ -365,11 +369,11 @@ class RunRecorder:
                     pass
 
     def _share_forecast(self, run_id: str, folder: Path) -> None:
-        """The forecast the worker added to the run's ideal.json, given to the ideal
-        collision the service compares the run with: /api/metrics and run.zip of the run
-        that is there then carry it too, and a later /forecast or Start of the same
-        configuration has it at once (the service caches that object)."""
-        with self._lock:
+        """The forecast the worker added to the run's ideal.json, handed to the service
+        (:attr:`on_forecast`): /api/metrics and run.zip of the run that is there then
+        carry it too, and a later /forecast or Start of the same configuration has it at
+        once."""
+        with self._names_lock:
             ideal = self._ideals.pop(run_id, None)
         if ideal is None or "forecast" in ideal:
             return
@@ -377,10 +381,8 @@ class RunRecorder:
             saved = json.loads((folder / "ideal.json").read_text())
         except (OSError, ValueError):
             return
-        if saved.get("forecast") is not None:
-            ideal["forecast"] = saved["forecast"]
-            if self.on_forecast is not None:
-                self.on_forecast()
+        if saved.get("forecast") is not None and self.on_forecast is not None:
+            self.on_forecast(ideal, saved["forecast"])
 
     def _draw(self, folder: Path) -> list[str]:
         """The run's plots, drawn by the recorder's worker process (:meth:`in_worker`)."""

@@ -186,7 +186,7 @@ class EmulatorService:
             store = RunStore(runs_dir, keep_runs, max_run_bytes)
             self.recorder = RunRecorder(self.runner, store, self.metrics_for,
                                         draw_plots=run_plots)
-            self.recorder.on_forecast = self._reads.forget  # /api/metrics with it, anew
+            self.recorder.on_forecast = self._forecast_came
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -390,6 +390,31 @@ class EmulatorService:
                 answer.set_exception(err)
                 raise
         return answer.result()
+
+    def _forecast_came(self, ideal: dict, forecast: dict) -> None:
+        """The forecast of ideal collision ``ideal`` (computed after a run whose start did
+        not wait for it): a copy of ``ideal`` with it takes its place everywhere the
+        service keeps it (the reference of the run that is there, whose /api/metrics is
+        computed anew; the forecasts' and pre-flights' caches), so that every copy of the
+        run's metrics, and the next /forecast or Start of its configuration, have it.
+        (A copy: other threads may be reading ``ideal``.)"""
+        new = {**ideal, "forecast": forecast}
+        with self._forecast_lock:
+            for key, (reference, wall_s) in list(self._forecasts.items()):
+                if reference is ideal:
+                    self._forecasts[key] = (new, wall_s)
+        with self._preflight_lock:
+            for key, answer in list(self._preflights.items()):
+                if answer.done() and answer.exception() is None \
+                        and answer.result()[1] is ideal:
+                    replaced = Future()
+                    replaced.set_result((answer.result()[0], new))
+                    self._preflights[key] = replaced
+        with self._build_lock:  # (a start sets it under this lock)
+            ring, reference = self._reference
+            if reference is ideal:
+                self._reference = (ring, new)
+        self._reads.forget()
 
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
