@@ -410,10 +410,11 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
             assert link.get_attribute("href") == f"/api/runs/{run_id}/files/replay.html"
             assert link.get_attribute("target") == "_blank"
             logs: list[str] = []
+            page.context.on("console", lambda m: logs.append(m.text))  # (every tab's)
             with page.context.expect_page() as opened:
                 link.click()
             viewer = opened.value
-            viewer.on("console", lambda m: logs.append(m.text))
+            viewer.bring_to_front()  # (a tab in the background is not drawn)
             deadline = time.monotonic() + 60
             while not any("File loaded" in t for t in logs) and time.monotonic() < deadline:
                 viewer.wait_for_timeout(250)
