@@ -1,8 +1,9 @@
 // The runs kept on disk, in the page: the result of the run (its running figures while it
 // goes, then its summary, warnings and plots), the runs list, a past run's results, and
-// two runs compared (their settings' differences and their plots side by side).
-// REST: /api/metrics (the run that is there), /api/runs, /api/runs/{id},
-// /api/runs/{id}/files/{name}. It lives in #runs-panel of index.html.
+// two runs compared (their settings' differences and their plots overlaid), a past run's
+// 3D replay and ROS 2 bag. REST: /api/metrics (the run that is there), /api/runs,
+// /api/runs/{id}, /api/runs/{id}/files/{name}, /api/runs/{id}/bag, /api/runs/compare,
+// /api/runs/compare/plot. It lives in #runs-panel of index.html.
 (() => {
   "use strict";
   const root = document.getElementById("runs-panel");
@@ -33,6 +34,10 @@
   const pct = (v) => (v === null || v === undefined ? "–" : `${v >= 0 ? "+" : ""}${(100 * v).toFixed(1)} %`);
   const fileUrl = (id, name) => `/api/runs/${encodeURIComponent(id)}/files/${encodeURIComponent(name)}`;
   const plotsOf = (run) => (run.files || []).filter((f) => f.endsWith(".png"));
+  const REPLAY = "replay.html";  // a run's 3D replay, kept in its folder
+  const bagUrl = (id) => `/api/runs/${encodeURIComponent(id)}/bag`;
+  const overlayUrl = (a, b, figure) => "/api/runs/compare/plot?" +
+    new URLSearchParams({ a, b, figure }).toString();
 
   // --- the layout ---------------------------------------------------------------------
   const toggle = el("button", { type: "button", id: "runs-toggle",
@@ -113,6 +118,12 @@
         `${run.started_at}` + (run.ended_at ? ` · ended ${run.ended_at}` : "")),
       summary(run.metrics),
       plots(run),
+      el("p", {}, (run.files || []).includes(REPLAY)
+        ? el("a", { href: fileUrl(run.id, REPLAY), target: "_blank", class: "run-replay" },
+             "open its 3D replay") : el("span", { class: "muted" }, "no 3D replay kept"),
+        " · ", el("a", { href: bagUrl(run.id), download: `${run.id}-bag.zip`, class: "run-bag",
+                         title: "built on demand from its telemetry (MCAP; Foxglove, PlotJuggler, ros2 bag play)" },
+                  "ROS 2 bag")),
       el("p", {}, "files: ", (run.files || []).map((f) =>
         el("a", { href: fileUrl(run.id, f), download: f, class: "run-file" }, f))));
     result.dataset.runId = run.id;
@@ -176,7 +187,8 @@
   // --- the runs list ------------------------------------------------------------------
   const chosen = new Set();
   function renderList(list) {
-    const key = JSON.stringify([list.runs.map((r) => [r.id, r.status, String(r.plots)]), [...chosen]]);
+    const key = JSON.stringify([list.runs.map((r) => [r.id, r.status, String(r.plots), r.replay]),
+                                [...chosen]]);
     if (listBox.dataset.key === key) return;
     listBox.dataset.key = key;
     const rows = list.runs.map((r) => {
@@ -193,7 +205,10 @@
         el("td", {}, r.status),
         el("td", {}, num(h.restitution)), el("td", {}, num(h.restitution_ideal)),
         el("td", {}, pct(h.restitution_error)),
-        el("td", {}, h.success === null || h.success === undefined ? "–" : (h.success ? "met" : "not met")));
+        el("td", {}, h.success === null || h.success === undefined ? "–" : (h.success ? "met" : "not met")),
+        el("td", {}, r.replay ? el("a", { href: fileUrl(r.id, REPLAY), target: "_blank",
+                                          class: "run-replay", title: "its 3D replay, in a new tab" }, "3D")
+                              : "–"));
     });
     const compareButton = el("button", { type: "button", id: "compare-button", onclick: compare },
                              "Compare the two chosen");
@@ -204,7 +219,7 @@
       compareButton,
       el("table", { class: "run-table" },
         el("tr", {}, ["", "run", "mode", "seed", "sim s", "status", "restitution", "ideal",
-                      "error", "success"].map((t) => el("th", {}, t))), rows));
+                      "error", "success", "replay"].map((t) => el("th", {}, t))), rows));
   }
 
   async function open(id) {
@@ -214,39 +229,42 @@
     root.classList.add("open");
   }
 
-  // --- two runs compared ---------------------------------------------------------------
-  function flatten(value, prefix, out) {
-    if (value && typeof value === "object") {
-      for (const [k, v] of Object.entries(value)) flatten(v, prefix ? `${prefix}.${k}` : k, out);
-    } else out[prefix] = value;
-    return out;
-  }
+  // --- two runs compared: settings that differ, and each figure with both runs overlaid -------
+  const CORE_FIGURES = ["forces", "velocity", "position"];  // tried while none are drawn yet
 
   async function compare() {
-    const [a, b] = await Promise.all([...chosen].sort().map(
-      (id) => getJSON(`/api/runs/${encodeURIComponent(id)}`)));
-    const fa = flatten({ mode: a.mode, ...(a.config || {}).config }, "", {});
-    const fb = flatten({ mode: b.mode, ...(b.config || {}).config }, "", {});
-    const keys = [...new Set([...Object.keys(fa), ...Object.keys(fb)])].sort()
-      .filter((k) => JSON.stringify(fa[k]) !== JSON.stringify(fb[k]));
-    const diff = keys.length ? el("table", { class: "run-table compare-diff" },
-      el("tr", {}, el("th", {}, "setting"), el("th", {}, a.id), el("th", {}, b.id)),
-      keys.map((k) => el("tr", {}, el("td", {}, k), el("td", {}, JSON.stringify(fa[k])),
-                         el("td", {}, JSON.stringify(fb[k])))))
+    const [ida, idb] = [...chosen].sort();
+    let a, b, diff;
+    try {
+      [a, b, diff] = await Promise.all([
+        getJSON(`/api/runs/${encodeURIComponent(ida)}`),
+        getJSON(`/api/runs/${encodeURIComponent(idb)}`),
+        getJSON("/api/runs/compare?" + new URLSearchParams({ a: ida, b: idb }).toString())]);
+    } catch (e) {
+      compareBox.replaceChildren(el("p", { class: "fail" }, e.message));
+      return;
+    }
+    const table = diff.settings.length ? el("table", { class: "run-table compare-diff" },
+      el("tr", {}, el("th", {}, "setting"), el("th", {}, `A ${a.id}`), el("th", {}, `B ${b.id}`)),
+      diff.settings.map((d) => el("tr", {}, el("td", {}, d.key), el("td", {}, JSON.stringify(d.a)),
+                                  el("td", {}, JSON.stringify(d.b)))))
       : el("p", {}, "the same settings");
-    const names = [...new Set([...plotsOf(a), ...plotsOf(b)])].sort();
-    const pairs = names.map((n) => el("div", { class: "compare-pair" },
-      el("p", {}, n),
-      [a, b].map((r) => plotsOf(r).includes(n)
-        ? el("img", { class: "run-plot", src: fileUrl(r.id, n), alt: `${r.id} ${n}` })
-        : el("p", { class: "muted" }, `${r.id}: no ${n}`))));
+    const names = diff.figures.length ? diff.figures : CORE_FIGURES;
+    const overlays = names.map((n) => {
+      const img = el("img", { class: "run-plot compare-overlay", src: overlayUrl(a.id, b.id, n),
+                              alt: `${n}: ${a.id} and ${b.id} overlaid`, "data-figure": n });
+      const box = el("div", { class: "compare-figure" }, el("p", {}, n),
+                     el("a", { href: img.getAttribute("src"), target: "_blank" }, img));
+      img.onerror = () => box.replaceChildren(el("p", { class: "muted" }, `${n}: neither run has it`));
+      return box;
+    });
     compareBox.replaceChildren(
-      el("h2", {}, `Compare ${a.id} and ${b.id}`),
+      el("h2", {}, `Compare A ${a.id} and B ${b.id}`),
       el("button", { type: "button", onclick: () => compareBox.replaceChildren() }, "close"),
-      el("div", { class: "compare-summaries" }, summary(a.metrics, a.id), summary(b.metrics, b.id)),
-      el("h3", {}, "settings that differ"), diff,
-      el("h3", {}, "plots (left: first, right: second)"),
-      ...(pairs.length ? pairs : [el("p", { class: "muted" }, "no plots yet (being drawn): compare again in a moment")]));
+      el("div", { class: "compare-summaries" }, summary(a.metrics, `A ${a.id}`),
+         summary(b.metrics, `B ${b.id}`)),
+      el("h3", {}, "settings that differ"), table,
+      el("h3", {}, "plots overlaid (A solid, B dashed)"), ...overlays);
     root.classList.add("open");
   }
 
@@ -265,9 +283,8 @@
     .run-table td, .run-table th { border: 1px solid #2c3642; padding: .1rem .4rem; text-align: left; }
     .run-plots { display: flex; flex-wrap: wrap; gap: .4rem; }
     .run-plot { max-width: 420px; width: 32%; min-width: 260px; background: #fff; }
-    .compare-summaries, .compare-pair { display: flex; gap: .8rem; flex-wrap: wrap; }
-    .compare-pair > p { width: 100%; }
-    .compare-pair .run-plot { width: 48%; max-width: none; }
+    .compare-summaries { display: flex; gap: .8rem; flex-wrap: wrap; }
+    .compare-figure .run-plot { width: 90%; max-width: 1100px; }
     .run-warnings { color: #ffd43b; margin: .2rem 0; }
     .muted { color: #adb5bd; }
     .pass { color: #69db7c; } .fail { color: #ff8787; }

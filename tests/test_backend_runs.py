@@ -6,16 +6,21 @@ server, on the same runs directory) finds both: the first whole, the second inte
 with its rows up to about a second before the kill. On the second server a short hil
 collision is recorded with the ideal run's comparison, the same as `orbit-emulator run`
 gives; Reset and a new Start lose nothing; the files are served safely; the CLI lists the
-runs.
+runs. A run's 3D replay is kept in its folder (and found there after the restart); a kept
+run's ROS 2 bag is built on demand; two runs' figures are overlaid.
 """
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import os
+import re
 import signal
 import subprocess
 import time
+import zipfile
 
 import httpx
 import numpy as np
@@ -24,6 +29,7 @@ import pytest
 from app.cli import main as cli_main
 from app.runs.store import read_telemetry
 from tests.live_server import LiveServer, free_port
+from tests.test_backend_rest import _recording_duration_s
 from tests.test_cli import EXE
 
 SHORT_COLLISION = {"satellites": {"0": {"position_m": [-0.16, 0, 0]},
@@ -68,6 +74,9 @@ def killed(runs_dir):
             except httpx.HTTPError:
                 return False
         _wait(up, 120.0, "the first server did not start")
+        _wait(lambda: client.get("/api/health").json()["scene_generation"]  # the 3D scene
+              == client.get("/api/state").json()["generation"], 60.0,  # is built: it
+              "the first server's scene was not built")  # records the short run's replay
         r = client.post("/api/scenarios/collision/start",
                         json={"mode": "ideal", "loop": {"duration_s": 0.6}})
         assert r.status_code == 200, r.text
@@ -128,6 +137,19 @@ def test_a_killed_server_leaves_its_rows_up_to_a_second_before_the_kill(live, ki
     files = live.client.get(f"/api/runs/{whole}").json()["files"]
     assert {"telemetry.csv", "metrics.json", "config.json", "summary.txt"} <= set(files)
     assert set(first["plots"]) <= set(files) and first["plots"]
+    # with its 3D replay, kept by the first server when the run ended
+    assert "replay.html" in files and first["replay"] is True
+    _check_replay(live, whole, "collision (ideal)", first["duration_s"])
+
+
+def _check_replay(live, run_id: str, title: str, duration_s: float) -> None:
+    """The run's replay.html is the standalone player with the run's recording inside,
+    which lasts as long as the run did (scenario time)."""
+    r = live.client.get(f"/api/runs/{run_id}/files/replay.html")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
+    assert f"<title>orbit-emulator replay: {title}</title>" in r.text
+    recording = base64.b64decode(re.search(r'var b64 = "([A-Za-z0-9+/=]+)"', r.text)[1])
+    assert _recording_duration_s(recording) == pytest.approx(duration_s, abs=0.1)
 
 
 def test_a_web_run_is_listed_with_its_figures_and_the_cli_s_numbers(live, tmp_path):
@@ -149,9 +171,10 @@ def test_a_web_run_is_listed_with_its_figures_and_the_cli_s_numbers(live, tmp_pa
     assert png.status_code == 200 and png.content[:8] == b"\x89PNG\r\n\x1a\n"
     web = live.client.get(f"/api/runs/{run_id}").json()["metrics"]
     rest = live.client.get("/api/metrics").json()  # REST of the run that is there
-    # (the fidelity forecast a start does not wait for comes after the run, on disk)
-    assert rest["collision_forecast"] is None and web["collision_forecast"] is not None
-    assert {**web, "collision_forecast": None} == rest
+    # nothing asked /forecast for this configuration: the forecast a start does not wait
+    # for is computed after the run, into metrics.json, and /api/metrics then has it too
+    assert web["collision_forecast"]["restitution_sd"] > 0
+    assert rest == web
     # the same scenario, settings and seed headless: the same numbers
     out = tmp_path / "cli"  # (the CLI's own code in this process: no start-up to wait)
     assert cli_main(["run", "collision", "--quiet", "--out", str(out), "--duration", "1.2",
@@ -161,6 +184,81 @@ def test_a_web_run_is_listed_with_its_figures_and_the_cli_s_numbers(live, tmp_pa
                 "restitution_interval_95", "peak_force_N"):
         assert web["collision"][key] == pytest.approx(cli["collision"][key], rel=1e-9), key
     assert web["collision_forecast"] == pytest.approx(cli["collision_forecast"], rel=1e-9)
+
+
+def _hil_run(live) -> str:
+    """The hil collision of the test above (the newest finished hil run)."""
+    return next(x["id"] for x in live.client.get("/api/runs").json()["runs"]
+                if x["mode"] == "hil" and x["status"] == "finished")
+
+
+def test_a_run_s_replay_is_kept_in_its_folder(live):
+    run_id = _hil_run(live)
+    record = _wait(lambda: (x := _runs(live)[run_id])["replay"] and x, 20.0, "no replay")
+    assert "replay.html" in live.client.get(f"/api/runs/{run_id}").json()["files"]
+    _check_replay(live, run_id, "collision (hil)", record["duration_s"])
+
+
+def test_a_kept_run_s_bag_is_built_from_its_telemetry(live, runs_dir, tmp_path):
+    """GET /api/runs/{id}/bag: the run's telemetry.csv as a ROS 2 bag (MCAP), at the rate
+    asked, read back with the independent mcap reader."""
+    pytest.importorskip("mcap_ros2")
+    from app.runs.bag import thinning_step
+    from tests.runs.test_bag import _mcap
+
+    run_id = _hil_run(live)
+    r = live.client.get(f"/api/runs/{run_id}/bag", params={"rate_hz": 50})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip", r.text
+    assert f'filename="{run_id}-bag.zip"' in r.headers["content-disposition"]
+    assert r.headers["x-bag-rate-hz"] == "50"  # (the loop's 500 Hz, every 10th row)
+    zipfile.ZipFile(io.BytesIO(r.content)).extractall(tmp_path)
+    channels, messages = _mcap(tmp_path / "bag")
+    assert {"/clock", "/tf", "/robot1/joint_states", "/sat2/ods_input"} <= set(channels)
+    rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
+    kept = rows[::thinning_step(50.0, rows[1, 0] - rows[0, 0])]
+    clock = np.array([m.clock.sec + 1e-9 * m.clock.nanosec for _, m in messages["/clock"]])
+    np.testing.assert_allclose(clock, kept[:, 0], atol=1e-9)
+    assert len(messages["/robot2/joint_states"]) == len(kept)
+    for path, status, detail in [
+            (f"/api/runs/{run_id[:-1]}X/bag", 422, "not a run's id"),
+            ("/api/runs/20991126T050005123Z-collision/bag", 404, "no run "),
+            (f"/api/runs/{run_id}/bag?rate_hz=0", 422, "rate_hz")]:
+        r = live.client.get(path)
+        assert r.status_code == status and detail in r.text, (path, r.text)
+
+
+def test_two_runs_figures_are_overlaid(live):
+    """GET /api/runs/compare: the settings that differ; /api/runs/compare/plot: one figure
+    of both runs on the same axes, a PNG; bad ids and figure names refused by name."""
+    from PIL import Image
+
+    a = _hil_run(live)
+    b = next(x["id"] for x in live.client.get("/api/runs").json()["runs"]
+             if x["mode"] == "ideal" and x["status"] == "finished")
+    r = live.client.get("/api/runs/compare", params={"a": a, "b": b})
+    assert r.status_code == 200, r.text
+    diff = {d["key"]: (d["a"], d["b"]) for d in r.json()["settings"]}
+    assert diff["mode"] == ("hil", "ideal")
+    assert diff["loop.duration_s"][0] != diff["loop.duration_s"][1]
+    assert "scenario" not in diff  # both collisions
+    assert {"forces", "velocity"} <= set(r.json()["figures"])
+    r = live.client.get("/api/runs/compare/plot",
+                        params={"a": a, "b": b, "figure": "contact_closeup"})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png", r.text
+    png = Image.open(io.BytesIO(r.content))
+    assert png.size[0] == 1100 and png.size[1] > 400  # 11 in at 100 dpi, two panels
+    base = {"a": a, "b": b, "figure": "velocity"}
+    for params, status, detail in [
+            ({**base, "figure": "nope"}, 422, "figure 'nope': not a run's figure (one of "
+                                              "forces, contact_closeup"),
+            ({**base, "figure": "capture"}, 404, f"neither run {a!r} nor run {b!r} has a "
+                                                 f"'capture' figure"),
+            ({**base, "a": "../x"}, 422, "run id '../x': not a run's id"),
+            ({**base, "b": "20991126T050005123Z-collision"}, 404,
+             "no run '20991126T050005123Z-collision'"),
+            ({"a": a, "figure": "velocity"}, 422, "b: Field required")]:
+        r = live.client.get("/api/runs/compare/plot", params=params)
+        assert r.status_code == status and detail in r.json()["detail"], (params, r.text)
 
 
 def test_reset_and_a_new_start_keep_the_runs_files(live, runs_dir):
@@ -294,14 +392,34 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
             for rid in (run_id, other):
                 page.locator(f"input.run-choose[data-run-id='{rid}']").check()
             page.locator("#compare-button").click()
-            page.wait_for_function(
+            page.wait_for_function(  # the figures overlaid, drawn by the server
                 "() => { const c = document.getElementById('run-compare');"
-                " return c && c.querySelector('.compare-diff') && c.querySelectorAll("
-                "'.compare-pair img.run-plot').length >= 2; }", timeout=60_000)
+                " return c && c.querySelector('.compare-diff') && [...c.querySelectorAll("
+                "'img.compare-overlay')].some((i) => i.complete && i.naturalWidth > 300); }",
+                timeout=90_000)
             diff = page.locator("#run-compare .compare-diff").inner_text()
             assert "mode" in diff and "hil" in diff and "ideal" in diff
             assert "loop.duration_s" in diff  # 1.2 s against the ideal run's
             assert page.locator("#run-compare .run-summary").count() == 2
+            a, b = sorted((run_id, other))
+            src = page.locator("#run-compare img.compare-overlay").first.get_attribute("src")
+            assert src.startswith(f"/api/runs/compare/plot?a={a}&b={b}&figure=")
+            # the runs list offers the run's 3D replay, which opens and loads in a new tab
+            link = page.locator(f"#runs-list tr[data-run-id='{run_id}'] a.run-replay")
+            link.wait_for(timeout=20_000)
+            assert link.get_attribute("href") == f"/api/runs/{run_id}/files/replay.html"
+            assert link.get_attribute("target") == "_blank"
+            logs: list[str] = []
+            page.context.on("console", lambda m: logs.append(m.text))  # (every tab's)
+            with page.context.expect_page() as opened:
+                link.click()
+            viewer = opened.value
+            viewer.bring_to_front()  # (a tab in the background is not drawn)
+            deadline = time.monotonic() + 60
+            while not any("File loaded" in t for t in logs) and time.monotonic() < deadline:
+                viewer.wait_for_timeout(250)
+            assert any("File loaded" in t for t in logs), logs[-10:]
+            assert viewer.title() == "orbit-emulator replay: collision (hil)"
         finally:
             browser.close()
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import re
 import tempfile
 import threading
 import time
@@ -27,7 +28,7 @@ from app.backend.ring import CHUNK_ROWS, RingFile
 from app.config import EmulatorConfig
 from app.runs.report import csv_row_format, json_safe
 
-__all__ = ["DownloadWorker", "build_archive", "build_bag", "temporary_zip"]
+__all__ = ["DownloadWorker", "build_archive", "build_bag", "build_stored_bag", "temporary_zip"]
 
 
 def temporary_zip(prefix: str) -> Path:
@@ -75,17 +76,48 @@ def build_bag(path: str, snap: dict, config: EmulatorConfig, columns: list[str],
     rate_hz messages per topic and second of scenario time, and fewer where the run is
     long (about max_messages in all). Only the rows kept are held, read a chunk at a
     time."""
-    from app.runs.bag import write_bag
-
     rows = _empty_rows(columns)
     if ring is not None:
         rows, rate_hz = bag_rows(ring, snap, rate_hz, max_messages)
+    _zip_bag(path, config, columns, rows)
+    return rate_hz
+
+
+def _zip_bag(path: str, config: EmulatorConfig, columns: list[str], rows: np.ndarray) -> None:
+    """The bag of ``rows`` (app/runs/bag.py write_bag, every row given), zipped at ``path``
+    as bag/metadata.yaml and bag/bag.mcap."""
+    from app.runs.bag import write_bag
+
     with tempfile.TemporaryDirectory() as tmp, \
             zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
         bag = write_bag(Path(tmp) / "bag", config, rows,
                         {name: k for k, name in enumerate(columns)}, None)
         for part in sorted(bag.iterdir()):
             zf.write(part, f"bag/{part.name}")
+
+
+def build_stored_bag(path: str, folder: str, rate_hz: float, max_messages: int) -> float:
+    """The ROS 2 bag of a run kept on disk (app/runs/store.py: its telemetry.csv and
+    config.json), zipped at ``path``, as :func:`build_bag` makes the current run's: at
+    most rate_hz messages per topic and second of scenario time, fewer where the run is
+    long (about max_messages in all); the rate written. The CSV is read twice a line at a
+    time (its times, then the rows kept), so only the rows kept are held."""
+    from app.runs.bag import thinning_step
+    from app.runs.store import read_telemetry_every, run_config, telemetry_span
+
+    telemetry = Path(folder) / "telemetry.csv"
+    config = run_config(Path(folder))
+    columns, n_rows, dt_s, span_s = telemetry_span(telemetry)
+    n_sat = sum(1 for c in columns if re.fullmatch(r"sat\d+_x_m", c))
+    n_rob = sum(1 for c in columns if re.fullmatch(r"rob\d+_x_m", c))
+    per_row = 2 + 3 * n_sat + 3 * n_rob  # /clock, /tf, and per satellite and arm
+    step = 1
+    if n_rows >= 2 and dt_s > 0:
+        rate_hz = min(rate_hz, max_messages / (per_row * max(span_s, 1e-9)))
+        step = thinning_step(rate_hz, dt_s)
+        rate_hz = 1.0 / (step * dt_s)
+    _, rows = read_telemetry_every(telemetry, step, n_rows)  # (a running run grows)
+    _zip_bag(path, config, columns, rows)
     return rate_hz
 
 

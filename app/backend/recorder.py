@@ -31,12 +31,15 @@ from pathlib import Path
 from typing import Any
 
 from app.backend.downloads import exit_with_parent
+from app.backend.replay import replay_html, replay_title
 from app.backend.ring import RingFile, RunTelemetry
 from app.backend.runner import Runner, RunnerError
 from app.config import EmulatorConfig
 from app.runs.report import write_json
 from app.runs.store import (
+    REPLAY_FILE,
     RUN_FILE,
+    RunNotFound,
     RunStore,
     TelemetryAppender,
     now_utc,
@@ -54,6 +57,9 @@ INTERVAL_WAIT_S = 30.0
 """After a hil run with a contact ends, its metrics wait this long at most for the
 restitution's interval the loop computes (a second or two); a new run does not wait."""
 LIVE = ("starting", "running")
+GENERATIONS_KEPT = 16
+"""The runs whose loop generation is remembered, for their replays (which the scene ends
+when the run ends, or when the next run replaces it)."""
 
 MetricsFn = Callable[..., dict]
 
@@ -101,6 +107,16 @@ class RunRecorder:
         self._plots: queue.SimpleQueue = queue.SimpleQueue()
         self._plotter: threading.Thread | None = None
         self._plotting = threading.Event()
+        self._names_lock = threading.Lock()  # (not the recording's lock: the scene's
+        self._generations: dict[int, tuple[str, str, str]] = {}  # thread takes this one)
+        """Loop generation -> (run id, scenario, mode) of the runs begun last."""
+        self._replay_writers: list[threading.Thread] = []
+        self._ideals: dict[str, dict] = {}
+        """Run id -> the pre-flight's ideal collision it is compared with (the service's
+        object, which :meth:`_share_forecast` hands back with the forecast)."""
+        self.on_forecast: Callable[[dict, dict], None] | None = None
+        """Called with (a run's ideal collision, the forecast computed after the run): the
+        service then compares its runs with the ideal collision and the forecast."""
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -138,6 +154,10 @@ class RunRecorder:
                     else:
                         self._end(run, status, snap.get("reason"))
                 self._final(run)
+        with self._names_lock:
+            writers = list(self._replay_writers)
+        for writer in writers:  # the replays being written
+            writer.join(10.0)
         self._plots.put(None)  # the plots not drawn yet are drawn by the next server
         if self._plotter is not None:
             self._plotter.join(plots_wait_s)
@@ -151,9 +171,11 @@ class RunRecorder:
     # --- a run --------------------------------------------------------------------------
 
     def begin(self, ring: RunTelemetry, scenario: str, config: EmulatorConfig,
-              mode: str | None, ideal: dict | None, snapshot_at_s: float | None) -> str:
-        """Record the run whose telemetry ring is ``ring`` (just requested); the run
-        recorded before is ended first. Its id."""
+              mode: str | None, ideal: dict | None, snapshot_at_s: float | None,
+              generation: int | None = None) -> str:
+        """Record the run whose telemetry ring is ``ring`` (just requested; its loop
+        ``generation``, which names its 3D replay: :meth:`save_replay`); the run recorded
+        before is ended first. Its id."""
         mode = mode or config.loop.mode
         with self._lock:
             self.settle(replaced=True)
@@ -170,7 +192,45 @@ class RunRecorder:
                 appender=TelemetryAppender(folder / "telemetry.csv", ring.columns),
                 config=config, mode=mode, ideal=ideal,
                 expect_interval=mode == "hil" and snapshot_at_s is not None)
+            with self._names_lock:
+                if ideal is not None:
+                    self._ideals[run_id] = ideal
+                    while len(self._ideals) > GENERATIONS_KEPT:
+                        del self._ideals[next(iter(self._ideals))]
+                if generation is not None:
+                    self._generations[generation] = (run_id, scenario, mode)
+                    while len(self._generations) > GENERATIONS_KEPT:
+                        del self._generations[next(iter(self._generations))]
             return run_id
+
+    def save_replay(self, generation: int, recording: bytes, truncated: bool) -> None:
+        """The scene's recording of run ``generation`` (app/backend/replay.py) is done:
+        written to the run's folder as replay.html, the standalone file that plays
+        offline, by a thread of its own (the scene's thread, which calls this, goes on)."""
+        with self._names_lock:
+            known = self._generations.get(generation)
+        if known is None:  # a run not recorded (a reset's idle scene, say)
+            return
+        writer = threading.Thread(target=self._write_replay, args=(*known, recording,
+                                                                   truncated),
+                                  name="run-replay", daemon=True)
+        with self._names_lock:
+            self._replay_writers = [w for w in self._replay_writers if w.is_alive()]
+            self._replay_writers.append(writer)
+        writer.start()
+
+    def _write_replay(self, run_id: str, scenario: str, mode: str, recording: bytes,
+                      truncated: bool) -> None:
+        try:
+            folder = self.store.folder(run_id)
+            page = replay_html(recording, replay_title(scenario, mode, truncated))
+            tmp = folder / f".{REPLAY_FILE}.tmp"
+            tmp.write_text(page, encoding="utf-8")
+            os.replace(tmp, folder / REPLAY_FILE)
+            if not (folder / RUN_FILE).is_file():  # deleted meanwhile: no leftovers
+                shutil.rmtree(folder, ignore_errors=True)
+        except (RunNotFound, OSError) as err:  # deleted (retention, DELETE) meanwhile
+            log.info("the replay of run %s was not kept: %s", run_id, err)
 
     def settle(self, replaced: bool = False) -> None:
         """Flush the run being recorded now; end it if it is over, or (``replaced``) if a
@@ -297,6 +357,7 @@ class RunRecorder:
                     continue
                 folder = self.store.folder(run_id)
                 names = self._draw(folder)  # (with the forecast a start did not wait for)
+                self._share_forecast(run_id, folder)
                 if not (folder / RUN_FILE).is_file():  # deleted while drawn: no leftovers
                     shutil.rmtree(folder, ignore_errors=True)
                     continue
@@ -307,18 +368,42 @@ class RunRecorder:
                 except Exception:  # noqa: BLE001 - the run is gone
                     pass
 
-    def _draw(self, folder: Path) -> list[str]:
-        """The run's plots, drawn by a worker process of the recorder's own (matplotlib
-        and the rows stay out of the web process; one process for every run's plots:
-        spawning one each time costs seconds)."""
-        if self._worker is None:
-            self._worker = ProcessPoolExecutor(
-                max_workers=1, mp_context=mp.get_context("spawn"),
-                initializer=exit_with_parent, initargs=(os.getpid(),))
+    def _share_forecast(self, run_id: str, folder: Path) -> None:
+        """The forecast the worker added to the run's ideal.json, handed to the service
+        (:attr:`on_forecast`): /api/metrics and run.zip of the run that is there then
+        carry it too, and a later /forecast or Start of the same configuration has it at
+        once."""
+        with self._names_lock:
+            ideal = self._ideals.pop(run_id, None)
+        if ideal is None or "forecast" in ideal:
+            return
         try:
-            return self._worker.submit(finish_in_worker, str(folder)).result()
+            saved = json.loads((folder / "ideal.json").read_text())
+        except (OSError, ValueError):
+            return
+        if saved.get("forecast") is not None and self.on_forecast is not None:
+            self.on_forecast(ideal, saved["forecast"])
+
+    def _draw(self, folder: Path) -> list[str]:
+        """The run's plots, drawn by the recorder's worker process (:meth:`in_worker`)."""
+        return self.in_worker(finish_in_worker, str(folder))
+
+    def in_worker(self, fn, *args):
+        """``fn(*args)`` in a worker process of the recorder's own, which draws the runs'
+        plots (matplotlib and the rows stay out of the web process; one process for every
+        run's figures, one task at a time: spawning one each time costs seconds)."""
+        with self._lock:
+            if self._worker is None:
+                self._worker = ProcessPoolExecutor(
+                    max_workers=1, mp_context=mp.get_context("spawn"),
+                    initializer=exit_with_parent, initargs=(os.getpid(),))
+            worker = self._worker
+        try:
+            return worker.submit(fn, *args).result()
         except BrokenProcessPool:  # the worker died (e.g. killed for memory): a new one next
-            self._worker = None
+            with self._lock:
+                if self._worker is worker:
+                    self._worker = None
             raise
 
     def _recover(self, run_id: str) -> None:

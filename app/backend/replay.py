@@ -12,15 +12,22 @@ from __future__ import annotations
 
 import base64
 import copy
+import logging
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["MAX_REPLAY_S", "ReplayRecorder", "replay_html"]
+__all__ = ["MAX_REPLAY_S", "ReplayRecorder", "replay_html", "replay_title"]
 
 MAX_REPLAY_S = 600.0
 """A replay keeps at most this much of a run (its first 10 minutes), to bound memory."""
 
 _NAME = "orbit-emulator-replay.viser"
+
+log = logging.getLogger("orbit_emulator.replay")
+
+Finished = tuple[int, bytes, bool]
+"""(generation, recording, truncated) of a finished recording."""
 
 
 class ReplayRecorder:
@@ -33,8 +40,11 @@ class ReplayRecorder:
         self._generation: int | None = None
         self._last_time = 0.0
         self._recorded_s = 0.0
-        self.last: tuple[int, bytes, bool] | None = None
+        self.last: Finished | None = None
         """(generation, recording, truncated) of the last finished recording."""
+        self.on_finish: Callable[[int, bytes, bool], None] | None = None
+        """Called with each recording as it finishes (outside the lock; the web app keeps
+        it in the run's folder: app/backend/recorder.py save_replay)."""
 
     @property
     def recording(self) -> bool:
@@ -44,14 +54,16 @@ class ReplayRecorder:
     def start(self, generation: int) -> None:
         """Begin recording run `generation` (the scene as it is now, then every change)."""
         with self._lock:
-            self._finish_locked(truncated=False)
+            done = self._finish_locked(truncated=False)
             self._serializer = _compact(self.server.get_scene_serializer())
             self._generation, self._last_time, self._recorded_s = generation, 0.0, 0.0
+        self._hand_on(done)
 
     def tick(self, t_s: float) -> None:
         """Scenario time ``t_s`` has come: call before sending a frame's updates. The
         recording's clock is the scenario's, so a replay plays at scenario time whatever
         the loop's real-time factor was while it ran."""
+        done = None
         with self._lock:
             if self._serializer is None:
                 return
@@ -59,20 +71,31 @@ class ReplayRecorder:
             self._last_time = max(self._last_time, t_s)
             self._recorded_s += dt
             if self._recorded_s > MAX_REPLAY_S:
-                self._finish_locked(truncated=True)
-                return
-            self._serializer.insert_sleep(dt)
+                done = self._finish_locked(truncated=True)
+            else:
+                self._serializer.insert_sleep(dt)
+        self._hand_on(done)
 
     def finish(self) -> None:
         """End the recording (the run ended or was replaced); keep it as the last one."""
         with self._lock:
-            self._finish_locked(truncated=False)
+            done = self._finish_locked(truncated=False)
+        self._hand_on(done)
 
-    def _finish_locked(self, truncated: bool) -> None:
+    def _finish_locked(self, truncated: bool) -> Finished | None:
         if self._serializer is None:
-            return
+            return None
         self.last = (self._generation, self._serializer.serialize(), truncated)
         self._serializer = None
+        return self.last
+
+    def _hand_on(self, done: Finished | None) -> None:
+        if done is None or self.on_finish is None:
+            return
+        try:
+            self.on_finish(*done)
+        except Exception:  # noqa: BLE001 - the scene goes on whatever keeping it did
+            log.exception("keeping the replay of run %d failed", done[0])
 
     def current(self) -> tuple[int, bytes, bool] | None:
         """The recording of the run going on, so far (it goes on recording), else the last
@@ -200,6 +223,12 @@ def replay_html(recording: bytes, title: str) -> str:
     page = page.replace("<title>Viser</title>", f"<title>{_escape(title)}</title>", 1)
     head = page.index("<head>") + len("<head>")
     return page[:head] + "\n" + shim + page[head:]
+
+
+def replay_title(scenario: str, mode: str, truncated: bool) -> str:
+    """A replay's title: what ran, and whether only its first 10 minutes are in it."""
+    return (f"orbit-emulator replay: {scenario} ({mode})"
+            + (f", first {MAX_REPLAY_S / 60:g} min" if truncated else ""))
 
 
 def _escape(text: str) -> str:

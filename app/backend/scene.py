@@ -521,6 +521,7 @@ class EmulatorScene:
         if self._thread is not None:
             self._thread.join(2.0)
             self._thread = None
+        self.replay.finish()  # a run still going: its replay so far is kept too
 
     def _run(self) -> None:
         period = 1.0 / self.rate_hz

@@ -41,7 +41,7 @@ from app.backend.access import (
     check_token,
     is_loopback,
 )
-from app.backend.replay import replay_html
+from app.backend.replay import replay_html, replay_title
 from app.backend.ring import RingSpaceError
 from app.backend.runner import RunnerError
 from app.backend.service import (
@@ -258,6 +258,8 @@ def create_app(
             raise
         try:
             scene = await asyncio.to_thread(EmulatorScene, server, service, scene_rate_hz)
+            if service.recorder is not None:  # each run's replay kept in its folder
+                scene.replay.on_finish = service.recorder.save_replay
             app.state.service = service
             app.state.viser = server
             app.state.scene = scene
@@ -521,8 +523,7 @@ def create_app(
             raise HTTPException(status_code=404, detail=NO_RUN)
         generation, data, truncated = recording
         snap = service(request).state()
-        title = f"orbit-emulator replay: {snap['scenario']} ({snap['mode']})" + (
-            ", first 10 min" if truncated else "")
+        title = replay_title(snap["scenario"], snap["mode"], truncated)
         page = service(request).exclusive(lambda: replay_html(data, title))
         return HTMLResponse(page, headers=attachment(download_name(snap, "replay.html")))
 
@@ -548,11 +549,17 @@ def create_app(
 # --- the runs kept on disk (app/runs/store.py) ------------------------------------------
 
 NO_STORE = "this server keeps no runs (started without a runs directory)"
+RunId = Annotated[str, Query(description="a run's id (GET /api/runs)",
+                             examples=["20261126T052345123Z-collision"])]
+FigureName = Annotated[str, Query(description=(
+    "which figure (app/runs/plots.py FIGURES): forces, contact_closeup, velocity, "
+    "position, tracking_error, ..."), examples=["contact_closeup"])]
 
 
 def runs_routes(app: FastAPI, service) -> None:
-    """GET /api/runs, /api/runs/{id}, /api/runs/{id}/files/{name}; DELETE /api/runs/{id}
-    (a mutating request: the token and the same-origin rule as any POST)."""
+    """GET /api/runs, /api/runs/{id}, /api/runs/{id}/files/{name}, /api/runs/{id}/bag,
+    /api/runs/compare and /api/runs/compare/plot; DELETE /api/runs/{id} (a mutating
+    request: the token and the same-origin rule as any POST)."""
 
     def recorder(request: Request):
         rec = service(request).recorder
@@ -569,6 +576,47 @@ def runs_routes(app: FastAPI, service) -> None:
             raise HTTPException(status_code=404, detail=str(err)) from None
 
     bad = {404: {"model": Message}, 422: {"model": Message}}
+
+    # (declared before /api/runs/{run_id}, which would take "compare" for a run's id)
+    @app.get("/api/runs/compare", tags=["runs"], responses=bad)
+    def compare_runs(a: RunId, b: RunId, request: Request) -> dict[str, Any]:
+        """Two runs compared: the settings that differ (``settings``: [{key, a, b}], by
+        dotted key of config.json, its scenario and mode included), the figures either run
+        has drawn (``figures``, each to overlay with /api/runs/compare/plot) and every
+        figure name (``all_figures``). 422: not a run id; 404: no such run."""
+        from app.runs.compare import figure_names, settings_diff
+        from app.runs.plots import figures_of
+
+        store = recorder(request).store
+        folders = [store_call(store.folder, run_id) for run_id in (a, b)]
+        saved = [store_call(store.run, run_id)["config"] or {} for run_id in (a, b)]
+        drawn = {f["name"] for folder in folders for f in figures_of(folder)}
+        return json_safe({"a": a, "b": b, "settings": settings_diff(*saved),
+                          "figures": [n for n in figure_names() if n in drawn],
+                          "all_figures": figure_names()})
+
+    @app.get("/api/runs/compare/plot", tags=["runs"], response_class=Response,
+             responses={**bad, 200: {"description": "the overlay", "content": {
+                 "image/png": {}}}})
+    def compare_plot(a: RunId, b: RunId, figure: FigureName, request: Request):
+        """Figure ``figure`` of runs ``a`` and ``b`` on the same axes (a solid, b dashed;
+        each panel's legend names the runs), drawn from their telemetry.csv (a long run's
+        every k-th row: at most 50,000 of each), as a PNG. 422: not a run id, or not a
+        figure's name (the message lists them); 404: no such run, or neither run has the
+        figure."""
+        from app.runs.compare import UnknownFigure, check_figure, compare_png
+
+        rec = recorder(request)
+        folders = [store_call(rec.store.folder, run_id) for run_id in (a, b)]
+        try:
+            check_figure(figure)
+        except UnknownFigure as err:
+            raise HTTPException(status_code=422, detail=str(err)) from None
+        png = rec.in_worker(compare_png, *map(str, folders), figure)
+        if png is None:
+            raise HTTPException(status_code=404, detail=(
+                f"neither run {a!r} nor run {b!r} has a {figure!r} figure"))
+        return Response(png, media_type="image/png", headers={"Cache-Control": "no-cache"})
 
     @app.get("/api/runs", tags=["runs"], responses={404: {"model": Message}})
     def list_runs(request: Request) -> dict[str, Any]:
@@ -594,6 +642,23 @@ def runs_routes(app: FastAPI, service) -> None:
         run id or not a file name; 404: no such run, or no such file in its folder."""
         path = store_call(recorder(request).store.file, run_id, name)
         return FileResponse(path, headers={"Cache-Control": "no-cache"})
+
+    @app.get("/api/runs/{run_id}/bag", tags=["runs"], response_class=ZipResponse,
+             responses=bad)
+    def get_run_bag(run_id: str, request: Request,
+                    rate_hz: Annotated[float, Query(gt=0.0, le=1000.0, description=(
+                        "at most this many messages per topic and second of scenario "
+                        "time"))] = 100.0):
+        """A run kept on disk as a ROS 2 bag in MCAP storage (bag/metadata.yaml,
+        bag/bag.mcap), zipped, built on demand from its telemetry.csv as /api/bag builds
+        the current run's (the same topics; a long run's thinned to about 60,000 messages;
+        X-Bag-Rate-Hz says the rate written). Built by a worker process into a temporary
+        file that is streamed from disk: the web process holds neither the rows nor the
+        bag. 422: not a run id; 404: no such run."""
+        folder = store_call(recorder(request).store.folder, run_id)
+        path, written_hz = service(request).stored_bag(folder, rate_hz)
+        return _temporary_file(path, f"{run_id}-bag.zip",
+                               {"X-Bag-Rate-Hz": f"{written_hz:.6g}"})
 
     @app.delete("/api/runs/{run_id}", tags=["runs"],
                 responses={**bad, 409: {"model": Message}})

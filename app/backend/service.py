@@ -187,6 +187,7 @@ class EmulatorService:
             store = RunStore(runs_dir, keep_runs, max_run_bytes)
             self.recorder = RunRecorder(self.runner, store, self.metrics_for,
                                         draw_plots=run_plots)
+            self.recorder.on_forecast = self._forecast_came
 
     # --- lifecycle ----------------------------------------------------------------------
 
@@ -391,6 +392,31 @@ class EmulatorService:
                 raise
         return answer.result()
 
+    def _forecast_came(self, ideal: dict, forecast: dict) -> None:
+        """The forecast of ideal collision ``ideal`` (computed after a run whose start did
+        not wait for it): a copy of ``ideal`` with it takes its place everywhere the
+        service keeps it (the reference of the run that is there, whose /api/metrics is
+        computed anew; the forecasts' and pre-flights' caches), so that every copy of the
+        run's metrics, and the next /forecast or Start of its configuration, have it.
+        (A copy: other threads may be reading ``ideal``.)"""
+        new = {**ideal, "forecast": forecast}
+        with self._forecast_lock:
+            for key, (reference, wall_s) in list(self._forecasts.items()):
+                if reference is ideal:
+                    self._forecasts[key] = (new, wall_s)
+        with self._preflight_lock:
+            for key, answer in list(self._preflights.items()):
+                if answer.done() and answer.exception() is None \
+                        and answer.result()[1] is ideal:
+                    replaced = Future()
+                    replaced.set_result((answer.result()[0], new))
+                    self._preflights[key] = replaced
+        with self._build_lock:  # (a start sets it under this lock)
+            ring, reference = self._reference
+            if reference is ideal:
+                self._reference = (ring, new)
+        self._reads.forget()
+
     def forecast(self, name: str, overrides: dict | None = None,
                  mode: str | None = None) -> dict[str, Any]:
         """Before Start: the pre-flight of scenario ``name`` as it would start, with the
@@ -442,7 +468,8 @@ class EmulatorService:
             ring = self.runner.ring_of({"generation": gen})
             self._reference = (ring, reference)
             if self.recorder is not None and ring is not None:
-                self.recorder.begin(ring, name, config, mode, reference, snapshot_at_s)
+                self.recorder.begin(ring, name, config, mode, reference, snapshot_at_s,
+                                    generation=gen)
             self._csv_chunks.clear()  # a new run: the last one's CSV is let go
             self.last_config, self._last_run = config, (name, config, mode)
         # the loop publishes the new generation first as "starting", then running /
@@ -800,6 +827,23 @@ class EmulatorService:
             raise
         return path, written_hz
 
+    def stored_bag(self, folder: Path, rate_hz: float) -> tuple[Path, float]:
+        """A run kept on disk (its folder) as a ROS 2 bag, zipped into a temporary file
+        (the caller deletes it), and the rate written (as :meth:`run_bag`, from its
+        telemetry.csv: app/backend/downloads.py build_stored_bag); built by the download
+        worker in the heavy reads' turn."""
+        from app.backend.downloads import build_stored_bag, temporary_zip
+
+        def build() -> tuple[Path, float]:
+            path = temporary_zip("orbit-emulator-bag-")
+            try:
+                return path, self._worker.run(build_stored_bag, str(path), str(folder),
+                                              rate_hz, MAX_BAG_MESSAGES)
+            except BaseException:
+                path.unlink(missing_ok=True)
+                raise
+        return self._reads.exclusive(build)
+
     def _download_source(self):
         """(state, config, columns, the ring's file or None) of the current run."""
         snap = self.runner.snapshot()
@@ -875,6 +919,12 @@ class SharedReads:
                 return compute()
             finally:
                 give_back_memory()
+
+    def forget(self) -> None:
+        """The answers kept are computed anew at the next ask (what they are computed
+        from changed without a cycle: a run's forecast came after it)."""
+        with self._lock:
+            self._last.clear()
 
     def get(self, name: str, compute):
         with self._lock:

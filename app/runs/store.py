@@ -10,7 +10,9 @@ named by its start time (UTC, to the millisecond) and its scenario, e.g.
   recorded it stopped), its reason, the headline figures (:func:`headline`);
 * ``config.json``: the run's whole configuration with its mode (as in run.zip);
 * ``telemetry.csv``: appended to as the run goes (:class:`TelemetryAppender`);
-* ``metrics.json`` and ``summary.txt`` once the run ended; then the plots.
+* ``metrics.json`` and ``summary.txt`` once the run ended; then the plots;
+* ``replay.html``: the run's 3D replay (its first 10 minutes at most), written by the web
+  app when the scene's recording of the run ends.
 
 Retention is bounded: at most ``keep_runs`` runs and, if set, ``max_bytes`` of them; the
 oldest go first (:meth:`RunStore.prune`), never a run still recording.
@@ -31,12 +33,15 @@ import numpy as np
 
 from app.runs.report import csv_row_format, json_safe, run_summary
 
-__all__ = ["DEFAULT_KEEP_RUNS", "DEFAULT_RUNS_DIR", "BadRunName", "RunNotFound", "RunStore",
-           "TelemetryAppender", "check_file_name", "check_run_id", "headline", "write_plots"]
+__all__ = ["DEFAULT_KEEP_RUNS", "DEFAULT_RUNS_DIR", "REPLAY_FILE", "BadRunName", "RunNotFound",
+           "RunStore", "TelemetryAppender", "check_file_name", "check_run_id", "headline",
+           "write_plots"]
 
 DEFAULT_RUNS_DIR = Path("runs/web")
 DEFAULT_KEEP_RUNS = 100
 RUN_FILE = "run.json"
+REPLAY_FILE = "replay.html"
+"""A run's 3D replay (app/backend/replay.py), written when the scene's recording ends."""
 RUN_ID = re.compile(r"^\d{8}T\d{9}Z-[a-z0-9][a-z0-9-]{0,62}$")
 """A run's id: its start time (UTC, milliseconds) and its scenario (a suffix -2, -3 ... if
 two runs began in the same millisecond)."""
@@ -162,11 +167,62 @@ def read_telemetry(path: Path) -> tuple[list[str], np.ndarray]:
     out."""
     with open(path, encoding="ascii") as f:
         columns = f.readline().strip().split(",")
-        lines = [line for line in f if line.endswith("\n")
-                 and line.count(",") == len(columns) - 1]
+        lines = list(_complete_lines(f, len(columns)))
     if not lines:
         return columns, np.empty((0, len(columns)))
     return columns, np.loadtxt(lines, delimiter=",", ndmin=2)
+
+
+def _complete_lines(f, n_columns: int):
+    """The rows' lines of an open telemetry.csv (its header read), a last line cut short
+    by a kill left out."""
+    return (line for line in f if line.endswith("\n") and line.count(",") == n_columns - 1)
+
+
+def telemetry_span(path: Path) -> tuple[list[str], int, float, float]:
+    """(columns, rows, the first two rows' time step, the time from the first row to the
+    last) of a telemetry.csv, read a line at a time (only its time column parsed)."""
+    n, t = 0, []
+    last = 0.0
+    with open(path, encoding="ascii") as f:
+        columns = f.readline().strip().split(",")
+        for line in _complete_lines(f, len(columns)):
+            last = float(line.split(",", 1)[0])
+            if n < 2:
+                t.append(last)
+            n += 1
+    dt_s = t[1] - t[0] if n >= 2 else 0.0
+    return columns, n, dt_s, (last - t[0] if n else 0.0)
+
+
+def read_telemetry_every(path: Path, step: int, max_rows: int | None = None,
+                         ) -> tuple[list[str], np.ndarray]:
+    """(columns, every step-th row from the first) of a telemetry.csv, among its first
+    ``max_rows`` rows: only the rows kept are parsed and held."""
+    kept = []
+    with open(path, encoding="ascii") as f:
+        columns = f.readline().strip().split(",")
+        for k, line in enumerate(_complete_lines(f, len(columns))):
+            if max_rows is not None and k >= max_rows:
+                break
+            if k % step == 0:
+                kept.append(line)
+    if not kept:
+        return columns, np.empty((0, len(columns)))
+    return columns, np.loadtxt(kept, delimiter=",", ndmin=2)
+
+
+def run_config(folder: Path):
+    """The EmulatorConfig a run in ``folder`` ran with (its config.json, in the mode it ran
+    in, which the start may have chosen)."""
+    from app.config import EmulatorConfig
+
+    saved = _read_json(Path(folder) / "config.json") or {}
+    config = EmulatorConfig.model_validate(saved["config"])
+    if saved.get("mode"):
+        config = config.model_copy(update={"loop": config.loop.model_copy(
+            update={"mode": saved["mode"]})})
+    return config
 
 
 def write_plots(folder: str) -> list[str]:
@@ -177,14 +233,8 @@ def write_plots(folder: str) -> list[str]:
     folder_path = Path(folder)
     if not (folder_path / RUN_FILE).is_file():  # deleted meanwhile (retention, DELETE)
         return []
-    from app.config import EmulatorConfig
-
     metrics = _read_json(folder_path / "metrics.json") or {}
-    saved = _read_json(folder_path / "config.json") or {}
-    config = EmulatorConfig.model_validate(saved["config"])
-    if saved.get("mode"):  # the mode it ran in, which the start may have chosen
-        config = config.model_copy(update={"loop": config.loop.model_copy(
-            update={"mode": saved["mode"]})})
+    config = run_config(folder_path)
     columns, rows = read_telemetry(folder_path / "telemetry.csv")
     index = {name: k for k, name in enumerate(columns)}
     note = (metrics.get("scaling") or {}).get("text", "")
@@ -280,12 +330,14 @@ class RunStore:
                       if RUN_ID.fullmatch(p.name) and (p / RUN_FILE).is_file())
 
     def runs(self) -> list[dict]:
-        """Each run's run.json, newest first."""
+        """Each run's run.json, newest first, with ``replay``: whether its replay.html is
+        kept."""
         out = []
         for run_id in reversed(self.ids()):
             record = _read_json(self.root / run_id / RUN_FILE)
             if record is not None:
-                out.append({**record, "id": run_id})
+                out.append({**record, "id": run_id,
+                            "replay": (self.root / run_id / REPLAY_FILE).is_file()})
         return out
 
     def files(self, run_id: str) -> list[str]:

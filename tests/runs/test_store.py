@@ -20,6 +20,8 @@ from app.runs.store import (
     check_file_name,
     check_run_id,
     read_telemetry,
+    read_telemetry_every,
+    telemetry_span,
 )
 
 
@@ -109,6 +111,33 @@ def test_the_appended_telemetry_reads_back_as_written_and_a_cut_line_is_left_out
     with open(tmp_path / "telemetry.csv", "a") as f:
         f.write("1.5,2")  # a kill in the middle of a line
     assert len(read_telemetry(tmp_path / "telemetry.csv")[1]) == 50
+
+
+def test_the_telemetry_read_every_kth_row_and_its_span(tmp_path):
+    """What a kept run's bag and an overlay read: every k-th row from the first among the
+    first n, and the time step and span, without the cut last line."""
+    rows = np.column_stack([0.002 * np.arange(101), np.arange(101.0) ** 2])
+    out = TelemetryAppender(tmp_path / "telemetry.csv", ["t_s", "a"])
+    out.append(rows)
+    out.close()
+    with open(tmp_path / "telemetry.csv", "a") as f:
+        f.write("0.204,1")  # cut short by a kill
+    columns, n, dt_s, span_s = telemetry_span(tmp_path / "telemetry.csv")
+    assert (columns, n) == (["t_s", "a"], 101)
+    assert dt_s == pytest.approx(0.002) and span_s == pytest.approx(0.2)
+    columns, kept = read_telemetry_every(tmp_path / "telemetry.csv", 7)
+    np.testing.assert_allclose(kept, rows[::7], rtol=1e-11)
+    kept = read_telemetry_every(tmp_path / "telemetry.csv", 3, max_rows=10)[1]
+    np.testing.assert_allclose(kept, rows[:10:3], rtol=1e-11)
+
+
+def test_the_runs_list_says_which_runs_have_a_replay(tmp_path):
+    store = RunStore(tmp_path)
+    with_replay, without = _new(store, 1), _new(store, 2)
+    (tmp_path / with_replay / "replay.html").write_text("<html></html>")
+    listed = {r["id"]: r["replay"] for r in store.runs()}
+    assert listed == {with_replay: True, without: False}
+    assert "replay.html" in store.run(with_replay)["files"]
 
 
 def test_a_run_left_running_by_a_server_that_is_gone_is_found_interrupted(tmp_path):
