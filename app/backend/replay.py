@@ -109,7 +109,11 @@ class ReplayRecorder:
 def _compact(serializer):
     """``serializer`` (viser's), made a :class:`_CompactSerializer`: what it records
     from now on is held encoded."""
+    import array
+
     serializer.__class__ = _compact_class()
+    serializer._entries, serializer._pending = [], []
+    serializer._pending_t = array.array("d")
     return serializer
 
 
@@ -126,37 +130,51 @@ def _compact_class():
         encode = msgspec.msgpack.Encoder().encode
 
         class _CompactSerializer(StateSerializer):
-            """A scene recording that holds what it records compressed: each message,
-            with its time, as its msgpack encoding, CHUNK_MESSAGES of them at a time
-            deflated (zlib) with their lengths; serialize() embeds them as they are
-            (``msgspec.Raw``): the same file as viser's. The scene sends about 160
-            messages a second while a satellite moves, and the recording of a run (up to
-            MAX_REPLAY_S) stays in the web process until the run ends: held as viser
-            holds it (a tuple and a dict each) it grew the web process by about 3.6 MB a
-            minute, held so by about a tenth of that (a private part of viser 1.x, as
+            """A scene recording that holds what it records compressed: each message
+            as its msgpack encoding, CHUNK_MESSAGES of them at a time deflated (zlib)
+            with their times and lengths; serialize() hands them to viser's as they are
+            (``msgspec.Raw``): the same file. A message with binary buffers (a mesh, a
+            point cloud) is kept as viser keeps it, in its place, for viser's
+            serialize() rewrites those. The scene sends about 160 messages a second
+            while a satellite moves, and the recording of a run (up to MAX_REPLAY_S)
+            stays in the web process until the run ends: held as viser holds it (a
+            tuple and a dict each) it grew the web process by about 3.6 MB a minute,
+            held so by about a twentieth of that (a private part of viser 1.x, as
             :func:`_serialize_copy`; tests/test_backend_replay.py checks both)."""
 
             def _insert_message(self, message) -> None:
-                if self._filter(message):
-                    data = message.as_serializable_dict(self._binary_buffers)
-                    pending = self.__dict__.setdefault("_pending", [])
-                    pending.append(encode((self._time, data)))
-                    if len(pending) >= CHUNK_MESSAGES:
-                        self.__dict__.setdefault("_chunks", []).append(
-                            (zlib.compress(b"".join(pending), 1),
-                             array.array("I", map(len, pending))))
-                        self._pending = []
+                if not self._filter(message):
+                    return
+                buffers = len(self._binary_buffers)
+                data = message.as_serializable_dict(self._binary_buffers)
+                if len(self._binary_buffers) != buffers:
+                    self._flush()
+                    self._entries.append(("plain", self._time, data))
+                    return
+                self._pending.append(encode(data))
+                self._pending_t.append(self._time)
+                if len(self._pending) >= CHUNK_MESSAGES:
+                    self._flush()
+
+            def _flush(self) -> None:
+                if self._pending:
+                    self._entries.append((zlib.compress(b"".join(self._pending), 1),
+                                          array.array("I", map(len, self._pending)),
+                                          self._pending_t))
+                    self._pending, self._pending_t = [], array.array("d")
 
             def serialize(self) -> bytes:
-                encoded = []
-                for blob, lengths in getattr(self, "_chunks", []):
-                    data, at = zlib.decompress(blob), 0
-                    for n in lengths:
-                        encoded.append(msgspec.Raw(data[at:at + n]))
+                self._flush()
+                messages = list(self._messages)
+                for entry in self._entries:
+                    if entry[0] == "plain":
+                        messages.append(entry[1:])
+                        continue
+                    data, at = zlib.decompress(entry[0]), 0
+                    for n, t_s in zip(entry[1], entry[2], strict=True):
+                        messages.append((t_s, msgspec.Raw(data[at:at + n])))
                         at += n
-                encoded += [msgspec.Raw(m) for m in getattr(self, "_pending", [])]
-                self._messages = list(self._messages) + encoded
-                self._chunks, self._pending = [], []
+                self._messages, self._entries = messages, []
                 return super().serialize()
 
             def copy(self):
@@ -164,8 +182,9 @@ def _compact_class():
                 clone = copy.copy(self)
                 clone._messages = list(self._messages)
                 clone._binary_buffers = list(self._binary_buffers)
-                clone._chunks = list(getattr(self, "_chunks", []))
-                clone._pending = list(getattr(self, "_pending", []))
+                clone._entries = list(self._entries)
+                clone._pending = list(self._pending)
+                clone._pending_t = array.array("d", self._pending_t)
                 return clone
 
         _COMPACT = _CompactSerializer
