@@ -377,6 +377,7 @@ def test_the_scenarios_list_gives_each_scenario_s_start_settings(live):
     as the settings form's defaults): the same values the run then reports."""
     listed = {s["name"]: s for s in live.client.get("/api/scenarios").json()}
     live.client.post("/api/stop")
+    live.wait_for_scene()  # (a run the scene never showed has no replay to take home)
     s = live.client.post("/api/scenarios/collision/start", json={"mode": "ideal"}).json()
     live.client.post("/api/stop")
     offered, ran = listed["collision"]["settings"], s["settings"]
