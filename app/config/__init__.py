@@ -39,6 +39,7 @@ __all__ = [
     "LoopConfig",
     "OrbitConfig",
     "PulseConfig",
+    "RailConfig",
     "RobotConfig",
     "SatelliteConfig",
     "ScalingConfig",
@@ -290,6 +291,56 @@ class LabConfig(_Model):
     gravity_mps2: Vec3 = (0.0, 0.0, -9.81)
 
 
+class RailConfig(_Model):
+    """A linear axis (the robot's "7th axis") under a robot's base (app/sim/rail.py).
+
+    The carriage moves the base along ``axis_W`` (a direction in the lab frame W, normalised
+    here): with the carriage at s, the base sits at ``base_position_m + s · axis_W``, its
+    attitude unchanged. ``travel_m`` bounds s; ``start_m`` is where the carriage starts.
+
+    The servo (delay, second-order response, speed and acceleration limits, protective stop
+    at the travel ends and on a set-point's speed or acceleration beyond the limits) is the
+    joints' (ServoConfig) in metres. Defaults: a belt- or rack-driven floor track of the
+    cobot class, taken at the low end of that class's catalogue figures rather than from one
+    product: 1 m/s and 1 m/s² (1000 mm/s², also the default "maximum permissible axis
+    acceleration" of a linear axis in Beckhoff's TwinCAT CNC, parameter P-AXIS-00008), a
+    10 Hz position loop (a carriage with a 40 kg arm on it answers several times slower
+    than the arm's own joints) and one cycle of delay, as the arm's.
+
+    ``virtual_mass_kg`` and ``posture_stiffness_Nm_per_rad`` belong to the VFDM's virtual
+    model (app/sim/rail.py explains them): the carriage's conditioned mass and the spring
+    that pulls the arm's joints toward ``posture_rad`` (None: the robot's ``q_home_rad``)
+    through the chain's null space.
+    """
+
+    axis_W: Vec3 = (1.0, 0.0, 0.0)
+    travel_m: tuple[Finite, Finite] = (-2.0, 2.0)
+    start_m: Finite = 0.0
+    speed_limit_mps: Positive = 1.0
+    accel_limit_mps2: Positive = 1.0
+    bandwidth_hz: Positive = 10.0
+    damping_ratio: Positive = 1.0
+    delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    virtual_mass_kg: Positive = 1.0
+    posture_stiffness_Nm_per_rad: NonNegative = 0.5
+    posture_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] | None = None
+
+    @model_validator(mode="after")
+    def _rail(self) -> RailConfig:
+        n = math.sqrt(sum(c * c for c in self.axis_W))
+        if n < 1e-9:
+            raise ValueError("axis_W must be a non-zero direction in the lab frame W")
+        if n != 1.0:
+            object.__setattr__(self, "axis_W", tuple(c / n for c in self.axis_W))
+        lo, hi = self.travel_m
+        if not lo < hi:
+            raise ValueError(f"travel_m must be [min, max] with min < max, got [{lo:g}, {hi:g}]")
+        if not lo <= self.start_m <= hi:
+            raise ValueError(f"start_m = {self.start_m:g} is outside travel_m = "
+                             f"[{lo:g}, {hi:g}]")
+        return self
+
+
 class RobotConfig(_Model):
     """One UR10e: base pose in W, home posture, mockup mounting and safety volume."""
 
@@ -306,6 +357,8 @@ class RobotConfig(_Model):
     """Rotation from the flange frame to the mockup (satellite body) frame."""
     safety_box_min_m: Vec3 = (-1.5, -1.5, 0.05)
     safety_box_max_m: Vec3 = (1.5, 1.5, 2.4)
+    rail: RailConfig | None = None
+    """The linear axis under the base (None: the base is fixed at base_position_m)."""
 
     @model_validator(mode="after")
     def _box(self) -> RobotConfig:
