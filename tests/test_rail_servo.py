@@ -31,12 +31,12 @@ def run(servo, sps):
 
 @pytest.mark.parametrize("delay", [0, 1, 3])
 def test_tracks_a_smooth_move_with_the_second_order_lag_and_the_delay(delay):
-    """A critically damped second-order response trails a ramp by 2ζ/ω; the transport delay
-    adds its cycles, and the cycle's own Euler step takes one off (the state read after a
-    cycle has moved v·dt on the set-point of that cycle): at the move's mid-point (speed at
-    its peak, acceleration zero) the carriage lags by v (2ζ/ω + (d − 1)·dt). It ends on the
-    set-point, within the limits."""
-    cfg = RAIL.model_copy(update={"delay_cycles": delay})
+    """Without velocity feedforward a critically damped second-order response trails a ramp
+    by 2ζ/ω; the transport delay adds its cycles, and the cycle's own Euler step takes one
+    off (the state read after a cycle has moved v·dt on the set-point of that cycle): at the
+    move's mid-point (speed at its peak, acceleration zero) the carriage lags by
+    v (2ζ/ω + (d − 1)·dt). It ends on the set-point, within the limits."""
+    cfg = RAIL.model_copy(update={"delay_cycles": delay, "velocity_feedforward": False})
     servo = RailServo(cfg, DT, 0.0)
     A, T = 0.5, 2.0  # peak 0.39 m/s and 0.62 m/s², inside 1 m/s and 1 m/s²
     sps = cosine_move(A, T)
@@ -50,6 +50,20 @@ def test_tracks_a_smooth_move_with_the_second_order_lag_and_the_delay(delay):
     assert x[-1, 0] == pytest.approx(A, abs=1e-6)
     assert np.abs(x[:, 1]).max() <= cfg.speed_limit_mps
     assert np.abs(x[:, 2]).max() <= cfg.accel_limit_mps2 * (1 + 1e-12)
+
+
+@pytest.mark.parametrize("delay", [0, 1, 3])
+def test_velocity_feedforward_leaves_the_delay_alone(delay):
+    """With the set-points' speed fed forward the loop follows a ramp with no error of its
+    own: the lag at the mid-point is v (d − 1)·dt, to 2 % of a cycle's travel (the
+    default drive: velocity_feedforward = true)."""
+    cfg = RAIL.model_copy(update={"delay_cycles": delay})
+    assert cfg.velocity_feedforward
+    x = run(RailServo(cfg, DT, 0.0), sps := cosine_move(0.5, 2.0))
+    v_peak = 0.25 * math.pi / 2.0
+    assert sps[500] - x[500, 0] == pytest.approx(v_peak * (delay - 1) * DT,
+                                                 abs=0.02 * v_peak * DT)
+    assert not x[:, 3].any() and x[-1, 0] == pytest.approx(0.5, abs=1e-6)
 
 
 def test_the_set_point_acts_after_the_delay():

@@ -305,12 +305,16 @@ class RailConfig(_Model):
     product: 1 m/s and 1 m/s² (1000 mm/s², also the default "maximum permissible axis
     acceleration" of a linear axis in Beckhoff's TwinCAT CNC, parameter P-AXIS-00008), a
     10 Hz position loop (a carriage with a 40 kg arm on it answers several times slower
-    than the arm's own joints) and one cycle of delay, as the arm's.
+    than the arm's own joints) with velocity feedforward (a drive's usual tuning for a
+    path: the following error on a ramp is then the delay's alone) and one cycle of delay,
+    as the arm's.
 
     ``virtual_mass_kg`` and ``posture_stiffness_Nm_per_rad`` belong to the VFDM's virtual
     model (app/sim/rail.py explains them): the carriage's conditioned mass and the spring
-    that pulls the arm's joints toward ``posture_rad`` (None: the robot's ``q_home_rad``)
-    through the chain's null space.
+    that pulls the arm's joints toward ``posture_rad`` through the chain's null space (None:
+    the arm's start posture, the one that holds the satellite's start pose with the
+    carriage at ``start_m``; a posture whose TCP the rail cannot bring to the target keeps
+    the carriage moving to no end).
     """
 
     axis_W: Vec3 = (1.0, 0.0, 0.0)
@@ -321,6 +325,9 @@ class RailConfig(_Model):
     bandwidth_hz: Positive = 10.0
     damping_ratio: Positive = 1.0
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    velocity_feedforward: StrictBool = True
+    """The drive feeds the set-points' speed forward (as a following axis is tuned): on a
+    ramp the carriage trails by its delay only (app/sim/rail_servo.py)."""
     virtual_mass_kg: Positive = 1.0
     posture_stiffness_Nm_per_rad: NonNegative = 0.5
     posture_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] | None = None
@@ -822,15 +829,16 @@ MAX_VFDM_ITERATIONS_PER_S = 100_000
 """10x the paper's 10 iterations at 500 Hz: ~0.1 ms of VFDM per arm and cycle."""
 
 
-def telemetry_row_floats(n_satellites: int, n_robots: int) -> int:
+def telemetry_row_floats(n_satellites: int, n_robots: int, n_rails: int = 0) -> int:
     """Values in one telemetry row (app/sim/telemetry.py loop_columns): the time, 19 ODS
-    values, 3 true-force values and 6 GNC values per satellite, 28 values per arm."""
-    return 1 + 28 * n_satellites + 28 * n_robots
+    values, 3 true-force values and 6 GNC values per satellite, 28 values per arm, 3 per
+    rail."""
+    return 1 + 28 * n_satellites + 28 * n_robots + 3 * n_rails
 
 
-def max_telemetry_rows(n_satellites: int, n_robots: int) -> int:
+def max_telemetry_rows(n_satellites: int, n_robots: int, n_rails: int = 0) -> int:
     """The most telemetry rows that fit MAX_TELEMETRY_BYTES for this layout."""
-    return MAX_TELEMETRY_BYTES // (8 * telemetry_row_floats(n_satellites, n_robots))
+    return MAX_TELEMETRY_BYTES // (8 * telemetry_row_floats(n_satellites, n_robots, n_rails))
 
 
 class EmulatorConfig(_Model):
@@ -1024,11 +1032,12 @@ class EmulatorConfig(_Model):
         for i, s in enumerate(self.satellites):
             if s.material not in self.materials:
                 raise ValueError(f"satellites.{i}.material: {s.material!r} is not in materials")
-        max_rows = max_telemetry_rows(len(self.satellites), len(self.robots))
+        layout = (len(self.satellites), len(self.robots), len(self.rail_robots))
+        max_rows = max_telemetry_rows(*layout)
         if self.loop.telemetry_capacity > max_rows:
             raise ValueError(
                 f"loop.telemetry_capacity: {self.loop.telemetry_capacity} rows of "
-                f"{telemetry_row_floats(len(self.satellites), len(self.robots))} values "
+                f"{telemetry_row_floats(*layout)} values "
                 f"exceed {MAX_TELEMETRY_BYTES // 2**20} MiB; at most {max_rows} for this layout")
         work = self.vfdm.iterations * self.loop.rate_hz
         if work > MAX_VFDM_ITERATIONS_PER_S:
@@ -1037,6 +1046,11 @@ class EmulatorConfig(_Model):
                 f"is {work:g} per second; at most {MAX_VFDM_ITERATIONS_PER_S:,} "
                 f"(the VFDM must leave the cycle time for the rest)")
         return self
+
+    @property
+    def rail_robots(self) -> list[int]:
+        """The robots (1-based numbers) that stand on a rail."""
+        return [i + 1 for i, r in enumerate(self.robots) if r.rail is not None]
 
     def satellite_index(self, name: str) -> int:
         return [s.name for s in self.satellites].index(name)

@@ -11,8 +11,11 @@ Each control cycle the caller hands over one carriage set-point s_sp [m]. The se
    ``accel_limit_mps2`` ("rail acceleration limit"); sp_prev and v_sp_prev are those of
    the last accepted set-point;
 3. tracks the accepted set-point with a second-order response of ``bandwidth_hz`` and
-   ``damping_ratio``, ``s̈ = ω² (sp − s) − 2ζω ṡ``, saturated at the acceleration and speed
-   limits (semi-implicit Euler, one step per cycle).
+   ``damping_ratio``, ``s̈ = ω² (sp − s) + 2ζω (k v_sp − ṡ)``, saturated at the acceleration
+   and speed limits (semi-implicit Euler, one step per cycle). k = 1 with
+   ``velocity_feedforward`` (the set-points' own speed fed forward, as a linear axis's
+   drive is tuned to follow a path: on a ramp the carriage then trails by its delay only,
+   where without it a critically damped loop trails by 2ζ/ω more, 32 ms at 10 Hz).
 
 When stopped, the carriage ignores set-points and brakes to rest at the acceleration limit,
 then stays halted until :meth:`RailServo.reset`.
@@ -51,7 +54,7 @@ class RailState:
 
 @njit(cache=True, fastmath=False)
 def rail_servo_step(sp_in, ring, slot, prev, x, out, stopped, dt, w2, two_zw, lo, hi,
-                    vmax, amax):
+                    vmax, amax, kv):
     """One cycle; fills out = [s, v, a] from x = [s, v] and returns a new stop's code.
 
     ring (d,) holds the delayed set-points, ``slot`` the oldest (-1: no delay); prev =
@@ -75,7 +78,7 @@ def rail_servo_step(sp_in, ring, slot, prev, x, out, stopped, dt, w2, two_zw, lo
     if stopped or code != 0:
         acc = -math.copysign(min(amax, abs(v) / dt), v) if v != 0.0 else 0.0
     else:
-        acc = w2 * (sp - s) - two_zw * v
+        acc = w2 * (sp - s) + two_zw * (kv * prev[1] - v)
     acc = min(max(acc, -amax), amax)
     v_new = min(max(v + dt * acc, -vmax), vmax)
     out[0] = s + dt * v_new
@@ -114,7 +117,8 @@ class RailServo:
         code = rail_servo_step(float(sp_m), self._ring, slot, self._prev,
                                np.array([st.s_m, st.v_mps]), out, st.stopped, self.dt_s,
                                self._w2, self._2zw, cfg.travel_m[0], cfg.travel_m[1],
-                               cfg.speed_limit_mps, cfg.accel_limit_mps2)
+                               cfg.speed_limit_mps, cfg.accel_limit_mps2,
+                               1.0 if cfg.velocity_feedforward else 0.0)
         if slot >= 0:
             self._slot = (slot + 1) % len(self._ring)
         st.s_m, st.v_mps, st.a_mps2 = float(out[0]), float(out[1]), float(out[2])
