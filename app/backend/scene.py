@@ -38,6 +38,8 @@ TRACE_COLORS = ((255, 120, 40), (60, 200, 120), (200, 90, 220), (90, 160, 255))
 AXIS_COLORS = ("#e03131", "#2f9e44", "#1971c2")
 GRAB_COLOR = (230, 40, 40)
 BOX_COLOR = (255, 140, 0)
+RAIL_COLOR = (90, 90, 110)
+"""A rail: the line its carriage (the robot's base) travels."""
 PLOT_WINDOW_S = 60.0
 """The live plots show the last this many seconds of scenario time."""
 CAMERA_FOV_RAD = np.radians(50.0)
@@ -175,6 +177,7 @@ class _ArmView:
     urdf: Any  # ViserUrdf
     q: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
     joints: list = field(default_factory=list)  # (frame handle, R_origin, axis, q index)
+    base: tuple | None = None  # the base position shown (it moves with a rail's carriage)
 
     def bind_joints(self) -> None:
         """The frames of the revolute joints: only their orientation ever changes.
@@ -458,7 +461,13 @@ class EmulatorScene:
             self._sats.append(sv)
         for h in self._boxes:
             h.remove()
-        self._boxes = [
+        rails = [ends for ends in layout.get("rails_W_m", []) if ends is not None]
+        self._boxes = [  # the rails, a line along each carriage's travel
+            scene.add_line_segments(f"/rails/{k}", points=np.array([ends], dtype=float),
+                                    colors=RAIL_COLOR, thickness=6.0,
+                                    thickness_units="screen")
+            for k, ends in enumerate(rails)
+        ] + [
             scene.add_line_segments(f"/safety/{k}", points=_box_edges(lo, hi),
                                     colors=BOX_COLOR, thickness=1.5,
                                     thickness_units="screen")
@@ -561,6 +570,10 @@ class EmulatorScene:
         now = time.monotonic()
         with self.server.atomic():
             for view, rob in zip(self._active_arms, snap["robots"], strict=False):
+                base = rob.get("base_position_W_m")
+                if base is not None and tuple(np.round(base, 4)) != view.base:
+                    view.base = tuple(np.round(base, 4))
+                    view.root.position = view.base  # the carriage moved the base
                 q = np.asarray(rob["q_rad"])
                 if np.max(np.abs(q - view.q), initial=np.inf) > 2e-4 or np.isnan(view.q[0]):
                     view.set_q(q)
