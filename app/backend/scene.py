@@ -740,15 +740,35 @@ def course_warning(snap: dict, horizon_s: float = WARN_HORIZON_S) -> str:
         sat = snap["satellites"][rob["satellite"] - 1]
         v_W = R_W_R @ np.asarray(sat["velocity_mps"])
         t_box = seconds_until_outside(sat["position_W_m"], v_W, lo, hi)
-        t_reach = np.inf
+        t_reach, whose = np.inf, "its shoulder"
+        rails = layout.get("rails_W_m", [])
         if k < len(arms):  # the reach: usually the nearer limit (the box is the last net)
             T_W_B = np.asarray(arms[k][1])
-            shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
-            t_reach = seconds_until_beyond(sat["position_W_m"], v_W, shoulder_W,
-                                           HOLD_RADIUS_M)
+            shoulder_B = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M)
+            if k < len(rails) and rails[k] is not None:  # from the line the rail sweeps
+                ends = np.asarray(rails[k]) + shoulder_B
+                t_reach = _seconds_until_beyond_segment(sat["position_W_m"], v_W, ends,
+                                                        HOLD_RADIUS_M, horizon_s)
+                whose = "its shoulder's line along the rail"
+            else:
+                t_reach = seconds_until_beyond(sat["position_W_m"], v_W,
+                                               shoulder_B + T_W_B[:3, 3], HOLD_RADIUS_M)
         if min(t_box, t_reach) <= horizon_s:
-            where = (f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from its shoulder)"
+            where = (f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from {whose})"
                      if t_reach < t_box else f"out of {rob['name']}'s safety volume")
             lines.append(f"⚠ satellite {rob['satellite']} goes {where} in "
                          f"{min(t_box, t_reach):.1f} s on its course: the run will stop")
     return "  \n".join(lines)
+
+
+def _seconds_until_beyond_segment(p_W_m, v_W_mps, ends_W_m, radius_m: float,
+                                  horizon_s: float, samples: int = 200) -> float:
+    """When a point moving straight from p_W_m at v_W_mps first gets farther than radius_m
+    from the segment ends_W_m (2, 3), to horizon_s / samples (inf if not within horizon_s)."""
+    a, b = np.asarray(ends_W_m[0], float), np.asarray(ends_W_m[1], float)
+    d = b - a
+    t = np.linspace(0.0, horizon_s, samples + 1)
+    p = np.asarray(p_W_m, float) + t[:, None] * np.asarray(v_W_mps, float)
+    u = np.clip((p - a) @ d / (d @ d), 0.0, 1.0)
+    beyond = np.linalg.norm(p - a - u[:, None] * d, axis=1) > radius_m
+    return float(t[np.argmax(beyond)]) if beyond.any() else float("inf")
