@@ -146,8 +146,8 @@ class RailVfdm:
 
     ``T_W_B0``: the base's pose with the carriage at s = 0 (the robot's base_position_m and
     base_attitude_wxyz); ``posture``: the arm's comfortable posture (default: the rail's
-    posture_rad). ``limits``: the arm servo's (default: the UR10e's at 500 Hz); the rail's
-    come from ``rail``.
+    posture_rad, or without one the arm's joints in q0). ``limits``: the arm servo's
+    (default: the UR10e's at 500 Hz); the rail's come from ``rail``.
     """
 
     def __init__(self, cfg: VfdmConfig, rail: RailConfig, T_W_B0: np.ndarray,
@@ -160,8 +160,9 @@ class RailVfdm:
         self.T_F_C = np.array(T_F_C, dtype=float)
         self.arm: RailArm = rail_arm(cfg, self.T_F_C, rail_axis_B(rail, T_W_B0),
                                      rail.virtual_mass_kg)
-        if posture is None:
-            posture = np.zeros(6) if rail.posture_rad is None else rail.posture_rad
+        if posture is None:  # the configured one, or where the arm starts
+            posture = np.asarray(q0, dtype=float)[1:] if rail.posture_rad is None \
+                else rail.posture_rad
         self.posture = np.array(posture, dtype=float)
         f, dt, N, h = cfg.limit_fraction, limits.cycle_s, cfg.iterations, cfg.internal_dt_s
         speed = np.concatenate([[rail.speed_limit_mps], limits.speed_radps])
