@@ -37,6 +37,7 @@ __all__ = [
     "RefServo",
     "RefVfdm",
     "build_model",
+    "build_rail_model",
     "deadband",
     "dh_placement",
     "omega_relative",
@@ -104,6 +105,37 @@ def build_model(
         model.addFrame(pin.Frame("tcp", parent, flange, pin.SE3(T_J6_C), pin.FrameType.OP_FRAME))
     if not gravity:
         model.gravity = pin.Motion.Zero()
+    return model
+
+
+def build_rail_model(
+    axis_B: np.ndarray,
+    inertias: Sequence[pin.Inertia],
+    rail_mass: float,
+    T_F_C: np.ndarray,
+    armature: float = 0.0,
+) -> pin.Model:
+    """Pinocchio model of a UR10e on a linear rail, no gravity: a prismatic joint along
+    ``axis_B`` at the base (its body: a point mass ``rail_mass`` at the origin), then the six
+    revolute-z joints of the DH table on it, ``inertias[i]`` on joint i+1; frames
+    ``"flange"`` and ``"tcp"``; ``armature`` on the six arm joints only."""
+    model = pin.Model()
+    model.name = "ur10e_on_rail"
+    axis = np.asarray(axis_B, dtype=float)
+    parent = model.addJoint(0, pin.JointModelPrismaticUnaligned(axis / np.linalg.norm(axis)),
+                            pin.SE3.Identity(), "rail_joint")
+    model.appendBodyToJoint(parent, pin.Inertia(rail_mass, np.zeros(3), np.zeros((3, 3))),
+                            pin.SE3.Identity())
+    placement = pin.SE3.Identity()
+    for i in range(6):
+        parent = model.addJoint(parent, pin.JointModelRZ(), placement, JOINT_NAMES[i])
+        model.appendBodyToJoint(parent, inertias[i], pin.SE3.Identity())
+        placement = dh_placement(i)
+    flange = model.addFrame(pin.Frame("flange", parent, placement, pin.FrameType.OP_FRAME))
+    T_J6_C = placement.homogeneous @ np.asarray(T_F_C, dtype=float)
+    model.addFrame(pin.Frame("tcp", parent, flange, pin.SE3(T_J6_C), pin.FrameType.OP_FRAME))
+    model.gravity = pin.Motion.Zero()
+    model.armature = np.array([0.0] + [float(armature)] * 6)
     return model
 
 

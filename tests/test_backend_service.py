@@ -311,3 +311,29 @@ def test_a_push_s_course_leaves_where_the_straight_line_does_and_bends_under_a_f
     for t, inside in ((t_fast - COURSE_STEP_S, True), (t_fast, False)):  # crossed there
         p = (cw_state_transition(W, t) @ np.array([0.0, 0.5, 1.0, 0.0, 0.2, 0.0]))[:3]
         assert (np.linalg.norm(p - SHOULDER_B_M) <= HOLD_RADIUS_M and p[2] >= 0.05) == inside
+
+
+def test_on_a_rail_the_panel_measures_the_reach_from_the_rail_s_line():
+    """A satellite drifting along the rail stays in reach (no warning, where the fixed arm's
+    would warn); one drifting across it leaves the reach of the shoulder's line."""
+    from app.backend.scene import course_warning
+    from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M
+
+    def snap(velocity):
+        return {"status": "running",
+                "layout": {"T_W_R": np.eye(4).tolist(), "arms": [["floor", np.eye(4).tolist()]],
+                           "rails_W_m": [[[0.0, -3.0, 0.0], [0.0, 3.0, 0.0]]],
+                           "safety_boxes_W_m": [[[-5, -5, -5], [5, 5, 5]]]},
+                "robots": [{"name": "floor", "satellite": 1}],
+                "satellites": [{"position_W_m": [0.0, 0.5, 1.0], "velocity_mps": velocity}]}
+
+    assert course_warning(snap([0.0, 0.2, 0.0])) == ""
+    fixed = snap([0.0, 0.2, 0.0])
+    del fixed["layout"]["rails_W_m"]
+    assert "from its shoulder)" in course_warning(fixed)
+    height = 1.0 - SHOULDER_B_M[2]
+    t = np.sqrt(HOLD_RADIUS_M**2 - height**2) / 0.2  # across (x): 3.3 s
+    text = course_warning(snap([0.2, 0.0, 0.0]))
+    assert text.startswith(f"⚠ satellite 1 goes out of floor's reach ({HOLD_RADIUS_M:g} m "
+                           f"from its shoulder's line along the rail) in ")
+    assert float(text.split(" in ")[1].split(" s")[0]) == pytest.approx(t, abs=0.05)

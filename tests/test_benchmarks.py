@@ -47,6 +47,19 @@ def test_ik_compare_quick():
 
 
 
+def test_ik_compare_rail_quick():
+    out = _run("benchmarks.ik_compare_rail")
+    assert "| path | method | protective stop |" in out
+    for case in ("singular/wrist", "singular/elbow", "singular/shoulder",
+                 "1.5 m along the rail and back"):
+        for name in ("VFDM + posture (rail)", "DLS 7-joint (λ=0.05)", "DLS 7-joint + posture"):
+            assert f"| {case}" in out and f"| {name} |" in out, (case, name)
+    ramp = next(line for line in out.splitlines()
+                if line.startswith("| 1.5 m along the rail and back | VFDM"))
+    assert ramp.split("|")[3].strip() == "none"  # no protective stop
+    assert float(ramp.split("|")[6]) > 1.45  # the rail carried the ramp
+
+
 def test_contact_fidelity_quick():
     out = _run("benchmarks.contact_fidelity", timeout_s=400)
     for line in ("## Collision", "| sponge vs rigid (e_ideal", "| rigid vs rigid (e_ideal",

@@ -271,3 +271,40 @@ def test_a_key_of_too_many_parts_is_refused_before_any_recursion():
 
     with pytest.raises(ConfigError, match="a KEY has at most 12 dotted parts"):
         assignment_override("a." * 999 + "a=1")
+
+
+# --- [robots.rail] ---------------------------------------------------------------------------
+
+
+def _robot_with_rail(**rail):
+    return {"robots": [{"name": "r", "satellite": "sat1", "rail": rail}]}
+
+
+def test_a_robot_has_no_rail_unless_one_is_configured():
+    assert parse_config({"robots": [{"name": "r", "satellite": "sat1"}]}).robots[0].rail is None
+    rail = parse_config(_robot_with_rail()).robots[0].rail
+    assert rail.axis_W == (1.0, 0.0, 0.0) and rail.travel_m == (-2.0, 2.0)
+    assert rail.start_m == 0.0 and rail.speed_limit_mps > 0 and rail.accel_limit_mps2 > 0
+
+
+def test_the_rail_axis_is_normalised():
+    rail = parse_config(_robot_with_rail(axis_W=[0.0, 3.0, 4.0])).robots[0].rail
+    np.testing.assert_allclose(rail.axis_W, [0.0, 0.6, 0.8], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("rail, message", [
+    ({"axis_W": [0.0, 0.0, 0.0]}, "robots.0.rail: axis_W must be a non-zero"),
+    ({"travel_m": [1.0, 1.0]}, "robots.0.rail: travel_m must be [min, max] with min < max"),
+    ({"travel_m": [2.0, -2.0]}, "travel_m must be [min, max] with min < max, got [2, -2]"),
+    ({"start_m": 2.5}, "start_m = 2.5 is outside travel_m = [-2, 2]"),
+    ({"speed_limit_mps": 0.0}, "robots.0.rail.speed_limit_mps: Input should be greater than 0"),
+    ({"accel_limit_mps2": -1.0}, "robots.0.rail.accel_limit_mps2: Input should be greater"),
+    ({"bandwidth_hz": math.inf}, "robots.0.rail.bandwidth_hz: must be a finite number"),
+    ({"delay_cycles": -1}, "robots.0.rail.delay_cycles"),
+    ({"travel_m": [0.0, 1.0, 2.0]}, "robots.0.rail.travel_m: Tuple should have at most 2"),
+    ({"stroke_m": 3.0}, "robots.0.rail.stroke_m: Extra inputs are not permitted"),
+])
+def test_bad_rail_settings_name_the_field(rail, message):
+    with pytest.raises(ConfigError) as err:
+        parse_config(_robot_with_rail(**rail))
+    assert message in str(err.value)

@@ -145,6 +145,30 @@ def test_recorder_refuses_a_state_of_the_wrong_shape_and_records_nothing():
     assert rec.buffer.count == 0
 
 
+def test_rail_columns_come_last_and_only_for_the_robots_on_a_rail():
+    assert loop_columns(2, 3, ()) == loop_columns(2, 3)  # no rail: the layout of before
+    cols = loop_columns(2, 3, [1, 3])
+    assert cols[:len(loop_columns(2, 3))] == loop_columns(2, 3)
+    assert cols[len(loop_columns(2, 3)):] == [
+        "rob1_rail_s_m", "rob1_rail_v_mps", "rob1_rail_sp_m",
+        "rob3_rail_s_m", "rob3_rail_v_mps", "rob3_rail_sp_m"]
+
+
+def test_recorder_writes_the_rails_after_the_gnc_and_refuses_a_missing_one():
+    rec = Recorder(1, 0, 2, np.eye(4), OMEGA, rail_robots=[1])
+    y, z = np.zeros((1, 13)), np.zeros((1, 3))
+    y[0, 6] = 1.0
+    gnc = np.arange(6.0).reshape(1, 6)
+    rec.record(0.0, y, z, z, [], z, gnc, np.array([[0.5, -0.1, 0.52]]))
+    row = rec.buffer.rows()[-1]
+    np.testing.assert_array_equal(row[-9:-3], gnc.ravel())
+    np.testing.assert_array_equal(row[-3:], [0.5, -0.1, 0.52])
+    for rails in (None, np.zeros((2, 3))):
+        with pytest.raises(ValueError, match=r"\(it has 1 rails\)"):
+            rec.record(0.0, y, z, z, [], z, None, rails)
+    assert rec.buffer.count == 1
+
+
 # --- the ring buffer ---------------------------------------------------------------------------
 
 

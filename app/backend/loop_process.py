@@ -354,6 +354,8 @@ class LoopCore:
                 if self.cycle_count else None,
                 "ft_raw": arm.last_raw_S.tolist(),
                 "ft_processed": arm.last_processed.tolist(),
+                # where the base is (it moves with a rail's carriage)
+                "base_position_W_m": arm.T_W_B[:3, 3].tolist(),
             })
         timing = self._timing()
         cycles = self.cycle_count
@@ -394,6 +396,7 @@ class LoopCore:
             "layout": {
                 "T_W_R": T_W_R.tolist(),
                 "arms": [[cfg.robots[a.index].name, a.T_W_B.tolist()] for a in em.arms],
+                "rails_W_m": [_rail_ends_W(cfg.robots[a.index]) for a in em.arms],
                 "safety_boxes_W_m": [[list(cfg.robots[a.index].safety_box_min_m),
                                       list(cfg.robots[a.index].safety_box_max_m)]
                                      for a in em.arms],
@@ -413,6 +416,14 @@ class LoopCore:
                 "pid": os.getpid(),
             },
         }
+
+
+def _rail_ends_W(robot) -> list | None:
+    """The two ends of the line a robot's base travels on its rail (W), or None."""
+    if robot.rail is None:
+        return None
+    p0, axis = np.asarray(robot.base_position_m), np.asarray(robot.rail.axis_W)
+    return [(p0 + s * axis).tolist() for s in robot.rail.travel_m]
 
 
 def warm_up(config: EmulatorConfig) -> None:

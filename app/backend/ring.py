@@ -44,8 +44,9 @@ def ring_bytes(config: EmulatorConfig, mode: str | None) -> int:
     """The size of a run's ring: its counters and telemetry_capacity rows of its columns."""
     mode = mode or config.loop.mode
     n_arms = len(config.robots) if mode == "hil" else 0
+    rails = config.rail_robots if mode == "hil" else ()
     return COUNTER_BYTES + 8 * config.loop.telemetry_capacity * len(
-        loop_columns(len(config.satellites), n_arms))
+        loop_columns(len(config.satellites), n_arms, rails))
 
 
 def _mib(n_bytes: float) -> str:
@@ -76,7 +77,8 @@ class RunTelemetry:
         self.config = config
         self.mode = mode or config.loop.mode
         n_arms = len(config.robots) if self.mode == "hil" else 0
-        self.columns = loop_columns(len(config.satellites), n_arms)
+        rails = config.rail_robots if self.mode == "hil" else ()
+        self.columns = loop_columns(len(config.satellites), n_arms, rails)
         self.capacity = config.loop.telemetry_capacity
         check_ring_space(config, self.mode)
         size = ring_bytes(config, self.mode)

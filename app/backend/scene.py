@@ -38,6 +38,8 @@ TRACE_COLORS = ((255, 120, 40), (60, 200, 120), (200, 90, 220), (90, 160, 255))
 AXIS_COLORS = ("#e03131", "#2f9e44", "#1971c2")
 GRAB_COLOR = (230, 40, 40)
 BOX_COLOR = (255, 140, 0)
+RAIL_COLOR = (90, 90, 110)
+"""A rail: the line its carriage (the robot's base) travels."""
 PLOT_WINDOW_S = 60.0
 """The live plots show the last this many seconds of scenario time."""
 CAMERA_FOV_RAD = np.radians(50.0)
@@ -175,6 +177,7 @@ class _ArmView:
     urdf: Any  # ViserUrdf
     q: np.ndarray = field(default_factory=lambda: np.full(6, np.nan))
     joints: list = field(default_factory=list)  # (frame handle, R_origin, axis, q index)
+    base: tuple | None = None  # the base position shown (it moves with a rail's carriage)
 
     def bind_joints(self) -> None:
         """The frames of the revolute joints: only their orientation ever changes.
@@ -458,7 +461,13 @@ class EmulatorScene:
             self._sats.append(sv)
         for h in self._boxes:
             h.remove()
-        self._boxes = [
+        rails = [ends for ends in layout.get("rails_W_m", []) if ends is not None]
+        self._boxes = [  # the rails, a line along each carriage's travel
+            scene.add_line_segments(f"/rails/{k}", points=np.array([ends], dtype=float),
+                                    colors=RAIL_COLOR, thickness=6.0,
+                                    thickness_units="screen")
+            for k, ends in enumerate(rails)
+        ] + [
             scene.add_line_segments(f"/safety/{k}", points=_box_edges(lo, hi),
                                     colors=BOX_COLOR, thickness=1.5,
                                     thickness_units="screen")
@@ -562,6 +571,10 @@ class EmulatorScene:
         now = time.monotonic()
         with self.server.atomic():
             for view, rob in zip(self._active_arms, snap["robots"], strict=False):
+                base = rob.get("base_position_W_m")
+                if base is not None and tuple(np.round(base, 4)) != view.base:
+                    view.base = tuple(np.round(base, 4))
+                    view.root.position = view.base  # the carriage moved the base
                 q = np.asarray(rob["q_rad"])
                 if np.max(np.abs(q - view.q), initial=np.inf) > 2e-4 or np.isnan(view.q[0]):
                     view.set_q(q)
@@ -728,15 +741,35 @@ def course_warning(snap: dict, horizon_s: float = WARN_HORIZON_S) -> str:
         sat = snap["satellites"][rob["satellite"] - 1]
         v_W = R_W_R @ np.asarray(sat["velocity_mps"])
         t_box = seconds_until_outside(sat["position_W_m"], v_W, lo, hi)
-        t_reach = np.inf
+        t_reach, whose = np.inf, "its shoulder"
+        rails = layout.get("rails_W_m", [])
         if k < len(arms):  # the reach: usually the nearer limit (the box is the last net)
             T_W_B = np.asarray(arms[k][1])
-            shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
-            t_reach = seconds_until_beyond(sat["position_W_m"], v_W, shoulder_W,
-                                           HOLD_RADIUS_M)
+            shoulder_B = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M)
+            if k < len(rails) and rails[k] is not None:  # from the line the rail sweeps
+                ends = np.asarray(rails[k]) + shoulder_B
+                t_reach = _seconds_until_beyond_segment(sat["position_W_m"], v_W, ends,
+                                                        HOLD_RADIUS_M, horizon_s)
+                whose = "its shoulder's line along the rail"
+            else:
+                t_reach = seconds_until_beyond(sat["position_W_m"], v_W,
+                                               shoulder_B + T_W_B[:3, 3], HOLD_RADIUS_M)
         if min(t_box, t_reach) <= horizon_s:
-            where = (f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from its shoulder)"
+            where = (f"out of {rob['name']}'s reach ({HOLD_RADIUS_M:g} m from {whose})"
                      if t_reach < t_box else f"out of {rob['name']}'s safety volume")
             lines.append(f"⚠ satellite {rob['satellite']} goes {where} in "
                          f"{min(t_box, t_reach):.1f} s on its course: the run will stop")
     return "  \n".join(lines)
+
+
+def _seconds_until_beyond_segment(p_W_m, v_W_mps, ends_W_m, radius_m: float,
+                                  horizon_s: float, samples: int = 200) -> float:
+    """When a point moving straight from p_W_m at v_W_mps first gets farther than radius_m
+    from the segment ends_W_m (2, 3), to horizon_s / samples (inf if not within horizon_s)."""
+    a, b = np.asarray(ends_W_m[0], float), np.asarray(ends_W_m[1], float)
+    d = b - a
+    t = np.linspace(0.0, horizon_s, samples + 1)
+    p = np.asarray(p_W_m, float) + t[:, None] * np.asarray(v_W_mps, float)
+    u = np.clip((p - a) @ d / (d @ d), 0.0, 1.0)
+    beyond = np.linalg.norm(p - a - u[:, None] * d, axis=1) > radius_m
+    return float(t[np.argmax(beyond)]) if beyond.any() else float("inf")

@@ -39,6 +39,7 @@ __all__ = [
     "LoopConfig",
     "OrbitConfig",
     "PulseConfig",
+    "RailConfig",
     "RobotConfig",
     "SatelliteConfig",
     "ScalingConfig",
@@ -290,6 +291,63 @@ class LabConfig(_Model):
     gravity_mps2: Vec3 = (0.0, 0.0, -9.81)
 
 
+class RailConfig(_Model):
+    """A linear axis (the robot's "7th axis") under a robot's base (app/sim/rail.py).
+
+    The carriage moves the base along ``axis_W`` (a direction in the lab frame W, normalised
+    here): with the carriage at s, the base sits at ``base_position_m + s · axis_W``, its
+    attitude unchanged. ``travel_m`` bounds s; ``start_m`` is where the carriage starts.
+
+    The servo (delay, second-order response, speed and acceleration limits, protective stop
+    at the travel ends and on a set-point's speed or acceleration beyond the limits) is the
+    joints' (ServoConfig) in metres. Defaults: a belt- or rack-driven floor track of the
+    cobot class, taken at the low end of that class's catalogue figures rather than from one
+    product: 1 m/s and 1 m/s² (1000 mm/s², also the default "maximum permissible axis
+    acceleration" of a linear axis in Beckhoff's TwinCAT CNC, parameter P-AXIS-00008), a
+    10 Hz position loop (a carriage with a 40 kg arm on it answers several times slower
+    than the arm's own joints) with velocity feedforward (a drive's usual tuning for a
+    path: the following error on a ramp is then the delay's alone) and one cycle of delay,
+    as the arm's.
+
+    ``virtual_mass_kg`` and ``posture_stiffness_Nm_per_rad`` belong to the VFDM's virtual
+    model (app/sim/rail.py explains them): the carriage's conditioned mass and the spring
+    that pulls the arm's joints toward ``posture_rad`` through the chain's null space (None:
+    the arm's start posture, the one that holds the satellite's start pose with the
+    carriage at ``start_m``; a posture whose TCP the rail cannot bring to the target keeps
+    the carriage moving to no end).
+    """
+
+    axis_W: Vec3 = (1.0, 0.0, 0.0)
+    travel_m: tuple[Finite, Finite] = (-2.0, 2.0)
+    start_m: Finite = 0.0
+    speed_limit_mps: Positive = 1.0
+    accel_limit_mps2: Positive = 1.0
+    bandwidth_hz: Positive = 10.0
+    damping_ratio: Positive = 1.0
+    delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    velocity_feedforward: StrictBool = True
+    """The drive feeds the set-points' speed forward (as a following axis is tuned): on a
+    ramp the carriage trails by its delay only (app/sim/rail_servo.py)."""
+    virtual_mass_kg: Positive = 1.0
+    posture_stiffness_Nm_per_rad: NonNegative = 0.5
+    posture_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] | None = None
+
+    @model_validator(mode="after")
+    def _rail(self) -> RailConfig:
+        n = math.sqrt(sum(c * c for c in self.axis_W))
+        if n < 1e-9:
+            raise ValueError("axis_W must be a non-zero direction in the lab frame W")
+        if n != 1.0:
+            object.__setattr__(self, "axis_W", tuple(c / n for c in self.axis_W))
+        lo, hi = self.travel_m
+        if not lo < hi:
+            raise ValueError(f"travel_m must be [min, max] with min < max, got [{lo:g}, {hi:g}]")
+        if not lo <= self.start_m <= hi:
+            raise ValueError(f"start_m = {self.start_m:g} is outside travel_m = "
+                             f"[{lo:g}, {hi:g}]")
+        return self
+
+
 class RobotConfig(_Model):
     """One UR10e: base pose in W, home posture, mockup mounting and safety volume."""
 
@@ -306,6 +364,8 @@ class RobotConfig(_Model):
     """Rotation from the flange frame to the mockup (satellite body) frame."""
     safety_box_min_m: Vec3 = (-1.5, -1.5, 0.05)
     safety_box_max_m: Vec3 = (1.5, 1.5, 2.4)
+    rail: RailConfig | None = None
+    """The linear axis under the base (None: the base is fixed at base_position_m)."""
 
     @model_validator(mode="after")
     def _box(self) -> RobotConfig:
@@ -769,15 +829,16 @@ MAX_VFDM_ITERATIONS_PER_S = 100_000
 """10x the paper's 10 iterations at 500 Hz: ~0.1 ms of VFDM per arm and cycle."""
 
 
-def telemetry_row_floats(n_satellites: int, n_robots: int) -> int:
+def telemetry_row_floats(n_satellites: int, n_robots: int, n_rails: int = 0) -> int:
     """Values in one telemetry row (app/sim/telemetry.py loop_columns): the time, 19 ODS
-    values, 3 true-force values and 6 GNC values per satellite, 28 values per arm."""
-    return 1 + 28 * n_satellites + 28 * n_robots
+    values, 3 true-force values and 6 GNC values per satellite, 28 values per arm, 3 per
+    rail."""
+    return 1 + 28 * n_satellites + 28 * n_robots + 3 * n_rails
 
 
-def max_telemetry_rows(n_satellites: int, n_robots: int) -> int:
+def max_telemetry_rows(n_satellites: int, n_robots: int, n_rails: int = 0) -> int:
     """The most telemetry rows that fit MAX_TELEMETRY_BYTES for this layout."""
-    return MAX_TELEMETRY_BYTES // (8 * telemetry_row_floats(n_satellites, n_robots))
+    return MAX_TELEMETRY_BYTES // (8 * telemetry_row_floats(n_satellites, n_robots, n_rails))
 
 
 class EmulatorConfig(_Model):
@@ -971,11 +1032,12 @@ class EmulatorConfig(_Model):
         for i, s in enumerate(self.satellites):
             if s.material not in self.materials:
                 raise ValueError(f"satellites.{i}.material: {s.material!r} is not in materials")
-        max_rows = max_telemetry_rows(len(self.satellites), len(self.robots))
+        layout = (len(self.satellites), len(self.robots), len(self.rail_robots))
+        max_rows = max_telemetry_rows(*layout)
         if self.loop.telemetry_capacity > max_rows:
             raise ValueError(
                 f"loop.telemetry_capacity: {self.loop.telemetry_capacity} rows of "
-                f"{telemetry_row_floats(len(self.satellites), len(self.robots))} values "
+                f"{telemetry_row_floats(*layout)} values "
                 f"exceed {MAX_TELEMETRY_BYTES // 2**20} MiB; at most {max_rows} for this layout")
         work = self.vfdm.iterations * self.loop.rate_hz
         if work > MAX_VFDM_ITERATIONS_PER_S:
@@ -984,6 +1046,11 @@ class EmulatorConfig(_Model):
                 f"is {work:g} per second; at most {MAX_VFDM_ITERATIONS_PER_S:,} "
                 f"(the VFDM must leave the cycle time for the rest)")
         return self
+
+    @property
+    def rail_robots(self) -> list[int]:
+        """The robots (1-based numbers) that stand on a rail."""
+        return [i + 1 for i, r in enumerate(self.robots) if r.rail is not None]
 
     def satellite_index(self, name: str) -> int:
         return [s.name for s in self.satellites].index(name)

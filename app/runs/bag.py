@@ -22,6 +22,9 @@ Every recorded cycle:
 * ``/clock`` (rosgraph_msgs/Clock): the run's time;
 * ``/tf`` (tf2_msgs/TFMessage): R → sat<i>, R → sat<i>_mockup, and each arm's joints
   (base_link → shoulder_link → … → wrist_3_link);
+* a robot on a rail: world → robot<k>/rail (static, the base with the carriage at 0) →
+  robot<k>/base_link (the carriage's travel along the rail, in /tf), and its joint_states
+  end with ``robot<k>/rail_joint`` (the carriage's position in m, its speed in m/s);
 * ``/robot<k>/joint_states`` (sensor_msgs/JointState): the six joints (names prefixed
   ``robot<k>/``): position, and velocity as the backward difference of the recorded
   positions since the previous row (the telemetry keeps no joint velocity; at the full
@@ -222,6 +225,22 @@ def _markers(msgs: _Messages, t_ns: int, config: EmulatorConfig, carried: dict[i
     return msgs.types["visualization_msgs/msg/MarkerArray"](markers=out)
 
 
+RAIL_FRAME = "rail"
+"""A robot on a rail: the frame of its base with the carriage at 0 (static in world)."""
+RAIL_JOINT = "rail_joint"
+"""A robot on a rail: the carriage's prismatic joint, last in its joint_states."""
+
+
+def _rail_of(config: EmulatorConfig, rows: np.ndarray, index: dict, k: int):
+    """Robot k's (1-based) rail: (its axis in the base frame, the carriage's position and
+    speed per row), or None without one."""
+    robot = config.robots[k - 1]
+    if robot.rail is None or f"rob{k}_rail_s_m" not in index:
+        return None
+    axis_B = T_W_B_from_config(robot)[:3, :3].T @ np.asarray(robot.rail.axis_W)
+    return (axis_B, rows[:, index[f"rob{k}_rail_s_m"]], rows[:, index[f"rob{k}_rail_v_mps"]])
+
+
 def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index: dict,
               rate_hz: float | None = None) -> Path:
     """Write the telemetry ``rows`` (columns ``index``) of a run of ``config`` as a ROS 2
@@ -259,8 +278,10 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
         static = [msgs.transform_of(start, "world", "R", T_W_R)]
         for k in range(1, n_rob + 1):
             links = link_names(prefix_of(k))
-            static.append(msgs.transform_of(start, "world", links[0],
-                                            T_W_B_from_config(config.robots[k - 1])))
+            robot = config.robots[k - 1]
+            on_rail = robot.rail is not None and f"rob{k}_rail_s_m" in index
+            static.append(msgs.transform_of(start, "world", f"{prefix_of(k)}{RAIL_FRAME}"
+                                            if on_rail else links[0], T_W_B_from_config(robot)))
             static.append(msgs.transform_of(start, links[6], links[7], T_J6_F))
         write(topic("/tf_static", "tf2_msgs/msg/TFMessage", latched), start,
               msgs.TFMessage(transforms=static))
@@ -307,6 +328,7 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
                 topic(f"/robot{k}/joint_states", "sensor_msgs/msg/JointState"),
                 topic(f"/robot{k}/ft_raw", "geometry_msgs/msg/WrenchStamped"),
                 topic(f"/robot{k}/ft_processed", "geometry_msgs/msg/WrenchStamped"),
+                _rail_of(config, rows, index, k),
             ))
 
         for r, stamp in enumerate(t_ns):
@@ -323,16 +345,24 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
             for i, force, torque, quat, c_gnc in gnc:
                 write(c_gnc, stamp, msgs.wrench(stamp, f"sat{i}",
                                                 quat_to_matrix(quat[r]).T @ force[r], torque[r]))
-            for (_, sat, pos, quat, q, dq, ft, pft, links, joints, c_js, c_ft,
-                 c_pft) in robots:
+            for (k, sat, pos, quat, q, dq, ft, pft, links, joints, c_js, c_ft,
+                 c_pft, rail) in robots:
                 transforms.append(msgs.transform(stamp, "R", f"sat{sat}_mockup", pos[r],
                                                  quat[r]))
                 for j, T in enumerate(link_transforms(q[r])):
                     transforms.append(msgs.transform_of(stamp, links[j], links[j + 1], T))
+                names, position, velocity = joints, q[r], dq[r]
+                if rail is not None:  # the carriage: a prismatic joint before base_link
+                    axis_B, s, v = rail
+                    transforms.append(msgs.transform(stamp, f"{prefix_of(k)}{RAIL_FRAME}",
+                                                     links[0], s[r] * axis_B,
+                                                     (1.0, 0.0, 0.0, 0.0)))
+                    names = [*joints, f"{prefix_of(k)}{RAIL_JOINT}"]
+                    position, velocity = np.append(position, s[r]), np.append(velocity, v[r])
                 write(c_js, stamp, msgs.JointState(
-                    header=msgs.header(stamp, links[0]), name=joints,
-                    position=np.array(q[r], dtype=np.float64),
-                    velocity=np.array(dq[r], dtype=np.float64), effort=np.zeros(0)))
+                    header=msgs.header(stamp, links[0]), name=names,
+                    position=np.array(position, dtype=np.float64),
+                    velocity=np.array(velocity, dtype=np.float64), effort=np.zeros(0)))
                 write(c_ft, stamp, msgs.wrench(stamp, links[7], ft[r, :3], ft[r, 3:]))
                 R_R_M = quat_to_matrix(quat[r])  # the processed force is in R: mockup axes
                 write(c_pft, stamp, msgs.wrench(stamp, f"sat{sat}_mockup",

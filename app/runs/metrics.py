@@ -438,6 +438,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
         "vfdm_iterations": config.vfdm.iterations,
         "seed": config.loop.seed,
         "satellites": sats,
+        "robots": robot_metrics(config, rows, index, facts),
         "collision": None,
         "safety_stop": facts.safety_stop,
         "passivity": facts.passivity,
@@ -477,6 +478,32 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
     metrics["warnings"] = _run_warnings(metrics, ideal_collision) + noise_spin_warnings(
         config, [i for i in facts.arm_of])
     return metrics
+
+
+def robot_metrics(config: EmulatorConfig, rows: np.ndarray, index: dict,
+                  facts: RunFacts) -> list[dict]:
+    """Per robot of a hil run (none in an ideal run): its satellite's tracking figures and,
+    on a rail, ``rail_travel_m`` (the carriage's largest minus smallest position) and
+    ``posture_deviation_max_rad`` (the largest departure of any arm joint from the posture
+    the null-space term holds: ``posture_rad``, or without it the joints of the first
+    row, the start posture); both None without a rail."""
+    if not facts.arm_of or not len(rows):
+        return []
+    out = []
+    for k, robot in enumerate(config.robots):
+        entry = {"id": k + 1, "name": robot.name, "satellite": robot.satellite,
+                 **tracking_errors(rows, index, config.satellite_index(robot.satellite) + 1,
+                                   k + 1),
+                 "rail_travel_m": None, "posture_deviation_max_rad": None}
+        if robot.rail is not None and f"rob{k + 1}_rail_s_m" in index:
+            s = rows[:, index[f"rob{k + 1}_rail_s_m"]]
+            q = _cols(rows, index, f"rob{k + 1}", [f"q{j}_rad" for j in range(1, 7)])
+            posture = q[0] if robot.rail.posture_rad is None else np.array(
+                robot.rail.posture_rad)
+            entry["rail_travel_m"] = float(s.max() - s.min())
+            entry["posture_deviation_max_rad"] = float(np.abs(q - posture).max())
+        out.append(entry)
+    return out
 
 
 def pushed_delta_v(rows: np.ndarray, index: dict, sat: int) -> float:

@@ -6,7 +6,8 @@ scripted pulses, the satellites' own actuation), over the run's duration. Each c
 satellite's predicted mockup centre (its COM, the arm's TCP) must stay
 
 * inside the robot's safety box ([[robots]] safety_box_min_m / _max_m, in W);
-* within :data:`app.sim.ur10e.HOLD_RADIUS_M` of the arm's shoulder (its reach);
+* within :data:`app.sim.ur10e.HOLD_RADIUS_M` of the arm's shoulder (its reach; on a rail,
+  of the segment the shoulder sweeps over the carriage's travel);
 * below :data:`MAX_TCP_SPEED_MPS` and :data:`MAX_TCP_RATE_RADPS` (what the arm can follow).
 
 What an operator will do cannot be predicted: the web app's hand can still push a
@@ -112,14 +113,16 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
     rate = np.linalg.norm(rows[:, [index[f"sat{s}_w{a}_radps"] for a in "xyz"]], axis=1)
     T_W_B = T_W_B_from_config(robot)
     shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
-    reach = np.linalg.norm(p_W - shoulder_W, axis=1)
+    reach, whose = _reach(p_W, shoulder_W, robot.rail), "its shoulder"
+    if robot.rail is not None:
+        whose = "its shoulder's line along the rail"
     lo, hi = np.asarray(robot.safety_box_min_m), np.asarray(robot.safety_box_max_m)
     checks = [
         (np.any((p_W < lo) | (p_W > hi), axis=1),
          lambda j: f"leaves the safety volume (at {_fmt(p_W[j])} m in W; box {_fmt(lo)} to "
                    f"{_fmt(hi)})"),
         (reach > HOLD_RADIUS_M,
-         lambda j: f"leaves the arm's reach ({reach[j]:.3f} m from its shoulder; limit "
+         lambda j: f"leaves the arm's reach ({reach[j]:.3f} m from {whose}; limit "
                    f"{HOLD_RADIUS_M:g} m)"),
         (speed > MAX_TCP_SPEED_MPS,
          lambda j: f"moves faster than the arm's TCP ({speed[j]:.3g} m/s; limit "
@@ -135,6 +138,16 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
             found.append(Violation(k + 1, robot.name, robot.satellite, float(rows[j, 0]),
                                    describe(j)))
     return found
+
+
+def _reach(p_W: np.ndarray, shoulder_W: np.ndarray, rail) -> np.ndarray:
+    """Each point's distance from the shoulder, or with a rail from the segment the shoulder
+    sweeps over the carriage's travel (base_position_m is the base at s = 0)."""
+    if rail is None:
+        return np.linalg.norm(p_W - shoulder_W, axis=1)
+    axis = np.asarray(rail.axis_W)
+    s = np.clip((p_W - shoulder_W) @ axis, *rail.travel_m)
+    return np.linalg.norm(p_W - shoulder_W - s[:, None] * axis, axis=1)
 
 
 def _fmt(v) -> str:

@@ -73,7 +73,8 @@ def check_headless_duration(config: EmulatorConfig, duration_s: float,
                             name: str = "--duration") -> None:
     """A headless run keeps every cycle in memory: refuse a duration beyond that."""
     cycles = duration_s * config.loop.rate_hz
-    max_cycles = max_telemetry_rows(len(config.satellites), len(config.robots)) - 2
+    max_cycles = max_telemetry_rows(len(config.satellites), len(config.robots),
+                                    len(config.rail_robots)) - 2
     if cycles > max_cycles:
         raise ValueError(
             f"{name}: {duration_s:g} s at {config.loop.rate_hz:g} Hz is {cycles:.3g} cycles; "

@@ -149,8 +149,9 @@ class Emulator:
         self._contact_kinematics: list[dict[tuple[int, int], tuple[float, float]]] = []
         """Per recent cycle (newest last), each touching pair's (depth m, depth rate m/s)
         from the mockups' boxes at their FK poses: the readings arrive delayed."""
-        self.recorder = Recorder(self.n_sat, len(self.arms), config.loop.telemetry_capacity,
-                                 self.T_R_W, self.ods.params.orbit_rate_radps)
+        self.rail_arms = [arm for arm in self.arms if getattr(arm, "rail_servo", None)]
+        """The arms on a rail (app/sim/rail_rig.py), in robot order."""
+        self.recorder = self._recorder(config.loop.telemetry_capacity)
         self.telemetry = self.recorder.buffer
         self.columns = self.telemetry.columns
         self.status = "idle"
@@ -501,9 +502,16 @@ class Emulator:
             _, T_W_C, v_W, _ = arm.mockup_state_W()
             arms.append((T_W_C, v_W, arm.servo.state.q_rad, arm.last_raw_S,
                          arm.last_processed))
+        rails = (np.array([arm.rail_row() for arm in self.rail_arms]) if self.rail_arms
+                 else None)
         self.recorder.record(self.ods.t_s, self.ods.y, self.applied_force_R,
                              self.applied_torque_B, arms, self.true_force_R,
-                             self.gnc_wrench if self.gnc else None)
+                             self.gnc_wrench if self.gnc else None, rails)
+
+    def _recorder(self, capacity: int) -> Recorder:
+        return Recorder(self.n_sat, len(self.arms), capacity, self.T_R_W,
+                        self.ods.params.orbit_rate_radps,
+                        [arm.index + 1 for arm in self.rail_arms])
 
     def _safety_stop(self, arm: ArmRig, reason: str) -> None:
         self.status = "safety_stop"
@@ -514,8 +522,7 @@ class Emulator:
         filters, gate, coupling, ODS, hand) that steps on exactly as this one would, with a
         fresh telemetry recorder of ``capacity`` rows instead of this one's (and no
         snapshot of its own)."""
-        recorder = Recorder(self.n_sat, len(self.arms), capacity, self.T_R_W,
-                            self.ods.params.orbit_rate_radps)
+        recorder = self._recorder(capacity)
         memo = {id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
                 id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
                 id(self.snapshot): None}
@@ -640,8 +647,7 @@ class Emulator:
         ods = OrbitalSimulator(self.ods.params, self.ods.y.copy())
         zeros = np.zeros((self.n_sat, 3))
         ods.step(zeros, zeros, self.dt_s)
-        scratch = Recorder(self.n_sat, len(self.arms), 1, self.T_R_W,
-                           self.ods.params.orbit_rate_radps)
+        scratch = self._recorder(1)
         bodies = ods_bodies(self.T_W_R, ods)
         if not self.arms:
             scratch.record(0.0, ods.y, zeros, zeros, [], zeros)
@@ -656,7 +662,14 @@ class Emulator:
         scratch.record(0.0, ods.y, zeros, zeros,
                        [(T_W_C, v_W, rig.servo.state.q_rad, rig.last_raw_S,
                          rig.last_processed)] * len(self.arms),
-                       zeros)
+                       zeros, None, np.zeros((len(self.rail_arms), 3)) if self.rail_arms
+                       else None)
+        for k, robot in enumerate(self.config.robots):
+            if robot.rail is not None:  # the rail's kernels too
+                rig = build_rig(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
+                rig.mockup_state_W()
+                rig.command(rig.tcp_target_B(ods.y))
+                break
 
     # --- views for the web app and the metrics ------------------------------------------------
 

@@ -13,6 +13,8 @@ satellite the wrench of its own GNC (:data:`GNC_FIELDS`; zeros without one).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numba import njit
 
@@ -56,10 +58,20 @@ def gnc_columns(count: int) -> list[str]:
     return [f"sat{i}_{f}" for i in range(1, count + 1) for f in GNC_FIELDS]
 
 
-def loop_columns(n_sat: int, n_arms: int) -> list[str]:
-    """Every column of the loop's telemetry, in row order."""
+RAIL_FIELDS = ("rail_s_m", "rail_v_mps", "rail_sp_m")
+
+
+def rail_columns(robots: Sequence[int]) -> list[str]:
+    """Columns of the robots (1-based numbers) that stand on a rail: the carriage's position
+    and speed along its axis and the set-point the VFDM sent it (app/sim/rail_servo.py)."""
+    return [f"rob{i}_{f}" for i in robots for f in RAIL_FIELDS]
+
+
+def loop_columns(n_sat: int, n_arms: int, rail_robots: Sequence[int] = ()) -> list[str]:
+    """Every column of the loop's telemetry, in row order (the rails' last, only for the
+    robots that have one)."""
     return ["t_s", *satellite_columns(n_sat), *robot_columns(n_arms),
-            *true_force_columns(n_sat), *gnc_columns(n_sat)]
+            *true_force_columns(n_sat), *gnc_columns(n_sat), *rail_columns(rail_robots)]
 
 
 class TelemetryBuffer:
@@ -217,30 +229,36 @@ class Recorder:
     """Writes the loop's telemetry row of each cycle into a :class:`TelemetryBuffer`."""
 
     def __init__(self, n_sat: int, n_arms: int, capacity: int, T_R_W: np.ndarray,
-                 orbit_rate_radps: float) -> None:
-        self.buffer = TelemetryBuffer(loop_columns(n_sat, n_arms), capacity)
+                 orbit_rate_radps: float, rail_robots: Sequence[int] = ()) -> None:
+        self.buffer = TelemetryBuffer(loop_columns(n_sat, n_arms, rail_robots), capacity)
         self.n_sat, self.n_arms = n_sat, n_arms
+        self.n_rails = len(rail_robots)
         self.T_R_W = np.ascontiguousarray(T_R_W, dtype=float)
         self.orbit_rate_radps = float(orbit_rate_radps)
 
     def record(self, t_s: float, y: np.ndarray, force_R: np.ndarray, torque_B: np.ndarray,
-               arms, true_force_R: np.ndarray, gnc_wrench: np.ndarray | None = None) -> None:
+               arms, true_force_R: np.ndarray, gnc_wrench: np.ndarray | None = None,
+               rails: np.ndarray | None = None) -> None:
         """One row: time, ODS state y (N, 13) with the wrench (N, 3) + (N, 3) it receives,
         each arm's ``(T_W_C, v_W, q_rad, raw_S, processed)``, the true force on each
-        mockup (N, 3) and each satellite's GNC wrench (N, 6: force in R, torque in body
-        axes, orbit units; None: zeros).
+        mockup (N, 3), each satellite's GNC wrench (N, 6: force in R, torque in body
+        axes, orbit units; None: zeros) and each rail's (s, v, set-point) (n_rails, 3).
 
         The kernels write without bounds checks: the shapes are checked here first, so that
         a wrong call raises and records nothing."""
         n = self.n_sat
         if (y.shape != (n, 13) or force_R.shape != (n, 3) or torque_B.shape != (n, 3)
                 or true_force_R.shape != (n, 3) or len(arms) != self.n_arms
-                or (gnc_wrench is not None and gnc_wrench.shape != (n, 6))):
+                or (gnc_wrench is not None and gnc_wrench.shape != (n, 6))
+                or (rails is None if self.n_rails else rails is not None)
+                or (self.n_rails and np.shape(rails) != (self.n_rails, 3))):
             raise ValueError(
                 f"recorder of {n} satellites and {self.n_arms} arms got a state {y.shape}, "
                 f"wrenches {force_R.shape} {torque_B.shape} {true_force_R.shape}"
                 f"{'' if gnc_wrench is None else f' {gnc_wrench.shape}'}, "
                 f"{len(arms)} arms"
+                f"{'' if rails is None else f', rails {np.shape(rails)}'}"
+                f"{f' (it has {self.n_rails} rails)' if self.n_rails else ''}"
             )
         row = self.buffer.next_row()
         k = record_satellites(t_s, y, self.orbit_rate_radps, force_R, torque_B, row)
@@ -248,7 +266,9 @@ class Recorder:
             k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
         row[k:k + 3 * n] = true_force_R.ravel()
         if gnc_wrench is None:
-            row[k + 3 * n:] = 0.0
+            row[k + 3 * n:k + 9 * n] = 0.0
         else:
-            row[k + 3 * n:] = gnc_wrench.ravel()
+            row[k + 3 * n:k + 9 * n] = gnc_wrench.ravel()
+        if self.n_rails:
+            row[k + 9 * n:] = rails.ravel()
         self.buffer.commit()

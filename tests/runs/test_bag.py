@@ -297,3 +297,57 @@ def test_the_thinning_step_never_writes_faster_than_asked():
                                 (2000, 1e-3, 1), (0.5, 0.002, 1000), (333.4, 1e-3, 3)):
         assert thinning_step(rate_hz, dt_s) == step, (rate_hz, dt_s)
         assert 1.0 / (step * dt_s) <= max(rate_hz, 1.0 / dt_s) + 1e-9
+
+
+# --- a robot on a rail ------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rail_run_dir(tmp_path_factory) -> Path:
+    """free-flying-rails for 0.4 s with its carriage starting 0.5 m along the rail."""
+    out = tmp_path_factory.mktemp("bag_rail_run")
+    result = subprocess.run([EXE, "run", "free-flying-rails", "--duration", "0.4", "--out",
+                             str(out), "--bag", "--quiet", "--set",
+                             "robots.0.rail.start_m=0.5"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    return out
+
+
+def test_the_rail_is_a_prismatic_joint_in_joint_states_and_tf(rail_run_dir):
+    """joint_states end with robot1/rail_joint at the carriage's recorded position and
+    speed; world → robot1/rail (static, the base at s = 0) → robot1/base_link (the
+    carriage's travel) → the arm's links → the mockup lands where the telemetry has it."""
+    _, messages = _read(rail_run_dir / "bag")
+    rows, index = _telemetry(rail_run_dir)
+    config = load_scenario("free-flying-rails")
+    robot = config.robots[0]
+    states = [m for _, m in messages["/robot1/joint_states"]]
+    assert len(states) == len(rows)
+    for r, msg in enumerate(states):
+        assert list(msg.name) == [f"robot1/{n}" for n in JOINT_NAMES] + ["robot1/rail_joint"]
+        # (the CSV keeps 12 significant digits)
+        assert msg.position[6] == pytest.approx(rows[r, index["rob1_rail_s_m"]], abs=1e-11)
+        assert msg.velocity[6] == pytest.approx(rows[r, index["rob1_rail_v_mps"]], abs=1e-11)
+    assert rows[:, index["rob1_rail_s_m"]].min() > 0.49  # it started 0.5 m along
+    static = {tf.child_frame_id: (tf.header.frame_id, _T(tf.transform))
+              for tf in messages["/tf_static"][0][1].transforms}
+    assert static["robot1/rail"][0] == "world" and "robot1/base_link" not in static
+    np.testing.assert_allclose(static["robot1/rail"][1], T_W_B_from_config(robot), atol=1e-12)
+    k = len(messages["/tf"]) - 1
+    frames = {tf.child_frame_id: (tf.header.frame_id, _T(tf.transform))
+              for tf in messages["/tf"][k][1].transforms}
+    up, T_rail_base = frames["robot1/base_link"]
+    assert up == "robot1/rail"
+    frames.update(static)  # (wrist_3_link → tool0)
+    T = static["robot1/rail"][1] @ T_rail_base
+    np.testing.assert_allclose(T[:3, 3] - static["robot1/rail"][1][:3, 3],
+                               rows[k, index["rob1_rail_s_m"]] * np.array(robot.rail.axis_W),
+                               atol=1e-11)
+    for parent, child in zip(LINKS[:-1], LINKS[1:], strict=True):
+        up, T_link = frames[f"robot1/{child}"]
+        assert up == f"robot1/{parent}"
+        T = T @ T_link
+    by_arm = T @ T_F_C_from_config(robot)
+    by_telemetry = static["R"][1] @ frames["sat1_mockup"][1]
+    np.testing.assert_allclose(by_arm, by_telemetry, atol=1e-5)

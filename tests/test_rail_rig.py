@@ -1,0 +1,102 @@
+"""Robots on rails in the loop (app.sim.rail_rig), end to end: the rail scenarios
+(free-flying-rails, rendezvous-rails) through the CLI (no stop, tracking, travel, posture,
+the rail telemetry), the same scenarios without their rails refused by the pre-flight naming
+the reach, and a stop of the carriage halting the arm.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from app.config import merge_overrides
+from app.runs.preflight import PreflightRefused, preflight
+from app.scenarios import load_scenario
+from app.sim.loop import Emulator
+from app.sim.rail_rig import RailRig
+from app.sim.rotations import make_transform, quat_to_matrix
+from tests.test_cli import EXE
+
+RAIL_SCENARIOS = {"free-flying-rails": ("ceiling",), "rendezvous-rails": ("ceiling", "floor")}
+"""Each rail scenario and its robots, the first of which carries its satellite > 2 m."""
+
+
+@pytest.fixture(scope="module", params=list(RAIL_SCENARIOS))
+def rail_run(request, tmp_path_factory):
+    out = tmp_path_factory.mktemp(request.param) / "out"
+    proc = subprocess.run([EXE, "run", request.param, "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=600)
+    return request.param, proc, out
+
+
+def test_a_rail_scenario_runs_hil_to_the_end_on_its_rails(rail_run):
+    """hil, no stop, its success criteria met; each mockup within 1 mm of its satellite all
+    along while the first robot's carriage travels more than 2 m and every arm stays within
+    0.5 rad of its posture."""
+    name, proc, out = rail_run
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["mode"] == "hil" and m["status"] == "finished" and m["safety_stop"] is None
+    assert m["duration_s"] == pytest.approx(load_scenario(name).loop.duration_s)
+    assert [r["name"] for r in m["robots"]] == list(RAIL_SCENARIOS[name])
+    for rob in m["robots"]:
+        sat = next(s for s in m["satellites"] if s["name"] == rob["satellite"])
+        assert rob["position_error_max_m"] <= 1e-3
+        assert rob["position_error_max_m"] == sat["position_error_max_m"]
+        assert rob["posture_deviation_max_rad"] <= 0.5
+    assert m["robots"][0]["rail_travel_m"] >= 2.0
+    assert m["success"]["passed"] is True
+
+
+def test_its_telemetry_has_the_carriage_and_the_mockup_rides_it(rail_run):
+    """rob<k>_rail_s_m / _v_mps / _sp_m are recorded for each robot; the carriage's speed
+    is its position's rate, and the first mockup's lab motion along the rail is the
+    carriage's, give or take what the arm does (well under the travel)."""
+    name, _, out = rail_run
+    cfg = load_scenario(name)
+    header = (out / "telemetry.csv").read_text().split("\n", 1)[0].split(",")
+    rows = np.loadtxt(out / "telemetry.csv", delimiter=",", skiprows=1)
+    col = {name: rows[:, k] for k, name in enumerate(header)}
+    t = col["t_s"]
+    for k in range(1, len(cfg.robots) + 1):
+        s, v, sp = (col[f"rob{k}_rail_{f}"] for f in ("s_m", "v_mps", "sp_m"))
+        np.testing.assert_allclose(np.gradient(s, t), v, atol=5e-3)
+        assert np.abs(sp - s).max() < 2e-3  # a velocity-feedforward drive, one cycle's delay
+    s = col["rob1_rail_s_m"]
+    axis_W = np.array(cfg.robots[0].rail.axis_W)
+    T_W_R = make_transform(quat_to_matrix(cfg.lab.r_attitude_wxyz), cfg.lab.r_origin_m)
+    p_W = np.stack([col[f"rob1_{a}_m"] for a in "xyz"], 1) @ T_W_R[:3, :3].T
+    along = p_W @ axis_W
+    assert np.abs((along - along[0]) - (s - s[0])).max() < 0.1 * (s.max() - s.min())
+
+
+@pytest.mark.parametrize("name", list(RAIL_SCENARIOS))
+def test_without_its_rails_the_pre_flight_refuses_it_naming_the_reach(name):
+    cfg = load_scenario(name)
+    fixed = merge_overrides(cfg, {"robots": {str(k): {"rail": None}
+                                             for k in range(len(cfg.robots))}})
+    assert all(r.rail is None for r in fixed.robots)
+    sat = cfg.robots[0].satellite
+    with pytest.raises(PreflightRefused, match=rf"robot 1 \(ceiling\): satellite '{sat}' "
+                                               r"leaves the arm's reach \(\d\.\d{3} m from "
+                                               r"its shoulder; limit 1\.2 m\)"):
+        preflight(fixed, cfg.loop.duration_s)
+    preflight(cfg, cfg.loop.duration_s)  # with them: accepted
+
+
+def test_a_stop_of_the_carriage_halts_the_arm_and_the_loop_says_why():
+    cfg = merge_overrides(load_scenario("free-flying-rails"),
+                          {"wrench": {"calibration_s": 0.1}})
+    em = Emulator(cfg)
+    em.prepare()
+    rig = em.arms[0]
+    assert isinstance(rig, RailRig) and em.status == "running"
+    em.step()
+    rig.rail_servo.step(5.0)  # a set-point beyond the travel, as a fault would send
+    em.step()
+    assert em.status == "safety_stop"
+    assert em.safety_stop["reason"] == "rail travel end" and em.safety_stop["robot"] == 1
+    assert rig.servo.stopped and rig.servo.reason == "rail travel end"
