@@ -54,8 +54,9 @@ from app.sim.interaction import (
     ods_bodies,
 )
 from app.sim.orbital import OdsParams, OrbitalSimulator, rk4_step
+from app.sim.rail_rig import build_cell
 from app.sim.reference import substepped_advance
-from app.sim.rig import ArmRig, build_rig
+from app.sim.rig import ArmRig
 from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.run_up import relative_rates, run_up_state, runs_up
 from app.sim.scaling import scaling_of
@@ -122,7 +123,7 @@ class Emulator:
         self.arms: list[ArmRig] = []
         if self.mode == "hil":
             seeds = np.random.SeedSequence(config.loop.seed).spawn(len(config.robots))
-            self.arms = [build_rig(i, robot, config, self.T_W_R, np.random.default_rng(seeds[i]))
+            self.arms = [build_cell(i, robot, config, self.T_W_R, np.random.default_rng(seeds[i]))
                          for i, robot in enumerate(config.robots)]
         self._uncarried = sorted(set(range(self.n_sat)) - {arm.satellite for arm in self.arms})
         self._carried = np.array([arm.satellite for arm in self.arms], dtype=np.int64)
@@ -654,7 +655,7 @@ class Emulator:
             return
         tracking_errors(self.T_W_R, ods.y, self._carried, bodies.T_W_C, 1.0, 1.0,
                         np.zeros((len(self.arms), 2)))
-        rig = build_rig(0, self.config.robots[0], self.config, self.T_W_R,
+        rig = build_cell(0, self.config.robots[0], self.config, self.T_W_R,
                         np.random.default_rng(0))
         T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
         rig.sense(np.zeros(6), T_W_C, v_W, self.R_W_R, self.dt_s, first_cycle=True)
@@ -666,7 +667,7 @@ class Emulator:
                        else None)
         for k, robot in enumerate(self.config.robots):
             if robot.rail is not None:  # the rail's kernels too
-                rig = build_rig(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
+                rig = build_cell(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
                 rig.mockup_state_W()
                 rig.command(rig.tcp_target_B(ods.y))
                 break

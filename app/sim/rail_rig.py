@@ -28,11 +28,11 @@ import numpy as np
 from app.config import EmulatorConfig, RobotConfig
 from app.sim.rail_servo import RailServo
 from app.sim.rail_vfdm import RailVfdm
-from app.sim.rig import ArmRig
+from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import invert_transform
 from app.sim.ur10e import T_W_B_from_config, mockup_state
 
-__all__ = ["RailRig", "on_rail"]
+__all__ = ["RailRig", "build_cell", "on_rail"]
 
 
 @dataclass
@@ -132,3 +132,11 @@ def on_rail(rig: ArmRig, robot: RobotConfig, config: EmulatorConfig,
         out.base_at(rail.start_m, out.servo.safety.chain.T_W_B)
     out._state_key = None
     return out
+
+
+def build_cell(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.ndarray,
+               rng: np.random.Generator) -> ArmRig:
+    """The rig of ``robot`` (config.robots[index]) at its home posture: on its rail when
+    it has one (:func:`on_rail`), else the fixed arm (app/sim/rig.py build_rig)."""
+    rig = build_rig(index, robot, config, T_W_R, rng)
+    return rig if robot.rail is None else on_rail(rig, robot, config, T_W_R)

@@ -222,8 +222,8 @@ class ArmRig:
 
 def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.ndarray,
               rng: np.random.Generator) -> ArmRig:
-    """The rig of ``robot`` (config.robots[index]) at its home posture; on its rail
-    (app/sim/rail_rig.py) when it has one."""
+    """The rig of ``robot`` (config.robots[index]) at its home posture, its base fixed
+    (a robot on a rail: app/sim/rail_rig.py build_cell)."""
     dt_s = 1.0 / config.loop.rate_hz
     gravity_W = np.array(config.lab.gravity_mps2)
     sat = config.satellite_index(robot.satellite)
@@ -253,8 +253,4 @@ def build_rig(index: int, robot: RobotConfig, config: EmulatorConfig, T_W_R: np.
         T_C_S=T_C_S,
         feedforward=servo_feedforward(config, q_home),
     )
-    if robot.rail is None:
-        return rig
-    from app.sim.rail_rig import on_rail  # (it builds on ArmRig)
-
-    return on_rail(rig, robot, config, T_W_R)
+    return rig
