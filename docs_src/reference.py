@@ -407,8 +407,10 @@ METRIC_MEANINGS = {
     "safety_stop.reason": "why (e.g. \"joint 3 speed limit\")",
     "passivity.dissipated_J": "energy removed: `force` over all force ports, `torque` per "
                               "carried satellite",
-    "scaling.law": "`paper` or `similarity`", "scaling.length": "k_L, orbit metres per lab metre",
-    "scaling.time": "k_T, orbit seconds per lab second", "scaling.mass": "k_M, orbit kilograms per lab kilogram",
+    "scaling.law": "`paper` or `similarity`",
+    "scaling.length": "k_L, orbit metres per lab metre",
+    "scaling.time": "k_T, orbit seconds per lab second",
+    "scaling.mass": "k_M, orbit kilograms per lab kilogram",
     "scaling.force_scale": "the force scale used", "scaling.torque_scale": "the torque scale",
     "scaling.satellites": "each satellite's virtual and mockup figures",
     "scaling.text": "the law in words",
@@ -424,7 +426,8 @@ METRIC_MEANINGS = {
     "success.libration": "gravity-gradient libration criterion",
     "success.docking": "docking criterion", "success.waypoints": "waypoints criterion",
     "success.final_position": "final-position criterion",
-    "success.recovery": "recovery criterion", "success.synchronisation": "synchronisation criterion",
+    "success.recovery": "recovery criterion",
+    "success.synchronisation": "synchronisation criterion",
 }
 
 
