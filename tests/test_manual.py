@@ -159,6 +159,11 @@ def test_the_readme_fits_on_two_screens():
     assert len(lines) <= 150, len(lines)
     text = "\n".join(lines)
     assert "bash scripts/serve" in text and "bash scripts/test" in text
+    # its links into the manual lead somewhere (GitHub shows them; mkdocs does not check)
+    targets = re.findall(r"\]\(((?!https?:)[^)#]+)", text)
+    assert len(targets) > 20
+    missing = [t for t in targets if not (ROOT / t).exists()]
+    assert not missing, missing
 
 
 @pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
