@@ -22,6 +22,7 @@ import argparse
 import ast
 import logging
 import re
+import sys
 import types
 import typing
 from pathlib import Path
@@ -606,6 +607,18 @@ PAGES = {
     "reference/bag.md": bag_page,
     "reference/scenarios.md": scenarios_page,
 }
+
+
+def on_config(config):
+    """MkDocs hook: import ``app`` from this source tree, whatever else is installed (a
+    shared venv's editable install may point at another checkout). MkDocs restores
+    sys.path after loading a hook module, so this is done here, not at import."""
+    if str(ROOT) not in sys.path[:1]:
+        sys.path.insert(0, str(ROOT))
+    loaded = sys.modules.get("app")
+    if loaded is not None and Path(loaded.__file__).resolve().parent != ROOT / "app":
+        log.warning("reference: app was imported from %s, not from %s", loaded.__file__, ROOT)
+    return config
 
 
 def on_files(files, config):
