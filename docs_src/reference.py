@@ -145,7 +145,9 @@ def _default_text(field) -> str:
 
 
 def _cell(text: str) -> str:
-    return " ".join((text or "").split()).replace("|", "\\|")
+    """One table cell: one line, its bars escaped, no HTML (``<token>`` stays text)."""
+    text = " ".join((text or "").split()).replace("|", "\\|")
+    return text.replace("<", "&lt;").replace(">", "&gt;")
 
 
 def _children(tp) -> list[tuple[str, type]]:
@@ -329,13 +331,40 @@ def rest_page() -> str:
                 out.append("")
             body = op.get("requestBody", {}).get("content", {}).get("application/json")
             if body:
-                ref = body.get("schema", {}).get("$ref", "")
-                out += [f"Body: `{ref.rsplit('/', 1)[-1] or 'JSON'}` (JSON).", ""]
+                out += _body_table(doc, body.get("schema", {}))
             out += ["| status | meaning |", "|---|---|"]
             for status, resp in op.get("responses", {}).items():
                 out.append(f"| {status} | {_cell(resp.get('description', ''))} |")
             out.append("")
     return "\n".join(out)
+
+
+def _schema_type(schema: dict) -> str:
+    if "$ref" in schema:
+        return schema["$ref"].rsplit("/", 1)[-1]
+    if "anyOf" in schema:
+        return " or ".join(_schema_type(s) for s in schema["anyOf"])
+    if schema.get("type") == "array":
+        return f"array of {_schema_type(schema.get('items', {}))}"
+    return schema.get("type", "any")
+
+
+def _body_table(doc: dict, schema: dict) -> list[str]:
+    """A request body's fields (its schema's properties), or what it is."""
+    name = schema.get("$ref", "").rsplit("/", 1)[-1]
+    target = doc.get("components", {}).get("schemas", {}).get(name, schema)
+    props = target.get("properties")
+    if not props:
+        return [f"Body: {_cell(target.get('description') or _schema_type(schema))} (JSON).",
+                ""]
+    required = set(target.get("required", ()))
+    out = [f"Body (JSON, `{name}`): {_cell(target.get('description', ''))}", "",
+           "| field | type | required | meaning |", "|---|---|---|---|"]
+    for key, prop in props.items():
+        out.append(f"| `{key}` | {_cell(_schema_type(prop))} | "
+                   f"{'yes' if key in required else ''} | "
+                   f"{_cell(prop.get('description', ''))} |")
+    return out + [""]
 
 
 # --- metrics.json ----------------------------------------------------------------------
