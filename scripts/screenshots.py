@@ -2,13 +2,15 @@
 the app: a live server on free loopback ports, driven by Debian's headless Chromium
 through Playwright, and a headless collision run.
 
-    .venv/bin/python scripts/screenshots.py [--skip-collision]
+    .venv/bin/python scripts/screenshots.py [--skip-page] [--skip-collision] [--sweep]
 
 Writes docs/img/page.png (the control page with free-floating started), push.png (after a
 10 N x 0.3 s push over REST, the live plots showing it), collision-forces.png and
 collision-contact.png (the `collision` run's forces.png and contact_closeup.png, seed 0)
 and fidelity_map.png (benchmarks/fidelity_map.png, which `python -m
-benchmarks.contact_fidelity --map` draws). Takes about a minute.
+benchmarks.contact_fidelity --map` draws). Takes about a minute. With --sweep, also
+sweep-plot.png: benchmarks/sweeps/fidelity_map.toml run on Ray (27 runs, about 30 s on an
+idle 2-core machine) and its restitution error drawn over the sponge's stiffness.
 """
 
 from __future__ import annotations
@@ -97,15 +99,36 @@ def collision_figures() -> None:
         shutil.copyfile(Path(out) / "contact_closeup.png", IMG / "collision-contact.png")
 
 
+def sweep_plot() -> None:
+    """The campaign tutorial's plot, from the real commands (the CLI, Ray included)."""
+    import subprocess
+
+    cli = [sys.executable, "-m", "app.cli"]
+    with tempfile.TemporaryDirectory(prefix="orbit-emulator-sweep-") as out:
+        subprocess.run([*cli, "sweep", str(ROOT / "benchmarks/sweeps/fidelity_map.toml"),
+                        "--out", out, "--quiet"], check=True, cwd=ROOT)
+        png = Path(out) / "plot.png"
+        subprocess.run([*cli, "sweep-plot", out, "--x", "materials.sponge.stiffness_Npm",
+                        "--metric", "collision.restitution_error", "--out", str(png)],
+                       check=True, cwd=ROOT)
+        shutil.copyfile(png, IMG / "sweep-plot.png")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--skip-page", action="store_true", help="not the page's screenshots")
     parser.add_argument("--skip-collision", action="store_true",
-                        help="only the browser's screenshots")
+                        help="not the collision's figures")
+    parser.add_argument("--sweep", action="store_true",
+                        help="also the campaign's plot (a 27-run sweep on Ray)")
     args = parser.parse_args(argv)
     IMG.mkdir(parents=True, exist_ok=True)
-    page_shots()
+    if not args.skip_page:
+        page_shots()
     if not args.skip_collision:
         collision_figures()
+    if args.sweep:
+        sweep_plot()
     shutil.copyfile(ROOT / "benchmarks" / "fidelity_map.png", IMG / "fidelity_map.png")
     for path in sorted(IMG.glob("*.png")):
         print(f"{path.relative_to(ROOT)}: {path.stat().st_size // 1024} KiB")
