@@ -638,6 +638,15 @@ PAGES = {
 }
 
 
+SPHINX_ROLE = re.compile(r":(?:func|meth|class|mod|data|attr|obj):(?=<code>)")
+
+
+def on_page_content(html, page, config, files):
+    """MkDocs hook: the docstrings' Sphinx roles (``:func:`name```) read as plain code in
+    the Python API page (mkdocstrings renders them as ``:func:<code>name</code>``)."""
+    return SPHINX_ROLE.sub("", html)
+
+
 def on_config(config):
     """MkDocs hook: import ``app`` from this source tree, whatever else is installed (a
     shared venv's editable install may point at another checkout). MkDocs restores
