@@ -196,7 +196,12 @@ class Emulator:
     # --- the cycle ------------------------------------------------------------------------
 
     def step(self) -> None:
-        """One control cycle (paper Fig. 3)."""
+        """One control cycle (paper Fig. 3): the physical interaction on the actual mockups
+        (contact, hand); each arm's F/T reading, its processing and the coupling into the
+        ODS input; the satellites' own GNC; the ODS step and the telemetry row; a capture
+        latch; then each arm's target (where its satellite will be one loop lag later,
+        through the frame transformation), the VFDM and the servo. In ideal mode there
+        are no arms: the contact acts between the ODS poses."""
         if self.status == "idle":
             self.prepare()
         if self.status != "running":
