@@ -252,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "130 interrupted.")
     p.add_argument("spec", metavar="SPEC.toml",
                    help="sweep spec: scenario, mode, [grid] and [random] settings, seeds or "
-                        "draws, metrics (README: Campaigns)")
+                        "draws, metrics (manual: A campaign on Ray)")
     p.add_argument("--out", default=None,
                    help="output directory: results.csv, summary.json, runs/ "
                         "(default: sweeps/SPEC)")

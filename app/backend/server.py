@@ -31,7 +31,7 @@ from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 from starlette.background import BackgroundTask
 
-from app.backend import docs_ui, openapi
+from app.backend import docs_ui, manual, openapi
 from app.backend.access import (
     AccessError,
     BodyLimit,
@@ -287,6 +287,7 @@ def create_app(
     )
     openapi.install(app, token_required=token is not None)
     docs_ui.install(app)
+    manual.install(app)
     # outermost last: Host/Origin, then the token, then the body's size
     app.add_middleware(BodyLimit)
     if token is not None:

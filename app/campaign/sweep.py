@@ -160,8 +160,9 @@ class Distribution(_SpecModel):
 
 
 class SweepSpec(_SpecModel):
-    """A sweep spec (README "Campaigns"). Setting keys are the dotted keys of ``run --set``,
-    quoted in TOML: ``"materials.sponge.stiffness_Npm" = [500, 2000]``."""
+    """A sweep spec (the manual's tutorial "A campaign on Ray"). Setting keys are the
+    dotted keys of ``run --set``, quoted in TOML:
+    ``"materials.sponge.stiffness_Npm" = [500, 2000]``."""
 
     scenario: str | None = None
     """A built-in scenario, or"""

@@ -127,7 +127,9 @@ def _line_plot(points, x: str, metric: str, others: list[str], path: Path) -> No
         mean = np.array([np.mean(by_x[v]) for v in xs])
         lo = np.array([np.min(by_x[v]) for v in xs])
         hi = np.array([np.max(by_x[v]) for v in xs])
-        text = ", ".join(f"{k} = {v}" for k, v in zip(others, key, strict=True)) or "mean"
+        # (merged over more than MAX_LINES combinations, the one line's key is empty)
+        text = ", ".join(f"{k} = {v}" for k, v in zip(others, key, strict=True)) \
+            if key else "mean"
         line, = ax.plot(xs, mean, marker="o", label=text)
         if np.any(hi > lo):
             ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.2)

@@ -90,14 +90,20 @@ IDENTITY_WXYZ = (1.0, 0.0, 0.0, 0.0)
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # use_attribute_docstrings: the docstring under a key is its description (the manual's
+    # reference and the OpenAPI schema show it)
+    model_config = ConfigDict(extra="forbid", frozen=True, use_attribute_docstrings=True)
 
 
 class OrbitConfig(_Model):
     """Observer orbit and what the ODS does with the wrenches it receives."""
 
     altitude_m: Positive = 800e3
+    """Altitude of the circular observer orbit whose frame R the ODS works in; it sets the
+    orbit rate n of the Clohessy-Wiltshire equations (paper Eqs. 1-3)."""
     gravity_gradient: StrictBool = True
+    """Apply the gravity-gradient torque to the attitude (paper Eqs. 4-6); false: torque-
+    free attitude."""
     force_scale: NonNegative | None = None
     """The paper's law only: multiplies every measured force before it enters the ODS
     (default 1). Under [scaling] law = "similarity" it is derived, not set."""
@@ -127,6 +133,7 @@ class ScalingConfig(_Model):
     orbit units; its initial state too) played at these orbit-per-lab factors."""
 
     law: Literal["paper", "similarity"] = "paper"
+    """"paper" or "similarity" (see the table's description)."""
     length: ScaleFactor = 1.0
     """k_L: orbit metres per lab metre."""
     time: ScaleFactor = 1.0
@@ -181,8 +188,11 @@ class GncConfig(_Model):
     position_omega_radps: Positive = 0.1
     """Natural frequency of the translation PD (kp = omega^2, kd = 2 zeta omega)."""
     position_damping: Damping = 0.8
+    """Damping ratio of the translation PD."""
     attitude_omega_radps: Positive = 0.2
+    """Natural frequency of the attitude PD."""
     attitude_damping: Damping = 0.8
+    """Damping ratio of the attitude PD."""
     attitude_wxyz: Quaternion = IDENTITY_WXYZ
     """The attitude held, relative to R (or to ``relative_to``'s body)."""
     thrust_max_N: Positive = 1.0
@@ -229,6 +239,7 @@ class SatelliteConfig(_Model):
     """One satellite: its mockup and its initial state (all relative to R)."""
 
     name: Annotated[str, Field(min_length=1, max_length=64)]
+    """Its name, referred to by pulses, robots and capture."""
     mass_kg: Positive = 1.0
     """The body the ODS integrates (under the paper's law: the mockup itself)."""
     size_m: PositiveVec3 = (0.2, 0.2, 0.1)
@@ -240,11 +251,15 @@ class SatelliteConfig(_Model):
     """The physical mockup the arm carries (its sensor chain compensates it); default:
     mass_kg under the paper's law, required under "similarity"."""
     position_m: Vec3 = (0.0, 0.0, 0.0)
+    """Initial position in R (x radial, y along-track, z orbit normal)."""
     velocity_mps: Vec3 = (0.0, 0.0, 0.0)
+    """Initial velocity relative to R, in R."""
     attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    """Initial attitude relative to R, unit quaternion, scalar first."""
     omega_radps: Vec3 = (0.0, 0.0, 0.0)
     """Angular velocity relative to R, body axes (zero: at rest in the lab)."""
     material: Literal["rigid", "sponge"] = "rigid"
+    """The mockup's contact face: a key of [materials]."""
     gnc: GncConfig | None = None
     """The satellite's own thrusters and wheels under a GNC (none: it is free)."""
 
@@ -271,10 +286,15 @@ class PulseConfig(_Model):
     """A scripted push: constant force (in R) and torque (body axes) over [start_s, end_s)."""
 
     satellite: str
+    """The satellite pushed (its name)."""
     start_s: NonNegative
+    """When the push begins (scenario time)."""
     end_s: NonNegative
+    """When it ends (after start_s)."""
     force_N: Vec3 = (0.0, 0.0, 0.0)
+    """Constant force, in R."""
     torque_Nm: Vec3 = (0.0, 0.0, 0.0)
+    """Constant torque, body axes."""
 
     @model_validator(mode="after")
     def _ordered(self) -> PulseConfig:
@@ -287,8 +307,11 @@ class LabConfig(_Model):
     """Where the CW frame R sits in the lab frame W (z up)."""
 
     r_origin_m: Vec3 = (0.0, 0.0, 1.0)
+    """Where R's origin is in the lab frame W (the point the satellites orbit about)."""
     r_attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    """R's attitude in W, unit quaternion, scalar first."""
     gravity_mps2: Vec3 = (0.0, 0.0, -9.81)
+    """The lab's gravity in W (what the F/T sensors feel from the mockups' weight)."""
 
 
 class RailConfig(_Model):
@@ -352,18 +375,26 @@ class RobotConfig(_Model):
     """One UR10e: base pose in W, home posture, mockup mounting and safety volume."""
 
     name: Annotated[str, Field(min_length=1, max_length=64)]
+    """The arm's name."""
     satellite: str
+    """The satellite whose mockup this arm carries (its name)."""
     base_position_m: Vec3 = (0.0, 0.0, 0.0)
+    """The arm's base in W."""
     base_attitude_wxyz: Quaternion = IDENTITY_WXYZ
+    """The base's attitude in W (the ceiling arm is upside down)."""
     q_home_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] = (
         0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0,
     )
+    """Joint angles the arm starts from before it approaches the start pose."""
     mockup_offset_m: Vec3 = (0.0, 0.0, 0.07)
     """Mockup centre of mass (= TCP) in the flange frame."""
     mockup_attitude_wxyz: Quaternion = IDENTITY_WXYZ
     """Rotation from the flange frame to the mockup (satellite body) frame."""
     safety_box_min_m: Vec3 = (-1.5, -1.5, 0.05)
+    """Lower corner (in W) of the box the mockup's centre must stay in; leaving it is a
+    protective stop."""
     safety_box_max_m: Vec3 = (1.5, 1.5, 2.4)
+    """Upper corner (in W) of the same box."""
     rail: RailConfig | None = None
     """The linear axis under the base (None: the base is fixed at base_position_m)."""
 
@@ -379,27 +410,41 @@ class VfdmConfig(_Model):
     """VFDM Cartesian motion controller (paper Eqs. 10-13, Table 1)."""
 
     kp_lin: NonNegative = 10.0
+    """Proportional gain on the position error (paper Eq. 13)."""
     kp_rot: NonNegative = 1.0
+    """Proportional gain on the orientation error (Eq. 13)."""
     kd_lin: NonNegative = 0.0
+    """Derivative gain on the linear velocity error (Eq. 13; 0 in the paper)."""
     kd_rot: NonNegative = 0.0
+    """Derivative gain on the angular velocity error."""
     error_scale: Positive = 1.0
+    """Scales the pose error before the PD law."""
     end_mass_kg: Positive = 1.0
+    """Mass of the virtual arm's last link (Table 1)."""
     end_inertia_kgm2: Positive = 1.0
+    """Inertia I_e of the last link about each axis at the TCP (Table 1)."""
     link_mass_kg: Positive = 0.01
+    """Mass of every other virtual link (Table 1: nearly massless)."""
     link_inertia_ratio: Positive = 1e-6
+    """Every other link's inertia as a fraction of I_e (Table 1)."""
     joint_armature_kgm2: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 0.0025
     """Rotor inertia of every virtual joint (not in Table 1; 0 is the paper's model): damps
     the virtual arm's motion near a singularity as damped least squares with λ² = armature
     / end inertia does (0.0025: λ = 0.05), so that the wrist does not swing through q5 = 0
     (app/sim/vfdm.py)."""
     iterations: Annotated[int, Field(ge=1, le=1000)] = 10
+    """Virtual-model steps per control cycle."""
     internal_dt_s: Positive = 0.02
     """Virtual-model integration step, independent of the control period (as in the FZI
     cartesian_controllers the paper builds on): 10 steps x 0.02 s = 0.2 s of virtual time
     per cycle. At 0.002 s a 0.05 m/s target lags by ~27 mm; at 0.02 s by ~0.27 mm."""
     max_error_lin_m: Positive = 1.0
+    """The position error is clamped to this before the PD law (Eq. 13)."""
     max_error_rot_rad: Positive = 1.0
+    """The orientation error is clamped to this."""
     velocity_mode: Literal["damped", "reset"] = "damped"
+    """"damped": the virtual joint velocity persists, damped by `damping` each step;
+    "reset": zeroed every cycle."""
     damping: Annotated[float, AfterValidator(_finite), Field(ge=0.0, lt=1.0)] = 0.1
     """Fraction of virtual joint velocity removed per internal step (mode 'damped')."""
     velocity_feedforward: StrictBool = True
@@ -454,14 +499,22 @@ class ServoConfig(_Model):
     """
 
     model: Literal["second-order", "servoj"] = "second-order"
+    """"second-order": critically damped tracking of the set-points; "servoj": the UR
+    controller's servoj over RTDE (docs: sensors)."""
     bandwidth_hz: Positive = 50.0
+    """The tracking's natural frequency."""
     damping_ratio: Positive = 1.0
+    """The tracking's damping ratio (1: critical)."""
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    """Transport delay of a set-point, in loop cycles."""
     speed_limits_radps: tuple[Positive, Positive, Positive, Positive, Positive, Positive] = (
         UR10E_SPEED_LIMITS_RADPS
     )
+    """Joint speed limits (UR10e data sheet); beyond is a protective stop."""
     accel_limit_radps2: Positive = 40.0
+    """Joint acceleration limit the tracking saturates at."""
     position_limit_rad: Positive = 2.0 * math.pi
+    """Joint position limit (±); beyond is a protective stop."""
     lookahead_time_s: Annotated[float | None,
                                 _within(*SERVOJ_LOOKAHEAD_RANGE_S, "lookahead_time")] = None
     """servoj only (None: 0.03 s)."""
@@ -508,18 +561,28 @@ class SensorConfig(_Model):
     """
 
     model: Literal["ur10e", "ati-gamma", "ati-mini45", "robotiq-ft300s"] = "ur10e"
+    """The sensor whose data sheet fills range, noise, sample rate and delay
+    (app/sim/sensor_models.py)."""
     range_force_N: Positive = 100.0
+    """Force range per axis: readings saturate there, and a reading at the range stops the
+    run."""
     range_torque_Nm: Positive = 10.0
+    """Torque range per axis."""
     noise_force_N: NonNegative = 5.0 / 3.0
     """Standard deviation; the data sheet's precision of ±5 N read as a 3-sigma bound."""
     noise_torque_Nm: NonNegative = 0.2 / 3.0
+    """Standard deviation of the torque noise."""
     sample_rate_hz: Positive | None = None
     """New readings per second; below the loop's rate each is held until the next. None:
     one every loop cycle."""
     bias_force_N: Vec3 = (1.5, -0.8, 2.0)
+    """Constant force offset of the readings (removed by the calibration at rest)."""
     bias_torque_Nm: Vec3 = (0.05, -0.03, 0.02)
+    """Constant torque offset of the readings."""
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    """Loop cycles between a load and its reading."""
     placement: Literal["flange", "mockup"] = "flange"
+    """"flange" or "mockup" (see the table's description)."""
     face_mass_kg: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 0.05
     """placement "mockup" only: the contact face's mass behind the sensor."""
     face_position_m: Vec3 = (0.0, 0.0, 0.0)
@@ -541,8 +604,11 @@ class WrenchProcessingConfig(_Model):
     """What the lab does to a raw F/T reading before the ODS sees it."""
 
     payload_compensation: StrictBool = True
+    """Subtract the mockup's weight (known mass and COM) from the readings."""
     inertial_compensation: StrictBool = True
+    """Subtract the mockup's inertial load m a from the readings."""
     lowpass_hz: Positive = 30.0
+    """Cut-off of the low-pass filter on the compensated wrench."""
     contact_lowpass_hz: Positive | None = None
     """The low-pass's cut-off while the contact gate is open (None: ``lowpass_hz``). A
     contact's force reaches the ODS sooner through a faster filter, and the lag
@@ -555,6 +621,7 @@ class WrenchProcessingConfig(_Model):
     deadband is lifted (the contact gate, or a zero deadband). At least 0.1 s: shorter,
     the bias left (0.75 N per axis after 10 ms) plus the noise clear the deadband."""
     deadband_force_N: NonNegative = 4.0
+    """Force deadband: a smaller processed force is read as zero."""
     deadband_torque_Nm: NonNegative = 0.25
     """On the torque about the COM, which carries the sensor's torque noise and the lever
     arm of its force noise (std ≈ 0.06 N·m per axis after the low-pass, for the 0.07 m
@@ -614,6 +681,7 @@ class CompensationConfig(_Model):
     """
 
     enabled: StrictBool = False
+    """Switch the lag compensation on."""
     lead_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=0.1)] | None = None
     """None: the loop's own lag model (servo delay and bandwidth, VFDM, sensor delay,
     filter, zero-order hold). Only with ``enabled`` (a lead of 0 would be ``enabled =
@@ -652,6 +720,7 @@ class UncertaintyConfig(_Model):
     """
 
     enabled: StrictBool = True
+    """Report the restitution's 95 % interval and the pre-flight's forecast."""
     replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 30
     """Replicates of a run's contact window (the sd of 30 is known to about ±13 %)."""
     forecast_replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 60
@@ -677,6 +746,7 @@ class PassivityConfig(_Model):
     """
 
     enabled: StrictBool = False
+    """Switch the passivity layer on."""
     idle_reset_s: NonNegative = 0.1
     """The balance is forgotten once the measured wrench has been zero this long."""
     tank_max_J: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=10.0)] = 1e-3
@@ -688,6 +758,7 @@ class ContactMaterial(_Model):
     """Hunt-Crossley contact parameters of one mockup's surface."""
 
     stiffness_Npm: Positive
+    """Hunt-Crossley stiffness k of F = k d (1 + c ḋ)."""
     damping_spm: NonNegative
     """Hunt-Crossley damping (s/m): F = k d (1 + c d_dot), no pull."""
     friction: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=2.0)] = 0.0
@@ -716,11 +787,15 @@ class HandConfig(_Model):
     F = k d (1 + c d_dot): continuous at first touch, zero on separation."""
 
     stiffness_Npm: Positive = 100.0
+    """Stiffness of the hand's fingertip spring."""
     max_force_N: Positive = 20.0
+    """The most force the hand applies."""
     damping_spm: NonNegative = 2.0
     """Hunt-Crossley damping of the press (s/m): F = k d (1 + c d_dot), never below 0."""
     twist_stiffness_Nmprad: Positive = 5.0
+    """Stiffness of the rotation rings' twist."""
     max_torque_Nm: Positive = 2.0
+    """The most torque the hand applies."""
     twist_damping_sprad: NonNegative = 2.0
     """Hunt-Crossley damping of the twist (s/rad): T = k_t a (1 + c_t a_dot), never < 0."""
 
@@ -732,13 +807,19 @@ class CaptureConfig(_Model):
     moves as one body."""
 
     chaser: str
+    """The satellite that captures (its name)."""
     target: str
+    """The satellite captured (its name)."""
     mated_offset_m: Vec3
     """The target's COM in the chaser's body frame when docked (lab metres)."""
     position_tolerance_m: Positive = 0.01
+    """Latch when the target's COM is within this of mated_offset_m ..."""
     velocity_tolerance_mps: Positive = 0.01
+    """... and the relative speed within this ..."""
     attitude_tolerance_rad: Positive = 0.05
+    """... and the relative angle within this ..."""
     rate_tolerance_radps: Positive = 0.05
+    """... and the relative angular rate within this."""
     require_contact: StrictBool = True
     """The latch closes only while the two mockups touch (a mechanism grabs what it
     touches); false: on the envelope alone, touching or not (a virtual capture)."""
@@ -791,8 +872,11 @@ class LoopConfig(_Model):
     """At least 100 Hz: below, a servo step is longer than the servo's own response and a
     contact lasts a cycle or two (the paper: 500 Hz)."""
     duration_s: Annotated[float, AfterValidator(_finite), Field(gt=0.0, le=1e6)] = 30.0
+    """Scenario seconds a headless run lasts (run --duration overrides)."""
     mode: Literal["hil", "ideal"] = "hil"
+    """"hil": the arms in the loop; "ideal": the converged reference without arms."""
     seed: Annotated[int, Field(ge=0)] = 0
+    """Seed of the sensor noise (run --seed overrides)."""
     telemetry_capacity: Annotated[int, Field(ge=100, le=10_000_000)] = 140_000
     """Rows the web app's telemetry ring keeps (the last ones: 280 s at 500 Hz); a headless
     run keeps every cycle instead. The web app takes at most 128 MiB of them per run
@@ -845,7 +929,9 @@ class EmulatorConfig(_Model):
     """A whole scenario: orbit, satellites, pulses and, for the emulation, the lab."""
 
     name: str = "custom"
+    """The scenario's name, shown in the summary and metrics.json."""
     description: str = ""
+    """One line on what the scenario shows (`orbit-emulator scenarios` lists it)."""
     orbit: OrbitConfig = OrbitConfig()
     satellites: Annotated[list[SatelliteConfig],
                           Field(min_length=1, max_length=MAX_SATELLITES)] = [

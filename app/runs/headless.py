@@ -21,6 +21,9 @@ from app.sim.loop import Emulator
 
 @dataclass
 class RunResult:
+    """What :func:`run_scenario` returns: the loop as it ended (its telemetry included),
+    the run's metrics.json as a dict, and the files written."""
+
     emulator: Emulator
     metrics: dict
     files: list[Path]

@@ -3,7 +3,8 @@
 With the data sheet's noise (σ 1.67 N per sample) against a 3 N sponge contact, handing
 the ODS the measured force hands it the noise as well, cycle by cycle; the noise then
 moves the mockups during the contact, and the contact's no-pull end rectifies that motion
-into a bias (README "Fidelity"). A low-pass would cut the noise and add lag. The lab has
+into a bias (the manual's "Contact fidelity and its limits"). A low-pass would cut the noise
+and add lag. The lab has
 more than the force to go on: the mockups' known boxes at their encoder poses give the
 contact's depth d and its rate ḋ every cycle, noise-free to the encoders' resolution. A
 Hunt–Crossley contact (Hunt and Crossley 1975; identified on a sponge by Haddadi and

@@ -95,10 +95,25 @@ def tracking_stop_reason(d_m: float, d_rad: float, max_m: float, max_rad: float)
 
 
 class Emulator:
-    """Dual-arm (any number of arms) on-orbit emulation loop.
+    """Dual-arm (any number of arms) on-orbit emulation loop: the paper's Fig. 3, one
+    :meth:`step` per loop cycle (``1 / config.loop.rate_hz`` seconds).
+
+    ``mode`` "hil" builds one arm rig per ``[[robots]]`` entry (VFDM, servo, F/T sensor
+    and its processing) and closes the loop through them; "ideal" integrates the
+    contact directly between the ODS poses, with no arm, sensor or delay (the
+    reference). :meth:`prepare` calibrates the sensors and brings the arms to the start
+    pose; :meth:`run` then steps for a given time; :meth:`post` queues a command (a
+    push, a stop) taken at the next cycle. Telemetry rows are in ``recorder``.
 
     ``status``: "idle" (before :meth:`prepare`), "running", "finished", "safety_stop"
     (see ``safety_stop``) or "stopped" (set by the one who stopped it).
+
+    Example:
+        ```python
+        em = Emulator(load_scenario("collision"), mode="ideal")
+        em.prepare()
+        em.run(2.0)
+        ```
     """
 
     def __init__(self, config: EmulatorConfig, mode: str | None = None) -> None:
@@ -183,7 +198,12 @@ class Emulator:
     # --- the cycle ------------------------------------------------------------------------
 
     def step(self) -> None:
-        """One control cycle (paper Fig. 3)."""
+        """One control cycle (paper Fig. 3): the physical interaction on the actual mockups
+        (contact, hand); each arm's F/T reading, its processing and the coupling into the
+        ODS input; the satellites' own GNC; the ODS step and the telemetry row; a capture
+        latch; then each arm's target (where its satellite will be one loop lag later,
+        through the frame transformation), the VFDM and the servo. In ideal mode there
+        are no arms: the contact acts between the ODS poses."""
         if self.status == "idle":
             self.prepare()
         if self.status != "running":

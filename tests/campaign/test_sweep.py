@@ -376,6 +376,16 @@ def test_sweep_plot_draws_a_line_plot_and_a_heat_map(tmp_path):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 
 
+def test_sweep_plot_merges_more_combinations_than_it_draws_lines(tmp_path):
+    """More combinations of the other settings than MAX_LINES: one line, the mean over
+    them (as the manual's campaign tutorial draws the 27-run fidelity map over one
+    setting); it raised on the merged line's empty key."""
+    rows = [(k, d, 0, 0.3 + 1e-5 * k + 0.01 * d) for k in (500, 5000) for d in range(9)]
+    _write_results(tmp_path / "results.csv", rows)
+    png = plot_sweep(tmp_path, "materials.sponge.stiffness_Npm", None, "collision.restitution")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
 def test_sweep_plot_names_what_is_missing(tmp_path):
     with pytest.raises(ValueError, match="no results.csv"):
         plot_sweep(tmp_path, "a", None, "b")
