@@ -64,6 +64,7 @@ from app.runs.headless import (
     run_scenario,
 )
 from app.runs.metrics import compare_with_ideal, sensing_limits
+from app.runs.uncertainty import forecast
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
 
@@ -339,6 +340,8 @@ def calibration_table(pool, seeds: list[int]) -> None:
               f"{chatter}/{len(runs)} |", flush=True)
 
 
+FEW_FORECAST = 60
+"""The forecast's replicate count before issue 28's calibration follow-up (shown beside)."""
 CHECK_CASES = {"sponge vs rigid": ([], list(range(30))), "rigid vs rigid": (RIGID, list(range(20)))}
 """The calibration check's cases: the shipped collision over seeds 0-29, rigid vs rigid
 over seeds 0-19 (issue 28), default sensor."""
@@ -366,10 +369,11 @@ def calibration_check(pool, cases: dict = CHECK_CASES, assignments: list[str] = 
     across-seed sd, and the pre-flight's forecast sd against the across-seed sd
     (docs/fidelity-uncertainty.md)."""
     lines = ["| case | seeds | mean error (SE) | sd of e across seeds | interval holds e_ideal "
-             "| median half-width / (1.96 sd) | forecast sd / sd | runs without e "
+             "| median half-width / (1.96 sd) | forecast sd (its SE) / sd "
+             "| the same with 60 forecast replicates | runs without e "
              "| after the loop: replicates + metrics (median) / the loop's wall time "
              "| pre-flight with its forecast |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for case, (extra, seeds) in cases.items():
         config = configure(load_scenario("collision"), list(extra) + list(assignments))
@@ -377,15 +381,17 @@ def calibration_check(pool, cases: dict = CHECK_CASES, assignments: list[str] = 
         t0 = time.perf_counter()
         reference = checked_reference(config, config.loop.duration_s)
         forecast_wall_s = time.perf_counter() - t0
+        few = forecast(configure(config, [f"uncertainty.forecast_replicates={FEW_FORECAST}"]),
+                       reference)
         runs = pool.map(interval_run, [(list(extra) + list(assignments), s, reference)
                                        for s in seeds])
-        lines.append(_check_row(case, seeds, reference, runs, forecast_wall_s))
+        lines.append(_check_row(case, seeds, reference, runs, forecast_wall_s, few))
         print(lines[-1], flush=True)
     return lines
 
 
 def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
-               forecast_wall_s: float) -> str:
+               forecast_wall_s: float, few: dict | None = None) -> str:
     ei = reference["restitution"]
     got = [r for r in runs if r["restitution"] is not None]
     e = np.array([r["restitution"] for r in got])
@@ -396,6 +402,8 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
     half = float(np.median([r["sd"] * 1.959964 for r in with_interval])) if with_interval \
         else float("nan")
     fc = (reference.get("forecast") or {}).get("restitution_sd")
+    fc_se = (reference.get("forecast") or {}).get("restitution_sd_se")
+    fc_few = (few or {}).get("restitution_sd")
     rep_wall = float(np.median([r["wall_s"] for r in got if r["wall_s"] is not None]))
     run_wall = float(np.median([r["run_wall_s"] for r in got]))
     def ratio(a: float, b: float) -> str:
@@ -405,7 +413,9 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
             f"{100 * err.mean():+.1f} % ({100 * err.std(ddof=1) / math.sqrt(len(err)):.1f}) | "
             f"{sd:.3f} ({100 * sd / ei:.0f} % of e_ideal) | {holds}/{len(runs)} | "
             f"{ratio(half, 1.959964 * sd)} | "
-            + ("— | " if fc is None else f"{ratio(fc, sd)} | ")
+            + ("— | " if fc is None else
+               f"{ratio(fc, sd)}".replace(" / ", f" ({fc_se or 0:.3f}) / ", 1) + " | ")
+            + ("— | " if fc_few is None else f"{ratio(fc_few, sd)} | ")
             + f"{len(runs) - len(got)} | {rep_wall:.2f} s / {run_wall:.2f} s | "
             f"{forecast_wall_s:.1f} s |")
 
@@ -482,7 +492,7 @@ def rig_table(pool, seeds: list[int], sensors=RIG_SENSORS, placements=RIG_PLACEM
     lines = ["| material | sensor | placement | servo | restitution error: mean % (SE) ± sd "
              "(worst) | within ±5 % / ±10 % | stops | off-normal share | interval holds "
              "the ideal | forecast sd / seeds' sd |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for material in materials:
         extra = RIG_MATERIALS[material]
