@@ -64,7 +64,7 @@ from app.runs.headless import (
     run_scenario,
 )
 from app.runs.metrics import compare_with_ideal, sensing_limits
-from app.runs.uncertainty import forecast
+from app.runs.uncertainty import Z95, forecast
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
 
@@ -420,6 +420,67 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
             f"{forecast_wall_s:.1f} s |")
 
 
+def pool_run(args: tuple) -> float | None:
+    """One hil run as the CLI runs it, given its reference, without its interval
+    (``[uncertainty] enabled = false``: the snapshot is a copy, the run is the same): its
+    restitution."""
+    assignments, seed, reference = args
+    config = configure(load_scenario("collision"),
+                       assignments + [f"loop.seed={seed}", "uncertainty.enabled=false"])
+    result = run_scenario(config, ideal=reference, preflight_done=True)
+    return (result.metrics["collision"] or {}).get("restitution")
+
+
+POOL_FORECASTS = (60, 200, 600)
+"""The forecast's replicate counts the pool compares (the first 60 or 200 of the 600 are
+the same draws: the forecast's stream is the configuration's)."""
+
+
+def _num(x: float | None) -> str:
+    return "—" if x is None else f"{x:.4f}"
+
+
+def spread_pool(pool, first_seed: int, n: int) -> list[str]:
+    """Per case, ``n`` seeds from ``first_seed`` without intervals: the restitution's mean
+    error and across-seed sd, each with its standard error (:func:`sd_standard_error`),
+    the sd's skewness, and the forecast with 60, 200 and 600 replicates against it; the
+    share of runs within 1.96 x the 600-replicate forecast sd of the ideal restitution
+    (the coverage of an interval of that width)."""
+    from app.runs.uncertainty import sd_standard_error
+
+    lines = ["| case | seeds | mean error (SE) | sd of e across seeds (SE) | skewness | "
+             + " | ".join(f"forecast, {k} replicates: sd (SE) / across-seed sd"
+                          for k in POOL_FORECASTS)
+             + f" | forecast mean error ({POOL_FORECASTS[-1]}) | within 1.96 x that forecast's "
+             "sd of e_ideal |",
+             "|---" * (7 + len(POOL_FORECASTS)) + "|"]
+    print("\n".join(lines), flush=True)
+    for case, (extra, _) in CHECK_CASES.items():
+        base = configure(load_scenario("collision"), list(extra))
+        config = headless_config(base, base.loop.duration_s)
+        reference = ideal_collision(config, config.loop.duration_s)
+        ei = reference["restitution"]
+        fc = {k: forecast(configure(config, [f"uncertainty.forecast_replicates={k}"]),
+                          reference) for k in POOL_FORECASTS}
+        seeds = list(range(first_seed, first_seed + n))
+        e = np.array([x for x in pool.map(pool_run, [(list(extra), s, reference)
+                                                     for s in seeds]) if x is not None])
+        sd, err = float(np.std(e, ddof=1)), (e - ei) / ei
+        skew = float(np.mean((e - e.mean()) ** 3) / np.mean((e - e.mean()) ** 2) ** 1.5)
+        big = fc[POOL_FORECASTS[-1]]
+        lines.append(
+            f"| {case} (e_ideal {ei:.3f}) | {seeds[0]}-{seeds[-1]} ({len(e)} with e) | "
+            f"{100 * err.mean():+.1f} % ({100 * err.std(ddof=1) / math.sqrt(len(e)):.1f}) | "
+            f"{sd:.4f} ({_num(sd_standard_error(e))}) | {skew:+.2f} | "
+            + " | ".join(f"{f['restitution_sd']:.4f} ({_num(f['restitution_sd_se'])}) / "
+                         f"{sd:.4f} = {f['restitution_sd'] / sd:.2f}"
+                         for f in fc.values())
+            + f" | {100 * big['restitution_error_mean']:+.1f} % | "
+            f"{int(np.sum(np.abs(e - ei) <= Z95 * big['restitution_sd']))}/{len(e)} |")
+        print(lines[-1], flush=True)
+    return lines
+
+
 RIG_SENSORS = ["ur10e", "ati-gamma", "ati-mini45", "robotiq-ft300s"]
 RIG_PLACEMENTS = ["flange", "mockup"]
 RIG_SERVOS = ["second-order", "servoj"]
@@ -680,6 +741,10 @@ def main() -> None:
                         help="with --seeds --factors: only these factors (repeatable)")
     parser.add_argument("--no-perfect-emulator", action="store_true",
                         help="with --seeds: skip the perfect emulator + noise table")
+    parser.add_argument("--pool", type=int, metavar="SEEDS", default=None,
+                        help="instead: SEEDS seeds per case from --first-seed without "
+                             "intervals, against the forecast with 60, 200 and 600 "
+                             "replicates")
     parser.add_argument("--first-seed", type=int, default=0,
                         help="with --seeds, --calibration-check or --rig-table: the first "
                              "seed (1000: the chain's tuning seeds)")
@@ -706,6 +771,10 @@ def main() -> None:
                             (args.factor or True) if args.factors else False)
                 if not args.no_perfect_emulator:
                     noisy_ideal_table(pool, args.first_seed)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
+        if args.pool:
+            spread_pool(pool, args.first_seed, args.pool)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.calibration:
