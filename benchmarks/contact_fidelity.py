@@ -481,6 +481,53 @@ def spread_pool(pool, first_seed: int, n: int) -> list[str]:
     return lines
 
 
+def replicate_mean_run(args: tuple) -> tuple[float, float] | None:
+    """One sponge hil run with its snapshot: (its restitution, the mean restitution of 30
+    replicates of its contact window with the noise measured at its calibration)."""
+    from app.runs.uncertainty import measured_noise, restitution_spread
+
+    seed, reference = args
+    config = configure(load_scenario("collision"), [f"loop.seed={seed}"])
+    result = run_scenario(config, ideal=reference, preflight_done=True)
+    em, coll = result.emulator, result.metrics["collision"] or {}
+    if coll.get("restitution") is None or em.snapshot is None:
+        return None
+    pair = tuple(int(p[3:]) for p in coll["pair"])
+    until_s = min(max(em.t_s, em.config.loop.duration_s),
+                  coll["window_s"][1] + 0.5 + 2 * coll["contact_duration_s"])
+    spread = restitution_spread(em.snapshot, pair, until_s, measured_noise(em), 30,
+                                np.random.default_rng([seed, 99]))
+    got = [e for e in spread["restitutions"] if e is not None]
+    return coll["restitution"], float(np.mean(got))
+
+
+def replicate_means(pool, first_seed: int, n: int) -> str:
+    """The sponge: the runs' mean error against the mean error of their own replicates
+    (from each run's snapshot) and of the forecast's (from the noise-free twin's)."""
+    base = configure(load_scenario("collision"), [])
+    config = headless_config(base, base.loop.duration_s)
+    reference = checked_reference(config, config.loop.duration_s)
+    ei = reference["restitution"]
+    got = np.array([r for r in pool.map(replicate_mean_run,
+                                        [(s, reference) for s in range(first_seed,
+                                                                       first_seed + n)])
+                    if r is not None])
+    err = (got - ei) / ei
+    se = err.std(axis=0, ddof=1) / math.sqrt(len(got))
+    fc = reference["forecast"]
+    fc_se = fc["restitution_sd"] / ei / math.sqrt(fc["replicates_with_restitution"])
+    line = (f"| sponge vs rigid | {first_seed}-{first_seed + n - 1} ({len(got)} with e) | "
+            f"{100 * err[:, 0].mean():+.1f} % ({100 * se[0]:.1f}) | "
+            f"{100 * err[:, 1].mean():+.1f} % ({100 * se[1]:.1f}) | "
+            f"{100 * fc['restitution_error_mean']:+.1f} % "
+            f"({100 * fc_se:.1f}) |")
+    print("| case | seeds | the runs' mean error (SE) | their own replicates' (30 each, from "
+          "each run's snapshot) | the forecast's (from the noise-free twin) |")
+    print("|---|---|---|---|---|")
+    print(line, flush=True)
+    return line
+
+
 RIG_SENSORS = ["ur10e", "ati-gamma", "ati-mini45", "robotiq-ft300s"]
 RIG_PLACEMENTS = ["flange", "mockup"]
 RIG_SERVOS = ["second-order", "servoj"]
@@ -745,6 +792,9 @@ def main() -> None:
                         help="instead: SEEDS seeds per case from --first-seed without "
                              "intervals, against the forecast with 60, 200 and 600 "
                              "replicates")
+    parser.add_argument("--replicate-means", type=int, metavar="SEEDS", default=None,
+                        help="instead: the sponge's runs' mean error against their own "
+                             "replicates' and the forecast's, over SEEDS seeds")
     parser.add_argument("--first-seed", type=int, default=0,
                         help="with --seeds, --calibration-check or --rig-table: the first "
                              "seed (1000: the chain's tuning seeds)")
@@ -771,6 +821,10 @@ def main() -> None:
                             (args.factor or True) if args.factors else False)
                 if not args.no_perfect_emulator:
                     noisy_ideal_table(pool, args.first_seed)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
+        if args.replicate_means:
+            replicate_means(pool, args.first_seed, args.replicate_means)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.pool:
