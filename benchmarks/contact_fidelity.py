@@ -8,6 +8,8 @@
     .venv/bin/python -m benchmarks.contact_fidelity --seeds            # per-seed figures
     .venv/bin/python -m benchmarks.contact_fidelity --seeds --factors  # + bias factors
     .venv/bin/python -m benchmarks.contact_fidelity --rig-table --rig-seeds 10   # the lab's rig
+    .venv/bin/python -m benchmarks.contact_fidelity --pool 200 --first-seed 7000  # vs forecast
+    .venv/bin/python -m benchmarks.contact_fidelity --replicate-means 40 --first-seed 7000
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
