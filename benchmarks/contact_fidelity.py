@@ -8,6 +8,8 @@
     .venv/bin/python -m benchmarks.contact_fidelity --seeds            # per-seed figures
     .venv/bin/python -m benchmarks.contact_fidelity --seeds --factors  # + bias factors
     .venv/bin/python -m benchmarks.contact_fidelity --rig-table --rig-seeds 10   # the lab's rig
+    .venv/bin/python -m benchmarks.contact_fidelity --pool 200 --first-seed 7000  # vs forecast
+    .venv/bin/python -m benchmarks.contact_fidelity --replicate-means 40 --first-seed 7000
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -64,6 +66,7 @@ from app.runs.headless import (
     run_scenario,
 )
 from app.runs.metrics import compare_with_ideal, sensing_limits
+from app.runs.uncertainty import Z95, forecast
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
 
@@ -339,6 +342,8 @@ def calibration_table(pool, seeds: list[int]) -> None:
               f"{chatter}/{len(runs)} |", flush=True)
 
 
+FEW_FORECAST = 60
+"""The forecast's replicate count before issue 28's calibration follow-up (shown beside)."""
 CHECK_CASES = {"sponge vs rigid": ([], list(range(30))), "rigid vs rigid": (RIGID, list(range(20)))}
 """The calibration check's cases: the shipped collision over seeds 0-29, rigid vs rigid
 over seeds 0-19 (issue 28), default sensor."""
@@ -366,10 +371,11 @@ def calibration_check(pool, cases: dict = CHECK_CASES, assignments: list[str] = 
     across-seed sd, and the pre-flight's forecast sd against the across-seed sd
     (docs/fidelity-uncertainty.md)."""
     lines = ["| case | seeds | mean error (SE) | sd of e across seeds | interval holds e_ideal "
-             "| median half-width / (1.96 sd) | forecast sd / sd | runs without e "
+             "| median half-width / (1.96 sd) | forecast sd (its SE) / sd "
+             "| the same with 60 forecast replicates | runs without e "
              "| after the loop: replicates + metrics (median) / the loop's wall time "
              "| pre-flight with its forecast |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for case, (extra, seeds) in cases.items():
         config = configure(load_scenario("collision"), list(extra) + list(assignments))
@@ -377,15 +383,17 @@ def calibration_check(pool, cases: dict = CHECK_CASES, assignments: list[str] = 
         t0 = time.perf_counter()
         reference = checked_reference(config, config.loop.duration_s)
         forecast_wall_s = time.perf_counter() - t0
+        few = forecast(configure(config, [f"uncertainty.forecast_replicates={FEW_FORECAST}"]),
+                       reference)
         runs = pool.map(interval_run, [(list(extra) + list(assignments), s, reference)
                                        for s in seeds])
-        lines.append(_check_row(case, seeds, reference, runs, forecast_wall_s))
+        lines.append(_check_row(case, seeds, reference, runs, forecast_wall_s, few))
         print(lines[-1], flush=True)
     return lines
 
 
 def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
-               forecast_wall_s: float) -> str:
+               forecast_wall_s: float, few: dict | None = None) -> str:
     ei = reference["restitution"]
     got = [r for r in runs if r["restitution"] is not None]
     e = np.array([r["restitution"] for r in got])
@@ -396,6 +404,8 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
     half = float(np.median([r["sd"] * 1.959964 for r in with_interval])) if with_interval \
         else float("nan")
     fc = (reference.get("forecast") or {}).get("restitution_sd")
+    fc_se = (reference.get("forecast") or {}).get("restitution_sd_se")
+    fc_few = (few or {}).get("restitution_sd")
     rep_wall = float(np.median([r["wall_s"] for r in got if r["wall_s"] is not None]))
     run_wall = float(np.median([r["run_wall_s"] for r in got]))
     def ratio(a: float, b: float) -> str:
@@ -405,9 +415,119 @@ def _check_row(case: str, seeds: list[int], reference: dict, runs: list[dict],
             f"{100 * err.mean():+.1f} % ({100 * err.std(ddof=1) / math.sqrt(len(err)):.1f}) | "
             f"{sd:.3f} ({100 * sd / ei:.0f} % of e_ideal) | {holds}/{len(runs)} | "
             f"{ratio(half, 1.959964 * sd)} | "
-            + ("— | " if fc is None else f"{ratio(fc, sd)} | ")
+            + ("— | " if fc is None else
+               f"{ratio(fc, sd)}".replace(" / ", f" ({fc_se or 0:.3f}) / ", 1) + " | ")
+            + ("— | " if fc_few is None else f"{ratio(fc_few, sd)} | ")
             + f"{len(runs) - len(got)} | {rep_wall:.2f} s / {run_wall:.2f} s | "
             f"{forecast_wall_s:.1f} s |")
+
+
+def pool_run(args: tuple) -> float | None:
+    """One hil run as the CLI runs it, given its reference, without its interval
+    (``[uncertainty] enabled = false``: the snapshot is a copy, the run is the same): its
+    restitution."""
+    assignments, seed, reference = args
+    config = configure(load_scenario("collision"),
+                       assignments + [f"loop.seed={seed}", "uncertainty.enabled=false"])
+    result = run_scenario(config, ideal=reference, preflight_done=True)
+    return (result.metrics["collision"] or {}).get("restitution")
+
+
+POOL_FORECASTS = (60, 200, 600)
+"""The forecast's replicate counts the pool compares (the first 60 or 200 of the 600 are
+the same draws: the forecast's stream is the configuration's)."""
+
+
+def _num(x: float | None) -> str:
+    return "—" if x is None else f"{x:.4f}"
+
+
+def spread_pool(pool, first_seed: int, n: int) -> list[str]:
+    """Per case, ``n`` seeds from ``first_seed`` without intervals: the restitution's mean
+    error and across-seed sd, each with its standard error (:func:`sd_standard_error`),
+    the sd's skewness, and the forecast with 60, 200 and 600 replicates against it; the
+    share of runs within 1.96 x the 600-replicate forecast sd of the ideal restitution
+    (the coverage of an interval of that width)."""
+    from app.runs.uncertainty import sd_standard_error
+
+    lines = ["| case | seeds | mean error (SE) | sd of e across seeds (SE) | skewness | "
+             + " | ".join(f"forecast, {k} replicates: sd (SE) / across-seed sd"
+                          for k in POOL_FORECASTS)
+             + f" | forecast mean error ({POOL_FORECASTS[-1]}) | within 1.96 x that forecast's "
+             "sd of e_ideal |",
+             "|---" * (7 + len(POOL_FORECASTS)) + "|"]
+    print("\n".join(lines), flush=True)
+    for case, (extra, _) in CHECK_CASES.items():
+        base = configure(load_scenario("collision"), list(extra))
+        config = headless_config(base, base.loop.duration_s)
+        reference = ideal_collision(config, config.loop.duration_s)
+        ei = reference["restitution"]
+        fc = {k: forecast(configure(config, [f"uncertainty.forecast_replicates={k}"]),
+                          reference) for k in POOL_FORECASTS}
+        seeds = list(range(first_seed, first_seed + n))
+        e = np.array([x for x in pool.map(pool_run, [(list(extra), s, reference)
+                                                     for s in seeds]) if x is not None])
+        sd, err = float(np.std(e, ddof=1)), (e - ei) / ei
+        skew = float(np.mean((e - e.mean()) ** 3) / np.mean((e - e.mean()) ** 2) ** 1.5)
+        big = fc[POOL_FORECASTS[-1]]
+        lines.append(
+            f"| {case} (e_ideal {ei:.3f}) | {seeds[0]}-{seeds[-1]} ({len(e)} with e) | "
+            f"{100 * err.mean():+.1f} % ({100 * err.std(ddof=1) / math.sqrt(len(e)):.1f}) | "
+            f"{sd:.4f} ({_num(sd_standard_error(e))}) | {skew:+.2f} | "
+            + " | ".join(f"{f['restitution_sd']:.4f} ({_num(f['restitution_sd_se'])}) / "
+                         f"{sd:.4f} = {f['restitution_sd'] / sd:.2f}"
+                         for f in fc.values())
+            + f" | {100 * big['restitution_error_mean']:+.1f} % | "
+            f"{int(np.sum(np.abs(e - ei) <= Z95 * big['restitution_sd']))}/{len(e)} |")
+        print(lines[-1], flush=True)
+    return lines
+
+
+def replicate_mean_run(args: tuple) -> tuple[float, float] | None:
+    """One sponge hil run with its snapshot: (its restitution, the mean restitution of 30
+    replicates of its contact window with the noise measured at its calibration)."""
+    from app.runs.uncertainty import measured_noise, restitution_spread
+
+    seed, reference = args
+    config = configure(load_scenario("collision"), [f"loop.seed={seed}"])
+    result = run_scenario(config, ideal=reference, preflight_done=True)
+    em, coll = result.emulator, result.metrics["collision"] or {}
+    if coll.get("restitution") is None or em.snapshot is None:
+        return None
+    pair = tuple(int(p[3:]) for p in coll["pair"])
+    until_s = min(max(em.t_s, em.config.loop.duration_s),
+                  coll["window_s"][1] + 0.5 + 2 * coll["contact_duration_s"])
+    spread = restitution_spread(em.snapshot, pair, until_s, measured_noise(em), 30,
+                                np.random.default_rng([seed, 99]))
+    got = [e for e in spread["restitutions"] if e is not None]
+    return coll["restitution"], float(np.mean(got))
+
+
+def replicate_means(pool, first_seed: int, n: int) -> str:
+    """The sponge: the runs' mean error against the mean error of their own replicates
+    (from each run's snapshot) and of the forecast's (from the noise-free twin's)."""
+    base = configure(load_scenario("collision"), [])
+    config = headless_config(base, base.loop.duration_s)
+    reference = checked_reference(config, config.loop.duration_s)
+    ei = reference["restitution"]
+    got = np.array([r for r in pool.map(replicate_mean_run,
+                                        [(s, reference) for s in range(first_seed,
+                                                                       first_seed + n)])
+                    if r is not None])
+    err = (got - ei) / ei
+    se = err.std(axis=0, ddof=1) / math.sqrt(len(got))
+    fc = reference["forecast"]
+    fc_se = fc["restitution_sd"] / ei / math.sqrt(fc["replicates_with_restitution"])
+    line = (f"| sponge vs rigid | {first_seed}-{first_seed + n - 1} ({len(got)} with e) | "
+            f"{100 * err[:, 0].mean():+.1f} % ({100 * se[0]:.1f}) | "
+            f"{100 * err[:, 1].mean():+.1f} % ({100 * se[1]:.1f}) | "
+            f"{100 * fc['restitution_error_mean']:+.1f} % "
+            f"({100 * fc_se:.1f}) |")
+    print("| case | seeds | the runs' mean error (SE) | their own replicates' (30 each, from "
+          "each run's snapshot) | the forecast's (from the noise-free twin) |")
+    print("|---|---|---|---|---|")
+    print(line, flush=True)
+    return line
 
 
 RIG_SENSORS = ["ur10e", "ati-gamma", "ati-mini45", "robotiq-ft300s"]
@@ -482,7 +602,7 @@ def rig_table(pool, seeds: list[int], sensors=RIG_SENSORS, placements=RIG_PLACEM
     lines = ["| material | sensor | placement | servo | restitution error: mean % (SE) ± sd "
              "(worst) | within ±5 % / ±10 % | stops | off-normal share | interval holds "
              "the ideal | forecast sd / seeds' sd |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for material in materials:
         extra = RIG_MATERIALS[material]
@@ -670,6 +790,13 @@ def main() -> None:
                         help="with --seeds --factors: only these factors (repeatable)")
     parser.add_argument("--no-perfect-emulator", action="store_true",
                         help="with --seeds: skip the perfect emulator + noise table")
+    parser.add_argument("--pool", type=int, metavar="SEEDS", default=None,
+                        help="instead: SEEDS seeds per case from --first-seed without "
+                             "intervals, against the forecast with 60, 200 and 600 "
+                             "replicates")
+    parser.add_argument("--replicate-means", type=int, metavar="SEEDS", default=None,
+                        help="instead: the sponge's runs' mean error against their own "
+                             "replicates' and the forecast's, over SEEDS seeds")
     parser.add_argument("--first-seed", type=int, default=0,
                         help="with --seeds, --calibration-check or --rig-table: the first "
                              "seed (1000: the chain's tuning seeds)")
@@ -696,6 +823,14 @@ def main() -> None:
                             (args.factor or True) if args.factors else False)
                 if not args.no_perfect_emulator:
                     noisy_ideal_table(pool, args.first_seed)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
+        if args.replicate_means:
+            replicate_means(pool, args.first_seed, args.replicate_means)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
+        if args.pool:
+            spread_pool(pool, args.first_seed, args.pool)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.calibration:

@@ -143,7 +143,7 @@ def test_the_page_shows_the_fidelity_forecast_before_start(live, page):
     shipped collision), the same figure the REST answer gives."""
     assert live.state()["loop"]["cycles"] == 0
     page.wait_for_function("document.querySelector('#fidelity').textContent"
-                           ".includes('fidelity forecast: restitution sd 0.')", timeout=60_000)
+                           ".includes('fidelity forecast: restitution sd 0.')", timeout=300_000)
     f = live.client.get("/api/scenarios/collision/forecast").json()["collision_forecast"]
     assert page.text_content("#fidelity") == (
         f"fidelity forecast: restitution sd {f['restitution_sd']:.3f} (contact peak "
