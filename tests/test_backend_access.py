@@ -86,6 +86,18 @@ def test_the_printed_link_sets_a_cookie_that_opens_the_page_the_api_and_the_view
         assert browser.get("/viewer/").status_code == 200
 
 
+def test_no_page_of_another_origin_may_frame_the_app(live):
+    """Every answer (the page, the viewer, the API, a kept run's replay, a refusal) says
+    that only the app's own pages may frame it: X-Frame-Options and CSP frame-ancestors
+    (the browser test shows a page on another port failing to frame it)."""
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    for path, headers in (("/", auth), ("/viewer/", auth), ("/api/state", auth),
+                          ("/api/replay.html", auth), ("/api/state", {})):
+        r = httpx.get(live.url + path, headers=headers)
+        assert r.headers["x-frame-options"] == "SAMEORIGIN", (path, r.status_code)
+        assert r.headers["content-security-policy"] == "frame-ancestors 'self'", path
+
+
 def test_a_browser_opening_the_link_is_sent_on_without_the_token_in_its_url(live):
     r = httpx.get(f"{live.url}/?token={TOKEN}&x=1", headers={"Accept": "text/html"})
     assert r.status_code == 303 and r.headers["location"] == "/?x=1"

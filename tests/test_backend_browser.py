@@ -428,7 +428,8 @@ def test_the_replay_file_plays_offline_with_the_server_stopped(page, tmp_path):
         context.close()
 
 
-ATTACK_PAGE = """<!doctype html><title>another local service</title><script>
+ATTACK_PAGE = """<!doctype html><title>another local service</title>
+<iframe id="framed" src="http://APP/" style="opacity: 0.05"></iframe><script>
 window.results = {};
 function socket(url) {
   return new Promise((done) => {
@@ -504,9 +505,10 @@ OWN_PAGE_CHECK = """async (subprotocol) => {
 
 def _attack_and_own_page(live, browser, token: str | None) -> None:
     """In one browser context (the operator's): the app's page (opened from the token
-    link where there is one), then a page on another port of 127.0.0.1 that posts a start
-    and opens the viewer websocket (the app's relay and viser's own port): nothing starts,
-    no socket opens; the app's own page still stops a run and opens its viewer."""
+    link where there is one), then a page on another port of 127.0.0.1 that posts a start,
+    opens the viewer websocket (the app's relay and viser's own port) and frames the app's
+    page: nothing starts, no socket opens, the framed page is not shown; the app's own
+    page still stops a run and opens its viewer (in its own frame)."""
     context = browser.new_context()
     try:
         own = context.new_page()
@@ -528,6 +530,10 @@ def _attack_and_own_page(live, browser, token: str | None) -> None:
                 if sum(f":{live.port}/api/" in u for u, _ in answers) >= 3:
                     break
                 evil.wait_for_timeout(100)
+            # the app's page framed (to turn the operator's click into Start): not shown
+            framed = evil.frame_locator("#framed").locator("#start-button")
+            evil.wait_for_timeout(1500)
+            assert framed.count() == 0
         finally:
             server.shutdown()
         time.sleep(1.0)  # a start that got through would have moved on by now

@@ -5,9 +5,9 @@ Three ASGI middlewares, outermost first in ``create_app``:
 * :class:`BodyLimit`: 413 for a request body over 64 KiB, before anything reads it whole;
 * :class:`SameOrigin`: the Host header must name an allowed host (DNS rebinding: 400), an
   Origin header must be the app's own origin, scheme, host and port (a page of any other
-  origin, another port of this host included, on HTTP and websocket alike: 403), and a
+  origin, another port of this host included, on HTTP and websocket alike: 403), a
   request body must be ``application/json`` (a cross-site form or ``text/plain`` post:
-  415);
+  415), and no page of another origin may frame the app's (clickjacking);
 * :class:`TokenGate`: with a token (required for a bind beyond loopback), every request,
   the 3D viewer's included, must carry it (401): ``Authorization: Bearer <token>``, the
   ``orbit_emulator_token`` cookie, or ``?token=<token>`` in the URL, which also sets the
@@ -201,7 +201,30 @@ class SameOrigin:
             if kind != b"application/json":
                 return await _reject(scope, send, 415,
                                      "a request body must be application/json")
+        if scope["type"] == "http":
+            return await self.app(scope, receive, _not_framed(send))
         return await self.app(scope, receive, send)
+
+
+NOT_FRAMED_HEADERS = ((b"x-frame-options", b"SAMEORIGIN"),
+                      (b"content-security-policy", b"frame-ancestors 'self'"))
+"""On every answer: only the app's own pages may frame its pages (the control page frames
+the 3D viewer). A page of another origin that framed the app, another port of this host
+included, could turn a click of the operator's into Start or Stop (clickjacking): the
+origin check sees the framed page's own requests as the app's."""
+
+
+def _not_framed(send):
+    """``send``, adding :data:`NOT_FRAMED_HEADERS` to the response's headers."""
+
+    async def sending(message):
+        if message["type"] == "http.response.start":
+            names = {name.lower() for name, _ in message.get("headers", ())}
+            extra = [h for h in NOT_FRAMED_HEADERS if h[0] not in names]
+            message = {**message, "headers": [*message.get("headers", ()), *extra]}
+        await send(message)
+
+    return sending
 
 
 DEFAULT_PORTS = {"http": 80, "https": 443}
