@@ -266,6 +266,26 @@ def test_a_bad_extends_is_an_error_naming_it(tmp_path, files, message):
         load_config(tmp_path / "a.toml")
 
 
+def test_an_extends_chain_too_long_and_toml_nested_too_deeply_are_errors_naming_them(
+        tmp_path):
+    """A chain of 40 files (each extends the next; the last, the collision) stops at the
+    32nd; a file of 20,000 nested lists (40 KB, under the size cap) is not a traceback."""
+    from app.config import MAX_EXTENDS
+
+    for i in range(40):
+        (tmp_path / f"c{i}.toml").write_text(f'extends = "c{i + 1}"\n')
+    (tmp_path / "c40.toml").write_text('extends = "collision"\n')
+    with pytest.raises(ConfigError, match=re.escape(
+            f"extends: more than {MAX_EXTENDS} files deep (from c0.toml)")):
+        load_config(tmp_path / "c0.toml")
+    (tmp_path / "c9.toml").write_text('extends = "collision"\n')  # 10 deep: fine
+    assert load_config(tmp_path / "c0.toml").satellites == load_scenario("collision").satellites
+    (tmp_path / "deep.toml").write_text("x = " + "[" * 20_000 + "]" * 20_000 + "\n")
+    with pytest.raises(ConfigError, match=re.escape("deep.toml: not valid TOML: nested too "
+                                                    "deeply")):
+        load_config(tmp_path / "deep.toml")
+
+
 def test_a_key_of_too_many_parts_is_refused_before_any_recursion():
     from app.config import assignment_override
 

@@ -238,6 +238,8 @@ def load_spec(path: str | Path) -> SweepSpec:
                         ) from None
     except tomllib.TOMLDecodeError as err:
         raise SpecError(f"{path}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise SpecError(f"{path}: not valid TOML: nested too deeply") from None
     try:
         return SweepSpec.model_validate(data)
     except ValidationError as err:

@@ -1199,6 +1199,8 @@ def load_config(path: str | Path) -> EmulatorConfig:
 
 
 SCENARIO_DIR = Path(__file__).parent.parent / "scenarios"
+MAX_EXTENDS = 32
+"""A scenario file's ``extends`` chain is at most this many files long."""
 
 
 def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
@@ -1222,6 +1224,8 @@ def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
         raise ConfigError(f"{path}: cannot be read: {reason}") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML: nested too deeply") from None
     base = data.pop("extends", None)
     if base is None:
         return data
@@ -1237,6 +1241,9 @@ def read_scenario_file(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict:
     if not base_path.exists():
         raise ConfigError(f"{path}: extends: no scenario {base!r} beside it or built in")
     chain = (*_chain, path.resolve())
+    if len(chain) >= MAX_EXTENDS:
+        raise ConfigError(f"{path}: extends: more than {MAX_EXTENDS} files deep (from "
+                          f"{chain[0].name}): a chain that long is a mistake")
     if base_path.resolve() in chain:
         cycle = " -> ".join(p.name for p in (*chain, base_path))
         raise ConfigError(f"{path}: extends: {base!r} makes a cycle: {cycle}")
@@ -1293,6 +1300,8 @@ def assignment_override(text: str) -> dict:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value.strip()
+    except RecursionError:
+        raise ConfigError(f"{text[:60]!r}...: the value is nested too deeply") from None
     return dotted_override(key, parsed, text)
 
 

@@ -231,6 +231,8 @@ REFUSED = {
     "key too deep": (HEAD + '[grid]\n"' + "a." * 999 + 'a" = [1]\n',
                      'spec.toml: grid."' + "a." * 999 + "a\": unknown key (the "
                      "configuration has no 'a')"),
+    "nested too deeply": (HEAD + "x = " + "[" * 20_000 + "]" * 20_000 + "\n",
+                          "spec.toml: not valid TOML: nested too deeply"),
     "duration": (HEAD + "duration_s = 1e5\n",
                  "spec.toml: duration_s: 100000 s at 500 Hz is 5e+07 cycles; a headless run "
                  "keeps every cycle in memory"),
