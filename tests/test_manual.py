@@ -167,12 +167,18 @@ def test_the_readme_fits_on_two_screens():
 
 
 @pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
-def test_serve_offers_the_manual_and_its_search_finds_restitution(site, monkeypatch):
+def test_serve_offers_the_manual_and_its_search_finds_restitution(site, monkeypatch,
+                                                                  tmp_path):
+    """The manual is looked for at each request: one built (here: pointed to) while the
+    server runs is served at the next reload."""
     playwright = pytest.importorskip("playwright.sync_api")
     from tests.live_server import LiveServer
 
-    monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(site))
+    (tmp_path / "index.html").write_text("<title>an older manual</title>")
+    monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(tmp_path))
     with LiveServer() as live, playwright.sync_playwright() as p:
+        assert "an older manual" in live.client.get("/manual/").text
+        monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(site))
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1200, "height": 800})

@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.responses import HTMLResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -36,17 +36,19 @@ def manual_dir() -> Path | None:
 
 
 def install(app: FastAPI) -> None:
-    """GET /manual/… from the built manual (found now, when the app is made), or a page
-    saying how to build it (404)."""
-    root = manual_dir()
+    """GET /manual/… from the built manual, looked for at each request (a manual built
+    while the server runs is there at the next reload), or a page saying how to build it
+    (404)."""
+    served: dict[Path, StaticFiles] = {}
 
     @app.get(MANUAL_PATH, include_in_schema=False)
     async def manual_slash():
         return RedirectResponse(f"{MANUAL_PATH}/")
 
-    if root is None:
-        @app.get(MANUAL_PATH + "/{rest:path}", include_in_schema=False)
-        async def not_built(rest: str):
+    @app.get(MANUAL_PATH + "/{rest:path}", include_in_schema=False)
+    async def manual(rest: str, request: Request):
+        root = manual_dir()
+        if root is None:
             return HTMLResponse(NOT_BUILT, status_code=404)
-        return
-    app.mount(MANUAL_PATH, StaticFiles(directory=root, html=True), name="manual")
+        files = served.setdefault(root, StaticFiles(directory=root, html=True))
+        return await files.get_response(rest, request.scope)
