@@ -9,6 +9,7 @@ import httpx
 import numpy as np
 import pytest
 
+from app.scenarios import load_scenario
 from app.sim.rotations import quat_to_matrix
 from tests.live_server import LiveServer
 
@@ -1054,3 +1055,46 @@ def test_a_push_s_torque_spins_the_satellite_and_bad_torques_change_nothing(live
                                              "duration_s": 0.1})  # force-only, as before
     assert r.status_code == 200 and r.json()["torque_Nm"] == [0.0, 0.0, 0.0], r.text
     live.client.post("/api/stop")
+
+
+def test_a_robot_s_rail_is_listed_set_by_the_start_body_and_bad_values_named(live):
+    """The rail in the REST settings: /api/scenarios lists each robot's rail (null without
+    one), a start body sets it through robots.<i>.rail and the run reports what it runs
+    with; bad rail settings are refused naming the setting, and the run that is there goes
+    on unchanged; a rail taken away is refused by the pre-flight naming the reach."""
+    listed = {s["name"]: s["settings"] for s in live.client.get("/api/scenarios").json()}
+    rail = load_scenario("free-flying-rails").robots[0].rail
+    assert listed["free-flying-rails"]["rails"] == [{
+        "robot": "ceiling", "axis_W": list(rail.axis_W), "travel_m": list(rail.travel_m),
+        "start_m": rail.start_m, "speed_limit_mps": rail.speed_limit_mps,
+        "accel_limit_mps2": rail.accel_limit_mps2}]
+    assert listed["collision"]["rails"] == [None, None]
+    live.client.post("/api/stop")
+    live.wait_for_scene()
+    s = live.client.post("/api/scenarios/free-flying-rails/start", json={
+        "mode": "ideal", "robots": {"0": {"rail": {"travel_m": [-1.8, 1.9], "start_m": 0.1}}},
+    })
+    assert s.status_code == 200, s.text
+    ran = s.json()
+    assert ran["settings"]["rails"][0]["travel_m"] == [-1.8, 1.9]
+    assert ran["settings"]["rails"][0]["start_m"] == 0.1
+    generation = ran["generation"]
+    for body, detail in [
+        ({"robots": {"0": {"rail": {"start_m": 5}}}},
+         "robots.0.rail: start_m = 5 is outside travel_m = [-1.6, 1.6]"),
+        ({"robots": {"0": {"rail": {"travel_m": [1, 1]}}}},
+         "robots.0.rail: travel_m must be [min, max] with min < max, got [1, 1]"),
+        ({"robots": {"0": {"rail": {"axis_W": [0, 0, 0]}}}},
+         "robots.0.rail: axis_W must be a non-zero direction in the lab frame W"),
+        ({"robots": {"0": {"rail": {"speed_limit_mps": 0}}}},
+         "robots.0.rail.speed_limit_mps: Input should be greater than 0"),
+        ({"robots": {"0": {"rail": {"stroke_m": 2}}}}, "robots.0.rail.stroke_m: "),
+    ]:
+        r = live.client.post("/api/scenarios/free-flying-rails/start", json=body)
+        assert r.status_code == 422 and detail in r.json()["detail"], (body, r.text)
+        assert live.client.get("/api/state").json()["generation"] == generation
+    live.client.post("/api/stop")
+    r = live.client.post("/api/scenarios/free-flying-rails/start",
+                         json={"robots": {"0": {"rail": None}}})
+    assert r.status_code == 422, r.text
+    assert "leaves the arm's reach" in r.json()["detail"], r.text

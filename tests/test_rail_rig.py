@@ -100,3 +100,33 @@ def test_a_stop_of_the_carriage_halts_the_arm_and_the_loop_says_why():
     assert em.status == "safety_stop"
     assert em.safety_stop["reason"] == "rail travel end" and em.safety_stop["robot"] == 1
     assert rig.servo.stopped and rig.servo.reason == "rail travel end"
+
+
+RAIL_VARIANTS = {"collision-rails": ("collision", 0.4), "docking-rails": ("docking", 1.0)}
+"""Each rail variant: the scenario it extends, and the least travel of its first carriage."""
+
+
+@pytest.mark.parametrize("name", list(RAIL_VARIANTS))
+def test_the_collision_and_docking_rail_variants_run_hil_to_the_end(name, tmp_path):
+    """collision-rails and docking-rails (the scenarios they extend, with both arms on
+    rails along x): hil to the end, no stop, each mockup within 1 mm of its satellite while
+    the first carriage travels; the contact happens (docking: the capture, its success)."""
+    base, least_travel_m = RAIL_VARIANTS[name]
+    cfg = load_scenario(name)
+    assert [r.satellite for r in cfg.robots] == [r.satellite for r in load_scenario(base).robots]
+    assert all(r.rail is not None for r in cfg.robots)
+    out = tmp_path / "out"
+    proc = subprocess.run([EXE, "run", name, "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["mode"] == "hil" and m["status"] == "finished" and m["safety_stop"] is None
+    assert m["duration_s"] == pytest.approx(cfg.loop.duration_s)
+    for rob in m["robots"]:
+        assert rob["position_error_max_m"] <= 1e-3, rob
+        assert rob["posture_deviation_max_rad"] <= 0.5, rob
+    assert m["robots"][0]["rail_travel_m"] >= least_travel_m
+    if name == "docking-rails":
+        assert m["capture"]["captured"] is True and m["success"]["passed"] is True
+    else:
+        assert m["collision"]["restitution"] > 0.1  # they met, and rebounded

@@ -384,6 +384,7 @@ class LoopCore:
                                             cfg.satellites[0].principal_inertia()],
                 "force_scale": scaling.force_scale, "torque_scale": scaling.torque_scale,
                 "scaling": summary_line(cfg),
+                "rails": cfg.rail_settings(),
             },
             "n_satellites": em.n_sat,
             "satellites": sats,

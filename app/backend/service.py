@@ -137,7 +137,8 @@ def _start_settings(config: EmulatorConfig) -> dict[str, Any]:
     return {"altitude_m": config.orbit.altitude_m,
             "velocity_mps": list(config.satellites[0].velocity_mps),
             "kp_lin": config.vfdm.kp_lin, "kp_rot": config.vfdm.kp_rot,
-            "duration_s": config.loop.duration_s, "mode": config.loop.mode}
+            "duration_s": config.loop.duration_s, "mode": config.loop.mode,
+            "rails": config.rail_settings()}
 
 
 class EmulatorService:

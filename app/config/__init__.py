@@ -1140,6 +1140,14 @@ class EmulatorConfig(_Model):
         """The robots (1-based numbers) that stand on a rail."""
         return [i + 1 for i, r in enumerate(self.robots) if r.rail is not None]
 
+    def rail_settings(self) -> list[dict | None]:
+        """Per robot, its rail as the web panel and the REST settings show it (None: no
+        rail): the axis, travel, start and the carriage's limits."""
+        return [None if r.rail is None else {
+            "robot": r.name, "axis_W": list(r.rail.axis_W), "travel_m": list(r.rail.travel_m),
+            "start_m": r.rail.start_m, "speed_limit_mps": r.rail.speed_limit_mps,
+            "accel_limit_mps2": r.rail.accel_limit_mps2} for r in self.robots]
+
     def satellite_index(self, name: str) -> int:
         return [s.name for s in self.satellites].index(name)
 

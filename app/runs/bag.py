@@ -12,7 +12,9 @@ tf2's and RViz2's get them), one message at the start:
 
 * ``/tf_static`` (tf2_msgs/TFMessage): world → R, world → each arm's base_link, each
   arm's wrist_3_link → tool0;
-* ``/robot<k>/robot_description`` (std_msgs/String): arm k's URDF, its names prefixed;
+* ``/robot<k>/robot_description`` (std_msgs/String): arm k's URDF, its names prefixed
+  (on a rail, rooted at ``robot<k>/rail`` with the prismatic ``robot<k>/rail_joint`` to
+  base_link);
 * ``/markers`` (visualization_msgs/MarkerArray): each mockup (at sat<i>_mockup), each
   satellite's ODS pose (translucent, at sat<i>), each arm's safety box (in world, the
   box its mockup's centre must stay in); frame-locked: they follow their frames.
@@ -52,7 +54,14 @@ from pathlib import Path
 import numpy as np
 
 from app.config import EmulatorConfig
-from app.runs.urdf import joint_names, link_names, link_transforms, urdf_text
+from app.runs.urdf import (
+    RAIL_JOINT,
+    RAIL_LINK,
+    joint_names,
+    link_names,
+    link_transforms,
+    urdf_text,
+)
 from app.sim.rotations import make_transform, matrix_to_quat, quat_to_matrix
 from app.sim.ur10e import T_J6_F, T_W_B_from_config
 
@@ -225,10 +234,9 @@ def _markers(msgs: _Messages, t_ns: int, config: EmulatorConfig, carried: dict[i
     return msgs.types["visualization_msgs/msg/MarkerArray"](markers=out)
 
 
-RAIL_FRAME = "rail"
-"""A robot on a rail: the frame of its base with the carriage at 0 (static in world)."""
-RAIL_JOINT = "rail_joint"
-"""A robot on a rail: the carriage's prismatic joint, last in its joint_states."""
+RAIL_FRAME = RAIL_LINK
+"""A robot on a rail: the frame of its base with the carriage at 0 (static in world; the
+root of its URDF, whose prismatic RAIL_JOINT, last in its joint_states, moves base_link)."""
 
 
 def _rail_of(config: EmulatorConfig, rows: np.ndarray, index: dict, k: int):
@@ -286,8 +294,12 @@ def write_bag(path: str | Path, config: EmulatorConfig, rows: np.ndarray, index:
         write(topic("/tf_static", "tf2_msgs/msg/TFMessage", latched), start,
               msgs.TFMessage(transforms=static))
         for k in range(1, n_rob + 1):
+            rail = _rail_of(config, rows, index, k)
+            robot = config.robots[k - 1]
+            urdf = urdf_text(prefix_of(k), f"robot{k}", None if rail is None else (
+                rail[0], robot.rail.travel_m, robot.rail.speed_limit_mps))
             write(topic(f"/robot{k}/robot_description", "std_msgs/msg/String", latched), start,
-                  msgs.String(data=urdf_text(prefix_of(k), f"robot{k}")))
+                  msgs.String(data=urdf))
         write(topic("/markers", "visualization_msgs/msg/MarkerArray", latched), start,
               _markers(msgs, start, config, carried))
 

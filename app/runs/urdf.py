@@ -9,6 +9,11 @@ to the next) and ``tool0`` (the flange F, DH frame 6, fixed on wrist_3_link). Jo
 turns link i about its z axis; its origin in link i-1 is the DH placement
 ``Tz(d) Tx(a) Rx(alpha)`` of link i-1 (identity for joint 1). The visuals are plain
 cylinders from each link's origin to the next joint (no meshes: nothing to download).
+
+A robot on a rail gains a root link ``rail`` (the base frame with the carriage at 0) and
+the prismatic joint ``rail_joint`` from it to ``base_link``: its axis is the rail's in the
+base frame, its limits the travel and the carriage's speed limit (the carriage's force is
+not modelled: effort 0); its visual, a thin cylinder along the travel.
 """
 
 from __future__ import annotations
@@ -19,11 +24,17 @@ import numpy as np
 
 from app.sim.ur10e import JOINT_NAMES, MAX_EFFORT_NM, SPEED_LIMITS_RADPS, T_J6_F, joint_placements
 
-__all__ = ["LINK_NAMES", "joint_names", "link_transforms", "link_names", "urdf_text"]
+__all__ = ["LINK_NAMES", "RAIL_JOINT", "RAIL_LINK", "joint_names", "link_transforms",
+           "link_names", "urdf_text"]
 
 LINK_NAMES = ("base_link", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link",
               "wrist_2_link", "wrist_3_link", "tool0")
 LINK_RADIUS_M = 0.045
+RAIL_LINK = "rail"
+"""A robot on a rail: the frame of its base with the carriage at 0 (its URDF's root)."""
+RAIL_JOINT = "rail_joint"
+"""A robot on a rail: the carriage's prismatic joint, rail to base_link."""
+RAIL_RADIUS_M = 0.03
 
 
 def link_names(prefix: str) -> list[str]:
@@ -64,16 +75,34 @@ def _origin(p, rpy) -> str:
             f'rpy="{rpy[0]:.9g} {rpy[1]:.9g} {rpy[2]:.9g}"/>')
 
 
-def _segment_visual(v: np.ndarray) -> str:
-    """A cylinder from a link's origin to the point v of it (z turned onto v)."""
+def _segment_visual(v: np.ndarray, a=(0.0, 0.0, 0.0), radius_m: float = LINK_RADIUS_M) -> str:
+    """A cylinder from the point a of a link to the point a + v (z turned onto v)."""
     length = float(np.linalg.norm(v))
     rpy = (0.0, math.atan2(math.hypot(v[0], v[1]), v[2]), math.atan2(v[1], v[0]))
-    return (f"<visual>{_origin(0.5 * v, rpy)}<geometry><cylinder radius=\"{LINK_RADIUS_M}\" "
-            f"length=\"{length:.6g}\"/></geometry><material name=\"ur_grey\"/></visual>")
+    return (f"<visual>{_origin(np.asarray(a, dtype=float) + 0.5 * v, rpy)}<geometry>"
+            f"<cylinder radius=\"{radius_m}\" length=\"{length:.6g}\"/></geometry>"
+            f"<material name=\"ur_grey\"/></visual>")
 
 
-def urdf_text(prefix: str, robot_name: str) -> str:
-    """The URDF of a UR10e whose link and joint names all begin with ``prefix``."""
+def _rail_text(prefix: str, base_link: str, axis_B, travel_m, speed_limit_mps: float) -> list:
+    """The rail's root link and its prismatic joint to base_link (axis_B: the rail's unit
+    axis in the base frame)."""
+    axis = np.asarray(axis_B, dtype=float)
+    lo, hi = float(travel_m[0]), float(travel_m[1])
+    return [f'<link name="{prefix}{RAIL_LINK}">'
+            f'{_segment_visual((hi - lo) * axis, lo * axis, RAIL_RADIUS_M)}</link>',
+            f'<joint name="{prefix}{RAIL_JOINT}" type="prismatic">'
+            f'<parent link="{prefix}{RAIL_LINK}"/><child link="{base_link}"/>'
+            f'{_origin((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))}'
+            f'<axis xyz="{axis[0]:.12g} {axis[1]:.12g} {axis[2]:.12g}"/>'
+            f'<limit lower="{lo:.9g}" upper="{hi:.9g}" effort="0" '
+            f'velocity="{speed_limit_mps:.6g}"/></joint>']
+
+
+def urdf_text(prefix: str, robot_name: str, rail=None) -> str:
+    """The URDF of a UR10e whose link and joint names all begin with ``prefix``; on a rail
+    (``rail``: its axis in the base frame, travel [min, max] and speed limit), the rail's
+    link and prismatic joint before base_link."""
     pR, pp = joint_placements()
     links = link_names(prefix)
     ends = [pp[i + 1] for i in range(5)] + [T_J6_F[:3, 3]]  # the next joint, or the flange
@@ -84,6 +113,8 @@ def urdf_text(prefix: str, robot_name: str) -> str:
     for i, name in enumerate(links[1:7]):
         out.append(f'<link name="{name}">{_segment_visual(np.asarray(ends[i]))}</link>')
     out.append(f'<link name="{links[7]}"/>')
+    if rail is not None:
+        out += _rail_text(prefix, links[0], *rail)
     for i, joint in enumerate(joint_names(prefix)):
         out.append(
             f'<joint name="{joint}" type="revolute"><parent link="{links[i]}"/>'

@@ -351,3 +351,43 @@ def test_the_rail_is_a_prismatic_joint_in_joint_states_and_tf(rail_run_dir):
     by_arm = T @ T_F_C_from_config(robot)
     by_telemetry = static["R"][1] @ frames["sat1_mockup"][1]
     np.testing.assert_allclose(by_arm, by_telemetry, atol=1e-5)
+
+
+def test_the_rail_s_robot_description_has_the_prismatic_joint_under_base_link(rail_run_dir):
+    """The URDF of a robot on a rail (parsed by yourdfpy) is rooted at robot1/rail, whose
+    prismatic robot1/rail_joint (along the rail's axis in the base frame, limited to the
+    travel and the carriage's speed) carries base_link: with the joint states the bag
+    records, the URDF puts tool0 where the tf tree (rail → base_link → … → tool0) has it."""
+    import io
+
+    import yourdfpy
+
+    from app.sim.ur10e import flange_pose_B
+
+    _, messages = _read(rail_run_dir / "bag")
+    robot = load_scenario("free-flying-rails").robots[0]
+    text = messages["/robot1/robot_description"][0][1].data
+    urdf = yourdfpy.URDF.load(io.StringIO(text), load_meshes=False,
+                              build_collision_scene_graph=False)
+    assert urdf.base_link == "robot1/rail"
+    joint = urdf.joint_map["robot1/rail_joint"]
+    assert joint.type == "prismatic"
+    assert (joint.parent, joint.child) == ("robot1/rail", "robot1/base_link")
+    axis_B = T_W_B_from_config(robot)[:3, :3].T @ np.array(robot.rail.axis_W)
+    np.testing.assert_allclose(joint.axis, axis_B, atol=1e-12)
+    assert (joint.limit.lower, joint.limit.upper) == tuple(robot.rail.travel_m)
+    assert joint.limit.velocity == robot.rail.speed_limit_mps
+    assert set(urdf.actuated_joint_names) == {f"robot1/{n}" for n in JOINT_NAMES} | {
+        "robot1/rail_joint"}
+    state = messages["/robot1/joint_states"][-1][1]
+    urdf.update_cfg(dict(zip(state.name, state.position, strict=True)))
+    T_rail_F = np.eye(4)
+    T_rail_F[:3, 3] = state.position[6] * axis_B
+    T_rail_F = T_rail_F @ flange_pose_B(np.asarray(state.position[:6]))
+    # (to the URDF text's 9 significant digits of each joint's rpy)
+    np.testing.assert_allclose(urdf.get_transform("robot1/tool0", "robot1/rail"), T_rail_F,
+                               atol=2e-8)
+    assert state.position[6] > 0.49  # (the carriage is off its zero: the joint counts)
+    # a robot without a rail keeps the plain arm (robot 2 of free-flying-rails has none)
+    if "/robot2/robot_description" in messages:
+        assert "rail_joint" not in messages["/robot2/robot_description"][0][1].data
