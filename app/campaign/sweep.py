@@ -67,8 +67,8 @@ next; everything else in it is determined by the configuration and seed."""
 METRIC_FIELDS: dict[str, tuple[str, ...]] = {
     "": ("scenario", "mode", "status", "error", "duration_s", "cycles", "rate_hz",
          "realtime_factor", "cycle_time_us", "force_scale", "torque_scale", "scaling",
-         "vfdm_iterations", "seed", "satellites", "collision", "safety_stop", "passivity",
-         "collision_forecast", "capture", "success", "warnings"),
+         "vfdm_iterations", "seed", "satellites", "robots", "collision", "safety_stop",
+         "passivity", "collision_forecast", "capture", "success", "warnings"),
     "satellites": ("id", "name", "position_error_max_m", "position_error_rms_m",
                    "velocity_error_rms_mps", "attitude_error_max_rad", "delta_v_mps",
                    "delta_v_pushed_mps"),
@@ -79,7 +79,11 @@ METRIC_FIELDS: dict[str, tuple[str, ...]] = {
                   "contact_open_at_end", "window_s", "warnings", "restitution_ideal",
                   "restitution_error", "true_impulse_ratio", "restitution_sd",
                   "restitution_interval_95", "uncertainty"),
-    "collision_forecast": ("restitution_sd", "restitution_mean", "restitution_error_mean",
+    "robots": ("id", "name", "satellite", "position_error_max_m", "position_error_rms_m",
+               "velocity_error_rms_mps", "attitude_error_max_rad", "rail_travel_m",
+               "posture_deviation_max_rad"),
+    "collision_forecast": ("restitution_sd", "restitution_sd_se", "restitution_mean",
+                           "restitution_error_mean",
                            "peak_force_N", "noise_force_N", "peak_to_noise", "replicates",
                            "replicates_with_restitution", "note"),
     "cycle_time_us": ("p50", "p99"),
@@ -94,7 +98,7 @@ METRIC_FIELDS: dict[str, tuple[str, ...]] = {
                 "synchronisation"),
 }
 """The fields of metrics.json (app/runs/metrics.py metrics_of) a metric path is checked against:
-the top level (""), a satellite's entry, the collision's, and the small tables; deeper
+the top level (""), a satellite's entry, a robot's, the collision's, and the small tables; deeper
 levels (e.g. ``collision.impulse_Ns.sat1``) are not checked."""
 
 
@@ -554,11 +558,11 @@ def _check_metrics(metrics: list[str], base: EmulatorConfig, param_keys: list[st
         if parts[0] not in METRIC_FIELDS[""]:
             raise SpecError(f"{where}: metrics.json has no {parts[0]!r} (it has: "
                             f"{', '.join(METRIC_FIELDS[''])})")
-        if parts[0] == "satellites":
-            n = len(base.satellites)
+        if parts[0] in ("satellites", "robots"):
+            n = len(getattr(base, parts[0]))
             index = item_index(parts[1]) if len(parts) >= 2 else None
             if index is None or index >= n:
-                raise SpecError(f"{where}: satellites.N with N in 0..{n - 1} (the scenario "
+                raise SpecError(f"{where}: {parts[0]}.N with N in 0..{n - 1} (the scenario "
                                 f"has {n})")
             parts = [parts[0], *parts[2:]]
         if len(parts) > 1 and parts[0] in METRIC_FIELDS and parts[1] not in \

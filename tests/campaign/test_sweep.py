@@ -190,6 +190,12 @@ REFUSED = {
     "unknown metric": (HEAD.replace("collision.restitution", "collision.restitutio"),
                        "spec.toml: metrics.0 ('collision.restitutio'): collision has no "
                        "'restitutio' (it has: pair, impulse_Ns,"),
+    "metric robot": (HEAD.replace("collision.restitution", "robots.2.rail_travel_m"),
+                     "spec.toml: metrics.0 ('robots.2.rail_travel_m'): robots.N with N in "
+                     "0..1 (the scenario has 2)"),
+    "metric robot field": (HEAD.replace("collision.restitution", "robots.0.rail"),
+                           "spec.toml: metrics.0 ('robots.0.rail'): robots has no 'rail' "
+                           "(it has: id, name,"),
     "metric satellite": (HEAD.replace("collision.restitution",
                                       "satellites.2.position_error_max_m"),
                          "spec.toml: metrics.0 ('satellites.2.position_error_max_m'): "

@@ -117,6 +117,7 @@ def test_the_metric_fields_a_spec_is_checked_against_are_those_of_metrics_json(s
     metrics = json.loads((swept / "runs" / row["run_id"] / "metrics.json").read_text())
     assert tuple(metrics) == METRIC_FIELDS[""]
     assert tuple(metrics["satellites"][0]) == METRIC_FIELDS["satellites"]
+    assert tuple(metrics["robots"][0]) == METRIC_FIELDS["robots"]
     assert tuple(metrics["collision"]) == METRIC_FIELDS["collision"]
     assert tuple(metrics["cycle_time_us"]) == METRIC_FIELDS["cycle_time_us"]
 
