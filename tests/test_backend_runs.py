@@ -13,6 +13,7 @@ run's ROS 2 bag is built on demand; two runs' figures are overlaid.
 from __future__ import annotations
 
 import base64
+import errno
 import io
 import json
 import os
@@ -440,3 +441,70 @@ def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
     rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
     assert rows[-1, 0] >= s["t_s"] - 1e-9  # (the CSV's 12 digits against the state's float)
     assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"
+
+
+class _FillingDisk:
+    """A run's telemetry.csv on a disk with ``room`` bytes left: a write past it writes what
+    fits, the next one fails with ENOSPC, as write(2) on a full disk does (the fault is
+    injected at the recorder's file, the OS boundary; the recorder, loop and server are
+    real)."""
+
+    def __init__(self, file, room: int) -> None:
+        self.file, self.room = file, room
+
+    def write(self, data) -> int:
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = self.file.write(data[:self.room])
+        self.room -= n
+        return n
+
+    def fileno(self) -> int:
+        return self.file.fileno()
+
+    def close(self) -> None:
+        self.file.close()
+
+    @property
+    def closed(self) -> bool:
+        return self.file.closed
+
+
+def test_a_full_disk_stops_the_recording_at_a_whole_row_and_the_run_goes_on(live, runs_dir,
+                                                                             caplog):
+    """telemetry.csv's disk fills mid-run (a row cut in the middle): the file keeps its
+    whole rows only, each once; the run goes on, its run.json and the state say the
+    recording stopped; one log line, not one a period; no temporary file left."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    recorder = live.app.state.service.recorder
+    with recorder._lock:  # the disk fills 3 rows and a part of a row from now
+        appender = recorder._run.appender
+        appender.file = _FillingDisk(appender.file, room=3 * 2000 + 777)
+    record = _wait(lambda: (x := _runs(live)[run_id]).get("recording") == "failed" and x,
+                   10.0, "the failed recording was not noted")
+    assert "telemetry.csv could not be written: No space left on device" in \
+        record["recording_error"]
+    t_then = live.state()["t_s"]
+    s = live.wait_for(lambda s: s["t_s"] >= t_then + 1.0)  # the run goes on, saying so
+    assert s["status"] == "running"
+    assert any("the recording stopped" in w for w in s.get("warnings", [])), s.get("warnings")
+    lines = (runs_dir / run_id / "telemetry.csv").read_text().splitlines(keepends=True)
+    n_columns = lines[0].count(",") + 1
+    assert all(line.endswith("\n") and line.count(",") == n_columns - 1 for line in lines)
+    rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
+    assert np.all(np.diff(rows[:, 0]) > 0)  # each row once, in order
+    assert f"({len(rows)} rows written)" in record["recording_error"]
+    failed = [r for r in caplog.records if "could not be written" in r.getMessage()]
+    assert len(failed) == 1, [r.getMessage() for r in failed]
+    assert live.client.post("/api/stop").status_code == 200
+    record = _wait(lambda: "telemetry_rows" in (x := _runs(live)[run_id]) and x, 10.0,
+                   "the run was not ended")
+    assert record["status"] == "stopped" and record["recording"] == "failed"
+    assert record["telemetry_rows"] == len(rows)
+    metrics = json.loads((runs_dir / run_id / "metrics.json").read_text())
+    assert record["recording_error"] in metrics["warnings"]
+    assert not [p.name for p in (runs_dir / run_id).iterdir() if p.name.endswith(".tmp")]
