@@ -18,6 +18,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import time
@@ -508,3 +509,85 @@ def test_a_full_disk_stops_the_recording_at_a_whole_row_and_the_run_goes_on(live
     metrics = json.loads((runs_dir / run_id / "metrics.json").read_text())
     assert record["recording_error"] in metrics["warnings"]
     assert not [p.name for p in (runs_dir / run_id).iterdir() if p.name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("runs_dir_arg, message", [
+    ("/dev/null", "error: --runs-dir /dev/null: not a directory"),
+    ("/proc/1", "error: --runs-dir /proc/1: the runs cannot be written there: "),
+])
+def test_serve_names_a_runs_dir_it_cannot_write_before_it_starts(runs_dir_arg, message):
+    proc = subprocess.run([EXE, "serve", "--port", "0", "--runs-dir", runs_dir_arg],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_malformed_run_json_is_left_out_and_named(live, runs_dir, caplog):
+    """A run.json spoiled by hand (not an object; a seed that is not a number): the list,
+    REST and the CLI's, shows the other runs and names the bad one; its GET is a 422."""
+    good = _runs(live)
+    spoiled = {"20261126T000000001Z-collision": "[1, 2]",
+               "20261126T000000002Z-collision": json.dumps(
+                   {"id": "20261126T000000002Z-collision", "scenario": "collision",
+                    "seed": "x", "status": "finished"})}
+    for run_id, text in spoiled.items():
+        (runs_dir / run_id).mkdir()
+        (runs_dir / run_id / "run.json").write_text(text)
+    try:
+        assert set(_runs(live)) == set(good)  # the others, listed
+        warned = " ".join(r.getMessage() for r in caplog.records)
+        assert ("run '20261126T000000001Z-collision': its run.json is not a run's record "
+                "(a JSON object), it is list") in warned
+        assert ("run '20261126T000000002Z-collision': its run.json has seed = 'x', not int"
+                in warned)
+        r = live.client.get("/api/runs/20261126T000000002Z-collision")
+        assert r.status_code == 422 and "has seed = 'x', not int" in r.json()["detail"]
+        proc = subprocess.run([EXE, "runs", "--dir", str(runs_dir)], capture_output=True,
+                              text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        listed = [line.split()[0] for line in proc.stdout.splitlines()[1:]]
+        assert listed == sorted(good, reverse=True)
+        assert "its run.json is not a run's record" in proc.stderr
+        assert "has seed = 'x', not int; left out of the runs list" in proc.stderr
+        proc = subprocess.run([EXE, "runs", "show", "20261126T000000001Z-collision", "--dir",
+                               str(runs_dir)], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and "error: run '20261126T000000001Z-collision': its " \
+            "run.json is not a run's record" in proc.stderr, proc.stderr
+    finally:
+        for run_id in spoiled:
+            shutil.rmtree(runs_dir / run_id)
+
+
+def test_a_runs_dir_gone_or_unwritable_while_serving_never_fails_a_start(live, runs_dir):
+    """The runs folder deleted while the server runs: the list is empty (not a 500); a
+    file in its place: a start runs unrecorded, saying so; the folder back: the next run
+    is recorded in it, made again. (Last in the module: it moves the runs away.)"""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    away = runs_dir.with_name(runs_dir.name + "-away")
+    runs_dir.rename(away)
+    try:
+        r = live.client.get("/api/runs")
+        assert r.status_code == 200 and r.json()["runs"] == [], r.text
+        runs_dir.write_text("not a folder")
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={"mode": "ideal", "loop": {"duration_s": 0.4}})
+        assert r.status_code == 200, r.text
+        assert any("this run is not recorded: its folder could not be made in" in w
+                   for w in r.json().get("warnings", [])), r.json().get("warnings")
+        assert live.client.get("/api/runs").json()["runs"] == []
+        live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+        runs_dir.unlink()
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={"mode": "ideal", "loop": {"duration_s": 0.4}})
+        assert r.status_code == 200, r.text
+        assert not any("not recorded" in w for w in r.json().get("warnings", []))
+        run_id = live.client.get("/api/runs").json()["recording"]
+        assert (runs_dir / run_id / "run.json").is_file()  # the folder made again
+        live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+        _wait(lambda: "telemetry_rows" in _runs(live)[run_id], 10.0, "the run did not end")
+    finally:
+        if runs_dir.is_dir():
+            shutil.rmtree(runs_dir)
+        else:
+            runs_dir.unlink(missing_ok=True)
+        away.rename(runs_dir)

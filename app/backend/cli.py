@@ -8,6 +8,7 @@ import os
 import re
 import signal
 import socket
+import tempfile
 from pathlib import Path
 from urllib.parse import unquote
 
@@ -48,6 +49,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     if args.scenario is not None and args.scenario not in scenario_names():
         raise ValueError(f"unknown scenario {args.scenario!r}; choose one of {scenario_names()}")
+    _check_runs_dir(args.runs_dir)
     token, generated = access_token(args.host, generate=args.generate_token)
     if args.token_file is not None:
         if token is None:
@@ -104,6 +106,22 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     if interrupted:  # uvicorn re-raises it after the shutdown, but asyncio may drop that
         raise KeyboardInterrupt
     return 0
+
+
+def _check_runs_dir(path: str) -> None:
+    """--runs-dir made if missing and tried with a file written and removed: a folder the
+    runs cannot be written to is named before the server starts (ValueError)."""
+    root = Path(path)
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"--runs-dir {path}: not a directory")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=root)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ValueError(f"--runs-dir {path}: the runs cannot be written there: "
+                         f"{err.strerror or err}") from None
 
 
 def bind_port(host: str, port: int) -> socket.socket:
