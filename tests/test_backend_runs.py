@@ -561,7 +561,7 @@ def test_a_malformed_run_json_is_left_out_and_named(live, runs_dir, caplog):
 def test_a_runs_dir_gone_or_unwritable_while_serving_never_fails_a_start(live, runs_dir):
     """The runs folder deleted while the server runs: the list is empty (not a 500); a
     file in its place: a start runs unrecorded, saying so; the folder back: the next run
-    is recorded in it, made again. (Last in the module: it moves the runs away.)"""
+    is recorded in it, made again. (The runs are moved away and back.)"""
     live.wait_for(lambda s: s["status"] not in ("running", "starting"))
     away = runs_dir.with_name(runs_dir.name + "-away")
     runs_dir.rename(away)
@@ -591,3 +591,30 @@ def test_a_runs_dir_gone_or_unwritable_while_serving_never_fails_a_start(live, r
         else:
             runs_dir.unlink(missing_ok=True)
         away.rename(runs_dir)
+
+
+def test_a_run_json_the_disk_refuses_is_written_when_it_takes_it(live, runs_dir, caplog):
+    """run.json cannot be written when the run ends (a folder stands where its temporary
+    file goes, a real write error): the run is ended all the same, logged once, and its
+    run.json says so as soon as the disk takes it again."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    live.wait_for(lambda s: s["t_s"] >= 0.5)
+    blocker = runs_dir / run_id / ".run.json.tmp"
+    blocker.mkdir()
+    try:
+        assert live.client.post("/api/stop").status_code == 200
+        _wait(lambda: (runs_dir / run_id / "metrics.json").is_file(), 10.0, "no metrics")
+        time.sleep(1.0)  # four periods of the recorder, each trying again
+        assert _runs(live)[run_id]["status"] == "running"  # (the disk refuses run.json)
+        refused = [r for r in caplog.records if r.getMessage().startswith(f"run {run_id}: ")]
+        assert len(refused) == 1 and "could not be written" in refused[0].getMessage()
+    finally:
+        blocker.rmdir()
+    record = _wait(lambda: "telemetry_rows" in (x := _runs(live)[run_id]) and x, 10.0,
+                   "run.json was not written once the disk took it")
+    assert record["status"] == "stopped" and record["telemetry_rows"] > 0
+    assert not [p.name for p in (runs_dir / run_id).iterdir() if p.name.endswith(".tmp")]

@@ -271,7 +271,10 @@ class RunRecorder:
                 tmp.write_text(page, encoding="utf-8")
                 os.replace(tmp, folder / REPLAY_FILE)
             except OSError:  # (a full disk): no temporary file left
-                tmp.unlink(missing_ok=True)
+                try:
+                    tmp.unlink(missing_ok=True)
+                except OSError:
+                    pass
                 raise
             if not (folder / RUN_FILE).is_file():  # deleted meanwhile: no leftovers
                 shutil.rmtree(folder, ignore_errors=True)
