@@ -49,13 +49,13 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     if args.scenario is not None and args.scenario not in scenario_names():
         raise ValueError(f"unknown scenario {args.scenario!r}; choose one of {scenario_names()}")
-    _check_runs_dir(args.runs_dir)
     token, generated = access_token(args.host, generate=args.generate_token)
     if args.token_file is not None:
         if token is None:
             raise ValueError("--token-file: there is no token to write (the server is on "
                              f"loopback and {TOKEN_ENV} is not set)")
         _write_secret(Path(args.token_file), token)
+    _check_runs_dir(args.runs_dir)
     listener = bind_port(args.host, args.port)  # before the loop and the viewer start
     _few_malloc_arenas()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
