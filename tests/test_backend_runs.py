@@ -13,10 +13,12 @@ run's ROS 2 bag is built on demand; two runs' figures are overlaid.
 from __future__ import annotations
 
 import base64
+import errno
 import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import time
@@ -440,3 +442,179 @@ def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
     rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
     assert rows[-1, 0] >= s["t_s"] - 1e-9  # (the CSV's 12 digits against the state's float)
     assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"
+
+
+class _FillingDisk:
+    """A run's telemetry.csv on a disk with ``room`` bytes left: a write past it writes what
+    fits, the next one fails with ENOSPC, as write(2) on a full disk does (the fault is
+    injected at the recorder's file, the OS boundary; the recorder, loop and server are
+    real)."""
+
+    def __init__(self, file, room: int) -> None:
+        self.file, self.room = file, room
+
+    def write(self, data) -> int:
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = self.file.write(data[:self.room])
+        self.room -= n
+        return n
+
+    def fileno(self) -> int:
+        return self.file.fileno()
+
+    def close(self) -> None:
+        self.file.close()
+
+    @property
+    def closed(self) -> bool:
+        return self.file.closed
+
+
+def test_a_full_disk_stops_the_recording_at_a_whole_row_and_the_run_goes_on(live, runs_dir,
+                                                                             caplog):
+    """telemetry.csv's disk fills mid-run (a row cut in the middle): the file keeps its
+    whole rows only, each once; the run goes on, its run.json and the state say the
+    recording stopped; one log line, not one a period; no temporary file left."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    recorder = live.app.state.service.recorder
+    with recorder._lock:  # the disk fills 3 rows and a part of a row from now
+        appender = recorder._run.appender
+        appender.file = _FillingDisk(appender.file, room=3 * 2000 + 777)
+    record = _wait(lambda: (x := _runs(live)[run_id]).get("recording") == "failed" and x,
+                   10.0, "the failed recording was not noted")
+    assert "telemetry.csv could not be written: No space left on device" in \
+        record["recording_error"]
+    t_then = live.state()["t_s"]
+    s = live.wait_for(lambda s: s["t_s"] >= t_then + 1.0)  # the run goes on, saying so
+    assert s["status"] == "running"
+    assert any("the recording stopped" in w for w in s.get("warnings", [])), s.get("warnings")
+    lines = (runs_dir / run_id / "telemetry.csv").read_text().splitlines(keepends=True)
+    n_columns = lines[0].count(",") + 1
+    assert all(line.endswith("\n") and line.count(",") == n_columns - 1 for line in lines)
+    rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
+    assert np.all(np.diff(rows[:, 0]) > 0)  # each row once, in order
+    assert f"({len(rows)} rows written)" in record["recording_error"]
+    failed = [r for r in caplog.records if "could not be written" in r.getMessage()]
+    assert len(failed) == 1, [r.getMessage() for r in failed]
+    assert live.client.post("/api/stop").status_code == 200
+    record = _wait(lambda: "telemetry_rows" in (x := _runs(live)[run_id]) and x, 10.0,
+                   "the run was not ended")
+    assert record["status"] == "stopped" and record["recording"] == "failed"
+    assert record["telemetry_rows"] == len(rows)
+    metrics = json.loads((runs_dir / run_id / "metrics.json").read_text())
+    assert record["recording_error"] in metrics["warnings"]
+    assert not [p.name for p in (runs_dir / run_id).iterdir() if p.name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("runs_dir_arg, message", [
+    ("/dev/null", "error: --runs-dir /dev/null: not a directory"),
+    ("/proc/1", "error: --runs-dir /proc/1: the runs cannot be written there: "),
+])
+def test_serve_names_a_runs_dir_it_cannot_write_before_it_starts(runs_dir_arg, message):
+    proc = subprocess.run([EXE, "serve", "--port", "0", "--runs-dir", runs_dir_arg],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_malformed_run_json_is_left_out_and_named(live, runs_dir, caplog):
+    """A run.json spoiled by hand (not an object; a seed that is not a number): the list,
+    REST and the CLI's, shows the other runs and names the bad one; its GET is a 422."""
+    good = _runs(live)
+    spoiled = {"20261126T000000001Z-collision": "[1, 2]",
+               "20261126T000000002Z-collision": json.dumps(
+                   {"id": "20261126T000000002Z-collision", "scenario": "collision",
+                    "seed": "x", "status": "finished"})}
+    for run_id, text in spoiled.items():
+        (runs_dir / run_id).mkdir()
+        (runs_dir / run_id / "run.json").write_text(text)
+    try:
+        assert set(_runs(live)) == set(good)  # the others, listed
+        warned = " ".join(r.getMessage() for r in caplog.records)
+        assert ("run '20261126T000000001Z-collision': its run.json is not a run's record "
+                "(a JSON object), it is list") in warned
+        assert ("run '20261126T000000002Z-collision': its run.json has seed = 'x', not int"
+                in warned)
+        r = live.client.get("/api/runs/20261126T000000002Z-collision")
+        assert r.status_code == 422 and "has seed = 'x', not int" in r.json()["detail"]
+        proc = subprocess.run([EXE, "runs", "--dir", str(runs_dir)], capture_output=True,
+                              text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        listed = [line.split()[0] for line in proc.stdout.splitlines()[1:]]
+        assert listed == sorted(good, reverse=True)
+        assert "its run.json is not a run's record" in proc.stderr
+        assert "has seed = 'x', not int; left out of the runs list" in proc.stderr
+        proc = subprocess.run([EXE, "runs", "show", "20261126T000000001Z-collision", "--dir",
+                               str(runs_dir)], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and "error: run '20261126T000000001Z-collision': its " \
+            "run.json is not a run's record" in proc.stderr, proc.stderr
+    finally:
+        for run_id in spoiled:
+            shutil.rmtree(runs_dir / run_id)
+
+
+def test_a_runs_dir_gone_or_unwritable_while_serving_never_fails_a_start(live, runs_dir):
+    """The runs folder deleted while the server runs: the list is empty (not a 500); a
+    file in its place: a start runs unrecorded, saying so; the folder back: the next run
+    is recorded in it, made again. (The runs are moved away and back.)"""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    away = runs_dir.with_name(runs_dir.name + "-away")
+    runs_dir.rename(away)
+    try:
+        r = live.client.get("/api/runs")
+        assert r.status_code == 200 and r.json()["runs"] == [], r.text
+        runs_dir.write_text("not a folder")
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={"mode": "ideal", "loop": {"duration_s": 0.4}})
+        assert r.status_code == 200, r.text
+        assert any("this run is not recorded: its folder could not be made in" in w
+                   for w in r.json().get("warnings", [])), r.json().get("warnings")
+        assert live.client.get("/api/runs").json()["runs"] == []
+        live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+        runs_dir.unlink()
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={"mode": "ideal", "loop": {"duration_s": 0.4}})
+        assert r.status_code == 200, r.text
+        assert not any("not recorded" in w for w in r.json().get("warnings", []))
+        run_id = live.client.get("/api/runs").json()["recording"]
+        assert (runs_dir / run_id / "run.json").is_file()  # the folder made again
+        live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+        _wait(lambda: "telemetry_rows" in _runs(live)[run_id], 10.0, "the run did not end")
+    finally:
+        if runs_dir.is_dir():
+            shutil.rmtree(runs_dir)
+        else:
+            runs_dir.unlink(missing_ok=True)
+        away.rename(runs_dir)
+
+
+def test_a_run_json_the_disk_refuses_is_written_when_it_takes_it(live, runs_dir, caplog):
+    """run.json cannot be written when the run ends (a folder stands where its temporary
+    file goes, a real write error): the run is ended all the same, logged once, and its
+    run.json says so as soon as the disk takes it again."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",
+                         json={"mode": "ideal", "loop": {"duration_s": 30.0}})
+    assert r.status_code == 200, r.text
+    run_id = live.client.get("/api/runs").json()["recording"]
+    live.wait_for(lambda s: s["t_s"] >= 0.5)
+    blocker = runs_dir / run_id / ".run.json.tmp"
+    blocker.mkdir()
+    try:
+        assert live.client.post("/api/stop").status_code == 200
+        _wait(lambda: (runs_dir / run_id / "metrics.json").is_file(), 10.0, "no metrics")
+        time.sleep(1.0)  # four periods of the recorder, each trying again
+        assert _runs(live)[run_id]["status"] == "running"  # (the disk refuses run.json)
+        refused = [r for r in caplog.records if r.getMessage().startswith(f"run {run_id}: ")]
+        assert len(refused) == 1 and "could not be written" in refused[0].getMessage()
+    finally:
+        blocker.rmdir()
+    record = _wait(lambda: "telemetry_rows" in (x := _runs(live)[run_id]) and x, 10.0,
+                   "run.json was not written once the disk took it")
+    assert record["status"] == "stopped" and record["telemetry_rows"] > 0
+    assert not [p.name for p in (runs_dir / run_id).iterdir() if p.name.endswith(".tmp")]

@@ -325,3 +325,30 @@ def test_a_run_with_nothing_to_show_says_why_it_wrote_no_figure(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "no figure: nothing in this run moved" in proc.stdout
     assert not list((tmp_path / "o").glob("*.png"))
+
+
+def test_a_file_cut_short_by_a_full_disk_is_not_left_behind(tmp_path):
+    """`run` whose files no longer fit (the process's file size limit, so that a write
+    fails part-way with EFBIG, as a full disk fails with ENOSPC): exit 5 and the message,
+    and neither --out nor the fallback folder keeps a truncated telemetry.csv."""
+    import re
+    import resource
+    import signal
+
+    def small_files():  # (SIGXFSZ ignored: the write fails instead of killing)
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (60_000, 60_000))
+
+    out = tmp_path / "out"
+    proc = subprocess.run([EXE, "run", "collision", "--mode", "ideal", "--duration", "1",
+                           "--out", str(out), "--quiet"], preexec_fn=small_files,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 5, proc.stderr
+    match = re.search(r"error: (\S+)/telemetry\.csv: could not be written \(File too large\), "
+                      r"nor in (\S+): File too large", proc.stderr)
+    assert match and match.group(1) == str(out), proc.stderr
+    fallback = Path(match.group(2))
+    assert not (out / "telemetry.csv").exists() and not fallback.exists()
+    assert json.loads((out / "metrics.json").read_text())["status"] == "finished"
+    for png in out.glob("*.png"):  # the plots that fitted, whole
+        assert png.read_bytes().endswith(b"IEND\xaeB`\x82")

@@ -8,6 +8,7 @@ import os
 import re
 import signal
 import socket
+import tempfile
 from pathlib import Path
 from urllib.parse import unquote
 
@@ -54,6 +55,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             raise ValueError("--token-file: there is no token to write (the server is on "
                              f"loopback and {TOKEN_ENV} is not set)")
         _write_secret(Path(args.token_file), token)
+    _check_runs_dir(args.runs_dir)
     listener = bind_port(args.host, args.port)  # before the loop and the viewer start
     _few_malloc_arenas()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
@@ -104,6 +106,22 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     if interrupted:  # uvicorn re-raises it after the shutdown, but asyncio may drop that
         raise KeyboardInterrupt
     return 0
+
+
+def _check_runs_dir(path: str) -> None:
+    """--runs-dir made if missing and tried with a file written and removed: a folder the
+    runs cannot be written to is named before the server starts (ValueError)."""
+    root = Path(path)
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"--runs-dir {path}: not a directory")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-test-", dir=root)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ValueError(f"--runs-dir {path}: the runs cannot be written there: "
+                         f"{err.strerror or err}") from None
 
 
 def bind_port(host: str, port: int) -> socket.socket:

@@ -10,6 +10,12 @@ loop, or replaced by a reset) the recorder writes its metrics.json (with the pre
 ideal run as the comparison: what /api/metrics and run.zip give), waits a little for the
 restitution's interval the loop computes after the run, and has a worker process draw the
 plots from the telemetry.csv on disk.
+
+A disk that fails (full: ENOSPC; or the runs folder gone or unwritable) never stops the
+loop's run: a run whose folder cannot be made goes on unrecorded (the state's warnings say
+so); a run whose telemetry.csv cannot be written stops being recorded at its last whole
+row, and its run.json says so (``recording: "failed"``, ``recording_error``), once the disk
+takes it. Each is logged once.
 """
 
 from __future__ import annotations
@@ -86,6 +92,9 @@ class _Active:
     status: tuple[str, str | None] = ("running", None)
     deadline: float = 0.0
     extra: dict = field(default_factory=dict)
+    record_error: str | None = None
+    """Why the run stopped being recorded (its telemetry.csv could not be written)."""
+    disk_logged: bool = False
 
 
 class RunRecorder:
@@ -111,6 +120,11 @@ class RunRecorder:
         self._generations: dict[int, tuple[str, str, str]] = {}  # thread takes this one)
         """Loop generation -> (run id, scenario, mode) of the runs begun last."""
         self._replay_writers: list[threading.Thread] = []
+        self._unwritten: list[Callable[[], Any]] = []
+        """Writes of runs' records a failing disk refused, tried again every period."""
+        self._unrecorded: str | None = None
+        """Why the latest run is not recorded (its folder could not be made)."""
+        self._last_error: str | None = None
         self._ideals: dict[str, dict] = {}
         """Run id -> the pre-flight's ideal collision it is compared with (the service's
         object, which :meth:`_share_forecast` hands back with the forecast)."""
@@ -154,6 +168,7 @@ class RunRecorder:
                     else:
                         self._end(run, status, snap.get("reason"))
                 self._final(run)
+            self._retry_unwritten()
         with self._names_lock:
             writers = list(self._replay_writers)
         for writer in writers:  # the replays being written
@@ -172,25 +187,30 @@ class RunRecorder:
 
     def begin(self, ring: RunTelemetry, scenario: str, config: EmulatorConfig,
               mode: str | None, ideal: dict | None, snapshot_at_s: float | None,
-              generation: int | None = None) -> str:
+              generation: int | None = None) -> str | None:
         """Record the run whose telemetry ring is ``ring`` (just requested; its loop
         ``generation``, which names its 3D replay: :meth:`save_replay`); the run recorded
-        before is ended first. Its id."""
+        before is ended first. Its id; None if its folder could not be made (the run goes
+        on unrecorded: :meth:`warning` says why)."""
         mode = mode or config.loop.mode
         with self._lock:
             self.settle(replaced=True)
-            run_id = self.store.create(scenario, mode, config.model_dump(mode="json"),
-                                       config.loop.seed)
-            folder = self.store.folder(run_id)
-            if ideal is not None:  # what an interrupted run is compared with, later
-                write_json(folder / "ideal.json", ideal)
+            try:
+                run_id, folder, appender = self._make_folder(ring, scenario, config, mode,
+                                                             ideal)
+            except OSError as err:
+                self._unrecorded = (f"this run is not recorded: its folder could not be "
+                                    f"made in {str(self.store.root)!r}: "
+                                    f"{err.strerror or err}")
+                log.error("%s", self._unrecorded)
+                return None
+            self._unrecorded = None
             fd = os.open(ring.path, os.O_RDONLY | os.O_CLOEXEC)  # the ring, kept readable
             reader = RingFile(f"/proc/{os.getpid()}/fd/{fd}", ring.capacity,
                               len(ring.columns))
             self._run = _Active(
                 run_id=run_id, folder=folder, ring=ring, fd=fd, reader=reader,
-                appender=TelemetryAppender(folder / "telemetry.csv", ring.columns),
-                config=config, mode=mode, ideal=ideal,
+                appender=appender, config=config, mode=mode, ideal=ideal,
                 expect_interval=mode == "hil" and snapshot_at_s is not None)
             with self._names_lock:
                 if ideal is not None:
@@ -202,6 +222,28 @@ class RunRecorder:
                     while len(self._generations) > GENERATIONS_KEPT:
                         del self._generations[next(iter(self._generations))]
             return run_id
+
+    def _make_folder(self, ring: RunTelemetry, scenario: str, config: EmulatorConfig,
+                     mode: str, ideal: dict | None) -> tuple[str, Path, TelemetryAppender]:
+        """A new run's folder with its records and telemetry.csv's header (OSError: none
+        left)."""
+        run_id = self.store.create(scenario, mode, config.model_dump(mode="json"),
+                                   config.loop.seed)
+        folder = self.store.folder(run_id)
+        try:
+            if ideal is not None:  # what an interrupted run is compared with, later
+                write_json(folder / "ideal.json", ideal)
+            return run_id, folder, TelemetryAppender(folder / "telemetry.csv", ring.columns)
+        except OSError:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+
+    def warning(self) -> str | None:
+        """Why the latest run is not (or no longer) being recorded, if it is not."""
+        with self._lock:
+            if self._run is not None:
+                return self._run.record_error
+            return self._unrecorded
 
     def save_replay(self, generation: int, recording: bytes, truncated: bool) -> None:
         """The scene's recording of run ``generation`` (app/backend/replay.py) is done:
@@ -225,8 +267,15 @@ class RunRecorder:
             folder = self.store.folder(run_id)
             page = replay_html(recording, replay_title(scenario, mode, truncated))
             tmp = folder / f".{REPLAY_FILE}.tmp"
-            tmp.write_text(page, encoding="utf-8")
-            os.replace(tmp, folder / REPLAY_FILE)
+            try:
+                tmp.write_text(page, encoding="utf-8")
+                os.replace(tmp, folder / REPLAY_FILE)
+            except OSError:  # (a full disk): no temporary file left
+                try:
+                    tmp.unlink(missing_ok=True)
+                except OSError:
+                    pass
+                raise
             if not (folder / RUN_FILE).is_file():  # deleted meanwhile: no leftovers
                 shutil.rmtree(folder, ignore_errors=True)
         except (RunNotFound, OSError) as err:  # deleted (retention, DELETE) meanwhile
@@ -255,10 +304,43 @@ class RunRecorder:
         while not self._stop.wait(self.period_s):
             try:
                 with self._lock:
+                    self._retry_unwritten()
                     if self._run is not None:
                         self._tick(self._run)
-            except Exception:  # noqa: BLE001 - the recorder must go on for the next run
-                log.exception("recording the run failed")
+                self._last_error = None
+            except Exception as err:  # noqa: BLE001 - the recorder must go on for the next run
+                if repr(err) != self._last_error:  # once, not every period
+                    log.exception("recording the run failed")
+                self._last_error = repr(err)
+
+    def _retry_unwritten(self) -> None:
+        """The records a failing disk refused, written now if it takes them (in order)."""
+        while self._unwritten:
+            try:
+                self._unwritten[0]()
+            except OSError:
+                return
+            except RunNotFound:  # deleted meanwhile
+                pass
+            self._unwritten.pop(0)
+
+    def _store_write(self, run: _Active, what: str, fn: Callable[[], Any]) -> None:
+        """``fn()``, a write of the run's records; on a disk error logged (once a run) and
+        kept to try again (:meth:`_retry_unwritten`)."""
+        if self._unwritten:  # in order: after those waiting
+            self._unwritten.append(fn)
+            return
+        try:
+            fn()
+        except OSError as err:
+            self._disk_failed(run, f"its {what} could not be written", err)
+            self._unwritten.append(fn)
+
+    def _disk_failed(self, run: _Active, what: str, err: OSError) -> None:
+        if not run.disk_logged:
+            run.disk_logged = True
+            log.error("run %s: %s: %s (the run goes on; its records are written when the "
+                      "disk takes them)", run.run_id, what, err.strerror or err)
 
     def _tick(self, run: _Active) -> None:
         """Flush the new rows; move the run on if it ended."""
@@ -299,14 +381,34 @@ class RunRecorder:
 
     def _flush(self, run: _Active) -> None:
         """Append the rows committed since the last flush to telemetry.csv."""
+        if run.record_error is not None:  # no longer recorded
+            return
         try:
             first, rows = run.reader.rows_since(run.next_row)
         except OSError:
             return
         if first > run.next_row:
             run.rows_lost += first - run.next_row
-        run.appender.append(rows)
+        try:
+            run.appender.append(rows)
+        except OSError as err:  # (a full disk): telemetry.csv ends at its last whole row
+            self._recording_failed(run, err)
+            return
         run.next_row = first + len(rows)
+
+    def _recording_failed(self, run: _Active, err: OSError) -> None:
+        """telemetry.csv could not be written: the run is recorded no further (its file
+        keeps its whole rows), and its run.json says so."""
+        t_s = (run.last_snap or {}).get("t_s")
+        at = "" if t_s is None else f" at t = {t_s:.3f} s"
+        run.record_error = (f"the recording stopped{at} ({run.appender.rows_written} rows "
+                            f"written): telemetry.csv could not be written: "
+                            f"{err.strerror or err}")
+        run.appender.close()
+        self._disk_failed(run, "telemetry.csv could not be written", err)
+        message = run.record_error
+        self._store_write(run, "run.json", lambda: self.store.update(
+            run.run_id, recording="failed", recording_error=message))
 
     def _end(self, run: _Active, status: str, reason: str | None) -> None:
         """The run ended: its metrics.json and run.json (the plots come after)."""
@@ -329,7 +431,17 @@ class RunRecorder:
             metrics.setdefault("warnings", []).append(
                 f"{run.rows_lost} rows were overwritten in the telemetry ring before they "
                 f"could be written to telemetry.csv")
-        self.store.finish(run.run_id, metrics, status, reason, run.ended)
+        extra = {}
+        if run.record_error is not None:
+            metrics.setdefault("warnings", []).append(run.record_error)
+            extra = {"recording": "failed", "recording_error": run.record_error}
+        run_id, ended = run.run_id, run.ended
+
+        def write() -> None:
+            self.store.finish(run_id, metrics, status, reason, ended)
+            if extra:
+                self.store.update(run_id, **extra)
+        self._store_write(run, "metrics.json and run.json", write)
 
     def _final(self, run: _Active) -> None:
         """Let go of the run: its file synced, its ring closed, its plots queued."""
@@ -341,8 +453,12 @@ class RunRecorder:
         run.phase = "done"
         if self._run is run:
             self._run = None
-        self.store.update(run.run_id, plots="pending", telemetry_rows=run.next_row)
-        self._plots.put(("plots", run.run_id))
+        run_id, rows = run.run_id, run.appender.rows_written
+
+        def write() -> None:
+            self.store.update(run_id, plots="pending", telemetry_rows=rows)
+            self._plots.put(("plots", run_id))
+        self._store_write(run, "run.json", write)
 
     def _plot_main(self) -> None:
         while True:

@@ -59,7 +59,13 @@ from app.backend.viewer import PATH as VIEWER_PATH
 from app.backend.viewer import add_viewer_routes, start_viser
 from app.config import MAX_SATELLITES
 from app.runs.report import json_safe
-from app.runs.store import DEFAULT_KEEP_RUNS, DEFAULT_RUNS_DIR, BadRunName, RunNotFound
+from app.runs.store import (
+    DEFAULT_KEEP_RUNS,
+    DEFAULT_RUNS_DIR,
+    BadRecord,
+    BadRunName,
+    RunNotFound,
+)
 
 log = logging.getLogger("orbit_emulator.server")
 
@@ -573,7 +579,7 @@ def runs_routes(app: FastAPI, service) -> None:
     def store_call(fn, *args):
         try:
             return fn(*args)
-        except BadRunName as err:
+        except (BadRunName, BadRecord) as err:
             raise HTTPException(status_code=422, detail=str(err)) from None
         except RunNotFound as err:
             raise HTTPException(status_code=404, detail=str(err)) from None

@@ -221,6 +221,9 @@ class EmulatorService:
         if fault is not None:
             snap.update(status="fault", reason=fault)
         course = self._course_warnings(snap)
+        unrecorded = None if self.recorder is None else self.recorder.warning()
+        if unrecorded is not None:  # (a full disk, a runs folder gone or unwritable)
+            course.append(unrecorded)
         if course:
             snap["warnings"] = [*snap.get("warnings", []), *course]
         return snap

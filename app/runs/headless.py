@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import stat
 import tempfile
 import time
@@ -238,20 +239,51 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
     files, problems, fallback = [], [], None
     for what, write in writers:
         try:
-            files += write(out)
+            files += _whole_or_none(write, out)
             continue
         except (OSError, ValueError) as err:
             problem = f"{out / what}: could not be written ({_reason(err)})"
         try:
             if fallback is None:
                 fallback = Path(tempfile.mkdtemp(prefix="orbit-emulator-run-"))
-            files += write(fallback)
+            files += _whole_or_none(write, fallback)
             problems.append(f"{problem}; written to {fallback / what} instead")
         except (OSError, ValueError) as err:
             problems.append(f"{problem}, nor in {fallback}: {_reason(err)}")
+    if fallback is not None and not any(fallback.iterdir()):  # nothing went there either
+        shutil.rmtree(fallback, ignore_errors=True)
     if problems:
         raise RunFilesNotWritten(problems, files, fallback)
     return files
+
+
+def _entries(folder: Path) -> dict[str, tuple[int, int, int]]:
+    """(inode, size, mtime) of each entry of ``folder``."""
+    out = {}
+    for path in folder.iterdir() if folder.is_dir() else ():
+        try:
+            info = path.lstat()
+        except OSError:
+            continue
+        out[path.name] = (info.st_ino, info.st_size, info.st_mtime_ns)
+    return out
+
+
+def _whole_or_none(write, folder: Path) -> list[Path]:
+    """``write(folder)``; if it fails (a full disk, say), what it created or changed in
+    ``folder`` is removed before the error goes on: no truncated file is left."""
+    before = _entries(folder)
+    try:
+        return write(folder)
+    except BaseException:
+        for name, entry in _entries(folder).items():
+            if before.get(name) != entry:
+                path = folder / name
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path, ignore_errors=True)
+                else:
+                    path.unlink(missing_ok=True)
+        raise
 
 
 def _reason(err: Exception) -> str:

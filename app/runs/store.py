@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import logging
 import os
 import re
 import shutil
@@ -33,9 +34,11 @@ import numpy as np
 
 from app.runs.report import csv_row_format, json_safe, run_summary
 
-__all__ = ["DEFAULT_KEEP_RUNS", "DEFAULT_RUNS_DIR", "REPLAY_FILE", "BadRunName", "RunNotFound",
-           "RunStore", "TelemetryAppender", "check_file_name", "check_run_id", "headline",
-           "write_plots"]
+__all__ = ["DEFAULT_KEEP_RUNS", "DEFAULT_RUNS_DIR", "REPLAY_FILE", "BadRecord", "BadRunName",
+           "RunNotFound", "RunStore", "TelemetryAppender", "check_file_name", "check_record",
+           "check_run_id", "headline", "write_plots"]
+
+log = logging.getLogger("orbit_emulator.runs")
 
 DEFAULT_RUNS_DIR = Path("runs/web")
 DEFAULT_KEEP_RUNS = 100
@@ -57,6 +60,31 @@ class BadRunName(ValueError):
 
 class RunNotFound(LookupError):
     """No such run in the store, or no such file in the run's folder."""
+
+
+class BadRecord(ValueError):
+    """A run whose run.json is not a run's record (not an object, or a field of the wrong
+    type): left out of the list, named."""
+
+
+RECORD_FIELDS = {"scenario": (str,), "mode": (str,), "seed": (int,), "started_at": (str,),
+                 "ended_at": (str,), "duration_s": (int, float), "status": (str,),
+                 "reason": (str,), "headline": (dict,)}
+"""run.json's fields the list reads, with their types (each may also be null)."""
+
+
+def check_record(record, run_id: str) -> dict:
+    """``record`` (a run.json read) if it is a run's record; BadRecord naming the run and
+    the field otherwise."""
+    if not isinstance(record, dict):
+        raise BadRecord(f"run {run_id!r}: its {RUN_FILE} is not a run's record (a JSON "
+                        f"object), it is {type(record).__name__}")
+    for name, types in RECORD_FIELDS.items():
+        value = record.get(name)
+        if value is not None and (not isinstance(value, types) or isinstance(value, bool)):
+            raise BadRecord(f"run {run_id!r}: its {RUN_FILE} has {name} = {value!r}, not "
+                            f"{' or '.join(t.__name__ for t in types)}")
+    return record
 
 
 def check_run_id(run_id: str) -> str:
@@ -82,9 +110,22 @@ def now_utc() -> dt.datetime:
 
 def _write_json_atomic(path: Path, data: dict) -> None:
     """``data`` as JSON at ``path``, whole or not at all (a kill mid-write leaves the old)."""
+    _write_text_atomic(path, json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n")
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    """``text`` at ``path``, whole or not at all: written to a temporary name, renamed; a
+    failed write (a full disk) leaves the old file and no temporary one."""
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(json_safe(data), indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # (not a file of ours)
+            pass
+        raise
 
 
 def _read_json(path: Path) -> dict | None:
@@ -130,36 +171,55 @@ def headline(metrics: dict | None) -> dict:
 
 class TelemetryAppender:
     """A run's telemetry.csv, appended to as the rows come (the header first): each
-    :meth:`append` is flushed to the system before it returns, so a killed process
-    loses nothing it appended; :meth:`close` also syncs it to the disk. Rows as a headless
-    run writes them (%.12g)."""
+    :meth:`append` reaches the system before it returns (no buffer of its own), so a killed
+    process loses nothing it appended; :meth:`close` also syncs it to the disk. Rows as a
+    headless run writes them (%.12g).
+
+    Whole rows only: a write that fails part-way (a full disk: ENOSPC) is cut back to the
+    last whole row and raises; the rows of that call are not written (never half, never
+    twice). ``file``: the open file (binary, unbuffered) the rows are written to."""
 
     def __init__(self, path: Path, columns: list[str]) -> None:
         self.path = path
         self.columns = list(columns)
         self._fmt = csv_row_format(len(columns))
-        new = not path.exists() or path.stat().st_size == 0
-        self._file = open(path, "a", encoding="ascii")  # noqa: SIM115 - kept open
-        if new:
-            self._file.write(",".join(columns) + "\n")
-            self._file.flush()
+        self.file = open(path, "ab", buffering=0)  # noqa: SIM115 - kept open
+        self._size = self.file.seek(0, os.SEEK_END)  # the bytes of whole rows
         self.rows_written = 0
+        if self._size == 0:
+            self._write(",".join(columns) + "\n")
 
     def append(self, rows: np.ndarray) -> None:
+        """Write ``rows`` whole, or none of them (OSError, the file as it was)."""
         if len(rows):
-            self._file.write("".join(self._fmt % row for row in map(tuple, rows.tolist())))
+            self._write("".join(self._fmt % row for row in map(tuple, rows.tolist())))
             self.rows_written += len(rows)
-        self._file.flush()
+
+    def _write(self, text: str) -> None:
+        data = memoryview(text.encode("ascii"))
+        done = 0
+        try:
+            while done < len(data):
+                done += self.file.write(data[done:]) or 0
+        except OSError:
+            try:  # back to the last whole row (appends go on from there)
+                os.ftruncate(self.file.fileno(), self._size)
+            except OSError:
+                pass
+            raise
+        self._size += len(data)
 
     def close(self) -> None:
-        if self._file.closed:
+        if self.file.closed:
             return
-        self._file.flush()
         try:
-            os.fsync(self._file.fileno())
+            os.fsync(self.file.fileno())
         except OSError:
             pass
-        self._file.close()
+        try:
+            self.file.close()
+        except OSError:
+            pass
 
 
 def read_telemetry(path: Path) -> tuple[list[str], np.ndarray]:
@@ -275,6 +335,7 @@ class RunStore:
         slug = re.sub(r"[^a-z0-9-]+", "-", scenario.lower()).strip("-")[:60] or "run"
         stamp = started.strftime("%Y%m%dT%H%M%S") + f"{started.microsecond // 1000:03d}Z"
         run_id, k = f"{stamp}-{slug}", 1
+        self.root.mkdir(parents=True, exist_ok=True)  # (again, if it was deleted meanwhile)
         while True:
             try:
                 (self.root / run_id).mkdir()
@@ -283,13 +344,17 @@ class RunStore:
                 k += 1
                 run_id = f"{stamp}-{slug}-{k}"
         folder = self.root / run_id
-        _write_json_atomic(folder / "config.json",
-                           {"scenario": scenario, "mode": mode, "config": config})
-        _write_json_atomic(folder / RUN_FILE, {
-            "id": run_id, "scenario": scenario, "mode": mode, "seed": seed,
-            "started_at": started.isoformat(timespec="milliseconds"), "ended_at": None,
-            "duration_s": None, "status": "running", "reason": None,
-            "server_pid": os.getpid(), "headline": {}, **facts})
+        try:
+            _write_json_atomic(folder / "config.json",
+                               {"scenario": scenario, "mode": mode, "config": config})
+            _write_json_atomic(folder / RUN_FILE, {
+                "id": run_id, "scenario": scenario, "mode": mode, "seed": seed,
+                "started_at": started.isoformat(timespec="milliseconds"), "ended_at": None,
+                "duration_s": None, "status": "running", "reason": None,
+                "server_pid": os.getpid(), "headline": {}, **facts})
+        except OSError:  # (a full disk): no folder without its record
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
         self.prune(keep={run_id})
         return run_id
 
@@ -303,7 +368,9 @@ class RunStore:
     def update(self, run_id: str, **fields) -> dict:
         """run.json of ``run_id`` with ``fields`` changed; the new record."""
         folder = self.folder(run_id)
-        record = _read_json(folder / RUN_FILE) or {"id": run_id}
+        record = _read_json(folder / RUN_FILE)
+        if not isinstance(record, dict):  # (a run.json spoiled by hand)
+            record = {"id": run_id}
         record.update(fields)
         _write_json_atomic(folder / RUN_FILE, record)
         return record
@@ -315,7 +382,7 @@ class RunStore:
         folder = self.folder(run_id)
         _write_json_atomic(folder / "metrics.json", metrics)
         try:
-            (folder / "summary.txt").write_text(run_summary(json_safe(metrics)) + "\n")
+            _write_text_atomic(folder / "summary.txt", run_summary(json_safe(metrics)) + "\n")
         except (KeyError, TypeError, ValueError):  # a partial record: the summary can wait
             pass
         return self.update(run_id, status=status, reason=reason,
@@ -326,18 +393,29 @@ class RunStore:
 
     def ids(self) -> list[str]:
         """Every run's id, oldest first (ids sort by start time)."""
-        return sorted(p.name for p in self.root.iterdir()
-                      if RUN_ID.fullmatch(p.name) and (p / RUN_FILE).is_file())
+        try:
+            names = [p.name for p in self.root.iterdir()]
+        except (FileNotFoundError, NotADirectoryError):  # deleted: no runs (until the next)
+            return []
+        return sorted(n for n in names
+                      if RUN_ID.fullmatch(n) and (self.root / n / RUN_FILE).is_file())
 
     def runs(self) -> list[dict]:
         """Each run's run.json, newest first, with ``replay``: whether its replay.html is
-        kept."""
+        kept. A run.json that is not a run's record is left out, with a warning naming
+        it (logged)."""
         out = []
         for run_id in reversed(self.ids()):
             record = _read_json(self.root / run_id / RUN_FILE)
-            if record is not None:
-                out.append({**record, "id": run_id,
-                            "replay": (self.root / run_id / REPLAY_FILE).is_file()})
+            if record is None:
+                continue
+            try:
+                check_record(record, run_id)
+            except BadRecord as err:
+                log.warning("%s; left out of the runs list", err)
+                continue
+            out.append({**record, "id": run_id,
+                        "replay": (self.root / run_id / REPLAY_FILE).is_file()})
         return out
 
     def files(self, run_id: str) -> list[str]:
@@ -350,7 +428,7 @@ class RunStore:
     def run(self, run_id: str) -> dict:
         """run.json of ``run_id`` with its ``metrics`` (None before it ended) and ``files``."""
         folder = self.folder(run_id)
-        record = _read_json(folder / RUN_FILE) or {}
+        record = check_record(_read_json(folder / RUN_FILE) or {}, run_id)
         return {**record, "id": run_id, "metrics": _read_json(folder / "metrics.json"),
                 "config": _read_json(folder / "config.json"),
                 "files": self.files(run_id)}
