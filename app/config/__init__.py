@@ -727,7 +727,8 @@ class UncertaintyConfig(_Model):
     """Replicates of the pre-flight's forecast (200: its sd known to about ±5 %). Its draws
     are the configuration's, the same for every seed, so its sampling error is not averaged
     out over a campaign: with 60 (±9 %) the rigid collision's forecast read 0.113 where
-    600 give 0.099 (benchmarks/README.md, "Why the rigid forecast was high")."""
+    600 give 0.099 (benchmarks/README.md, "The forecast's own sampling error, and the
+    spread over 200 seeds")."""
     lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.15
     """How long before the ideal run's first touch the snapshot is taken: the approach
     speed (read 50 ms before the first touch) and the contact gate's opening must be in
