@@ -48,7 +48,6 @@ away from its posture (measured in tests/test_rail.py).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -56,7 +55,7 @@ from numba import njit
 
 from app.config import RailConfig, VfdmConfig
 from app.sim.ur10e import end_frame, fk_joints, jacobian_at
-from app.sim.vfdm import joint_space_inertia, virtual_arm
+from app.sim.vfdm import cholesky_solve, joint_space_inertia, virtual_arm
 
 __all__ = [
     "N_CHAIN",
@@ -173,31 +172,6 @@ def chain_inertia(R, p, axis, mass, lever, Icom, armature, rail_mass, H, work):
 
 
 @njit(cache=True, fastmath=False)
-def cholesky_solve_n(H, b, x, L, y):
-    """x := H⁻¹ b for a symmetric positive definite n x n H (H = L Lᵀ; L, y scratch)."""
-    n = H.shape[0]
-    for i in range(n):
-        for k in range(i + 1):
-            s = H[i, k]
-            for m in range(k):
-                s -= L[i, m] * L[k, m]
-            if i == k:
-                L[i, i] = math.sqrt(s)
-            else:
-                L[i, k] = s / L[k, k]
-    for i in range(n):
-        s = b[i]
-        for m in range(i):
-            s -= L[i, m] * y[m]
-        y[i] = s / L[i, i]
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for m in range(i + 1, n):
-            s -= L[m, i] * x[m]
-        x[i] = s / L[i, i]
-
-
-@njit(cache=True, fastmath=False)
 def _det6(A):
     """det of a 6x6 matrix (A is overwritten): Gaussian elimination, partial pivoting."""
     d = 1.0
@@ -289,7 +263,7 @@ def _chain_acceleration(q, tau, axis, pR, pp, mass, lever, Icom, tR, tp, armatur
     J = np.empty((6, 7))
     chain_frames(q, axis, pR, pp, tR, tp, R, p, T)
     chain_inertia(R, p, axis, mass, lever, Icom, armature, rail_mass, H, np.empty((14, 3)))
-    cholesky_solve_n(H, tau, qdd, np.zeros((7, 7)), np.empty(7))
+    cholesky_solve(H, tau, qdd, np.zeros((7, 7)), np.empty(7))
     chain_jacobian_at(R, p, T[:3, 3], axis, J)
     add_posture_acceleration(q, H, J, posture, stiffness, qdd, np.empty(7), np.empty((6, 6)))
 

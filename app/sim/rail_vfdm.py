@@ -35,13 +35,18 @@ from app.sim.rail import (
     chain_inertia,
     chain_jacobian_at,
     chain_tcp_pose,
-    cholesky_solve_n,
     null_vector_of,
     rail_arm,
     rail_axis_B,
 )
 from app.sim.ur10e import POSITION_LIMIT_RAD
-from app.sim.vfdm import UR10E_LIMITS_500HZ, JointLimits, clamped_pose_error, target_feedforward
+from app.sim.vfdm import (
+    UR10E_LIMITS_500HZ,
+    JointLimits,
+    cholesky_solve,
+    clamped_pose_error,
+    target_feedforward,
+)
 
 __all__ = ["RailVfdm", "chain_limit_step", "rail_vfdm_steps"]
 
@@ -77,7 +82,7 @@ def rail_vfdm_steps(q, qd, last_e, Rt, pt, iterations, axis, pR, pp, mass, lever
                 t += J[a, i] * (kp[a] * e[a] + ff[a])
             tau[i] = t
         chain_inertia(R, p, axis, mass, lever, Icom, armature, rail_mass, H, work)
-        cholesky_solve_n(H, tau, qdd, L, y)
+        cholesky_solve(H, tau, qdd, L, y)
         add_posture_acceleration(q, H, J, posture, stiffness, qdd, nv, M)
         for i in range(n):
             qd[i] = (qd[i] + h * qdd[i]) * keep

@@ -254,9 +254,10 @@ def joint_space_inertia(R, p, mass, lever, Icom, H, work):
 
 @njit(cache=True, fastmath=False, inline="always")
 def cholesky_solve(H, b, x, L, y):
-    """x := H⁻¹ b for a symmetric positive definite 6x6 H (H = L Lᵀ, two triangular solves;
-    L (6, 6) and y (6,) are scratch arrays, L's upper triangle is never read)."""
-    n = 6
+    """x := H⁻¹ b for a symmetric positive definite n x n H (H = L Lᵀ, two triangular
+    solves; n = 6 for the arm, 7 with its rail: app/sim/rail.py; L (n, n) and y (n,) are
+    scratch arrays, L's upper triangle is never read)."""
+    n = H.shape[0]
     for i in range(n):
         for k in range(i + 1):
             s = H[i, k]
