@@ -38,6 +38,11 @@ MISTAKES = {
     "one replicate": (["run", "collision", "--set", "uncertainty.replicates=1"],
                       "uncertainty.replicates: must be 2 or more (a standard deviation needs "
                       "two replicates), got 1"),
+    "uncertainty keys while off": (["run", "collision", "--set", "uncertainty.enabled=false",
+                                    "--set", "uncertainty.replicates=8"],
+                                   "uncertainty: replicates is set but enabled is false: it "
+                                   "would have no effect (set enabled = true, or leave it "
+                                   "out)"),
 }
 
 

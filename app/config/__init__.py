@@ -709,6 +709,14 @@ def _two_or_more(n: int) -> int:
     return n
 
 
+UNCERTAINTY_REPLICATES = 30
+"""[uncertainty] replicates when not given."""
+UNCERTAINTY_FORECAST_REPLICATES = 200
+"""[uncertainty] forecast_replicates when not given."""
+UNCERTAINTY_LEAD_S = 0.15
+"""[uncertainty] lead_s when not given."""
+
+
 class UncertaintyConfig(_Model):
     """The restitution's uncertainty (app/runs/uncertainty.py; docs/fidelity-uncertainty.md).
 
@@ -717,22 +725,54 @@ class UncertaintyConfig(_Model):
     through the same loop, each with fresh sensor noise of the covariance measured at the
     start-up calibration; their spread is the restitution's standard deviation. The
     pre-flight forecasts it the same way on a noise-free twin, with the configured noise.
+    The other settings only with ``enabled`` (with it off they would have no effect).
     """
 
     enabled: StrictBool = True
     """Report the restitution's 95 % interval and the pre-flight's forecast."""
-    replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 30
-    """Replicates of a run's contact window (the sd of 30 is known to about ±13 %)."""
-    forecast_replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] = 200
-    """Replicates of the pre-flight's forecast (200: its sd known to about ±5 %). Its draws
-    are the configuration's, the same for every seed, so its sampling error is not averaged
-    out over a campaign: with 60 (±9 %) the rigid collision's forecast read 0.113 where
-    600 give 0.099 (benchmarks/README.md, "The forecast's own sampling error, and the
-    spread over 200 seeds")."""
-    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] = 0.15
-    """How long before the ideal run's first touch the snapshot is taken: the approach
-    speed (read 50 ms before the first touch) and the contact gate's opening must be in
-    the replicated window."""
+    replicates: Annotated[int, AfterValidator(_two_or_more), Field(le=1000)] | None = None
+    """Replicates of a run's contact window (None: 30; the sd of 30 is known to about
+    ±13 %)."""
+    forecast_replicates: Annotated[int, AfterValidator(_two_or_more),
+                                   Field(le=1000)] | None = None
+    """Replicates of the pre-flight's forecast (None: 200, its sd known to about ±5 %). Its
+    draws are the configuration's, the same for every seed, so its sampling error is not
+    averaged out over a campaign: with 60 (±9 %) the rigid collision's forecast read 0.113
+    where 600 give 0.099 (benchmarks/README.md, "The forecast's own sampling error, and
+    the spread over 200 seeds")."""
+    lead_s: Annotated[float, AfterValidator(_finite), Field(ge=0.1, le=5.0)] | None = None
+    """How long before the ideal run's first touch the snapshot is taken (None: 0.15 s):
+    the approach speed (read 50 ms before the first touch) and the contact gate's opening
+    must be in the replicated window. A lead longer than the time to the first touch
+    takes the snapshot at t = 0, with a warning in the run's metrics naming the lead
+    used."""
+
+    @model_validator(mode="after")
+    def _settings_need_enabled(self) -> UncertaintyConfig:
+        given = [key for key in ("replicates", "forecast_replicates", "lead_s")
+                 if getattr(self, key) is not None]
+        if given and not self.enabled:
+            one = len(given) == 1
+            raise ValueError(f"{', '.join(given)} {'is' if one else 'are'} set but enabled "
+                             f"is false: {'it' if one else 'they'} would have no effect "
+                             f"(set enabled = true, or leave {'it' if one else 'them'} out)")
+        return self
+
+    @property
+    def run_replicates(self) -> int:
+        """``replicates``, or its default."""
+        return UNCERTAINTY_REPLICATES if self.replicates is None else self.replicates
+
+    @property
+    def forecast_count(self) -> int:
+        """``forecast_replicates``, or its default."""
+        return (UNCERTAINTY_FORECAST_REPLICATES if self.forecast_replicates is None
+                else self.forecast_replicates)
+
+    @property
+    def snapshot_lead_s(self) -> float:
+        """``lead_s``, or its default."""
+        return UNCERTAINTY_LEAD_S if self.lead_s is None else self.lead_s
 
 
 class PassivityConfig(_Model):

@@ -32,9 +32,9 @@ from app.runs.metrics import collision_metrics
 from app.sim.loop import Emulator, StartPoseError
 from app.sim.rotations import skew
 
-__all__ = ["SensorNoise", "configured_noise", "forecast", "measured_noise", "replicate",
-           "restitution_spread", "run_interval", "sd_standard_error", "snapshot_time_s",
-           "spread_of_run"]
+__all__ = ["SensorNoise", "configured_noise", "forecast", "lead_warning", "measured_noise",
+           "replicate", "restitution_spread", "run_interval", "sd_standard_error",
+           "snapshot_time_s", "spread_of_run"]
 
 QUIET_S = 0.05
 """A contact ends once the bodies have been apart this long (app/runs/metrics.py)."""
@@ -95,10 +95,23 @@ def expect_measured_noise(em: Emulator, noise: list[SensorNoise]) -> None:
 
 def snapshot_time_s(config: EmulatorConfig, ideal: dict | None) -> float | None:
     """When a hil run keeps its snapshot: ``[uncertainty] lead_s`` before the ideal run's
-    first touch (None without one, or with ``enabled`` off)."""
+    first touch (None without one, or with ``enabled`` off). Negative where the lead is
+    longer than the time to the touch: the loop then keeps it at its first cycle, t = 0,
+    and the run's metrics say so (:func:`lead_warning`)."""
     if not config.uncertainty.enabled or not ideal or ideal.get("contact_start_s") is None:
         return None
-    return max(0.0, float(ideal["contact_start_s"]) - config.uncertainty.lead_s)
+    return float(ideal["contact_start_s"]) - config.uncertainty.snapshot_lead_s
+
+
+def lead_warning(config: EmulatorConfig, at_s: float | None) -> str | None:
+    """The warning for a snapshot time ``at_s`` (:func:`snapshot_time_s`) before t = 0,
+    naming the lead asked for and the lead used; None for none."""
+    if at_s is None or at_s >= 0.0:
+        return None
+    lead = config.uncertainty.snapshot_lead_s
+    return (f"uncertainty.lead_s = {lead:g} s would put the snapshot at t = {at_s:.3f} s, "
+            f"before the run starts: it was taken at t = 0, {lead + at_s:.3f} s before the "
+            f"ideal run's first touch")
 
 
 def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
@@ -201,6 +214,9 @@ def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
         return
     coll["restitution_sd"] = coll["restitution_interval_95"] = None
     coll["uncertainty"] = None
+    early = lead_warning(em.config, em.snapshot_at_s)
+    if early and early not in coll["warnings"]:
+        coll["warnings"].append(early)
     noise = measured_noise(em)
     snap = em.snapshot
     if snap is None or noise is None or coll.get("restitution") is None:
@@ -215,7 +231,7 @@ def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
     until_s = min(max(em.t_s, em.config.loop.duration_s),
                   coll["window_s"][1] + 0.5 + 2 * coll["contact_duration_s"])
     cfg = em.config.uncertainty
-    spread = restitution_spread(snap, pair, until_s, noise, cfg.replicates,
+    spread = restitution_spread(snap, pair, until_s, noise, cfg.run_replicates,
                                 _rng(em.config, 1), tick)
     sd, e = spread["restitution_sd"], coll["restitution"]
     coll["restitution_sd"] = sd
@@ -260,13 +276,15 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
            "restitution_error_mean": None,
            "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
-           "replicates": config.uncertainty.forecast_replicates}
+           "replicates": config.uncertainty.forecast_count}
     twin = Emulator(quiet, mode="hil")
     try:
         twin.prepare()
     except StartPoseError as err:  # the run itself will say so, and stop there
         out["note"] = f"the noise-free twin could not start: {err}"
         return out
+    if lead_warning(config, at_s):
+        out["note"] = lead_warning(config, at_s)
     noise = configured_noise(config)
     expect_measured_noise(twin, noise)
     while twin.status == "running" and twin.t_s < at_s - 1e-9:
@@ -279,7 +297,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
     snap = twin.copy_state()
     spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
-                                noise, config.uncertainty.forecast_replicates, _rng(config, 2))
+                                noise, config.uncertainty.forecast_count, _rng(config, 2))
     out["restitution_sd"] = spread["restitution_sd"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
     got = [e for e in spread["restitutions"] if e is not None]

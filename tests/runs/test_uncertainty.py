@@ -8,10 +8,11 @@ import copy
 import numpy as np
 import pytest
 
-from app.config import ConfigError, assignment_override, merge_overrides
+from app.config import ConfigError, EmulatorConfig, assignment_override, merge_overrides
 from app.runs.headless import checked_reference, headless_config, run_scenario
 from app.runs.uncertainty import (
     Z95,
+    forecast,
     measured_noise,
     replicate,
     sd_standard_error,
@@ -46,7 +47,7 @@ def test_a_replicate_with_the_runs_own_noise_is_the_run_itself(reference):
     em.snapshot_at_s = snapshot_time_s(config, reference)
     em.run(config.loop.duration_s)
     snap = em.snapshot
-    lead_s = config.uncertainty.lead_s
+    lead_s = config.uncertainty.snapshot_lead_s
     assert snap is not None and snap.t_s == pytest.approx(
         reference["contact_start_s"] - lead_s, abs=em.dt_s)
     kept = copy.deepcopy(snap.ods.y)
@@ -152,6 +153,42 @@ def test_bad_settings_are_refused_by_name(key, value, message):
     with pytest.raises(ConfigError) as err:
         merge_overrides(load_scenario("collision"), {"uncertainty": {key: value}})
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize("keys, message", [
+    ({"replicates": 8}, "uncertainty: replicates is set but enabled is false: it would have "
+                        "no effect (set enabled = true, or leave it out)"),
+    ({"forecast_replicates": 8, "lead_s": 0.2},
+     "uncertainty: forecast_replicates, lead_s are set but enabled is false: they would "
+     "have no effect (set enabled = true, or leave them out)"),
+])
+def test_settings_with_the_uncertainty_off_are_refused_by_name(keys, message):
+    """With ``enabled`` off the other keys change nothing: giving them is a mistake; a
+    configuration that leaves them out survives a round trip through config.json and a
+    further patch."""
+    with pytest.raises(ConfigError) as err:
+        merge_overrides(load_scenario("collision"), {"uncertainty": {"enabled": False, **keys}})
+    assert message in str(err.value)
+    off = merge_overrides(load_scenario("collision"), {"uncertainty": {"enabled": False}})
+    again = merge_overrides(EmulatorConfig.model_validate(off.model_dump(mode="json")),
+                            {"loop": {"seed": 3}})
+    assert not again.uncertainty.enabled and again.uncertainty.replicates is None
+
+
+def test_a_lead_before_the_start_is_named_with_the_lead_used(reference):
+    """A lead longer than the time to the first touch: the snapshot is the first cycle's,
+    and the run's metrics and the forecast say which lead was used."""
+    config = short_collision("uncertainty.lead_s=1.0", "uncertainty.replicates=2",
+                             "uncertainty.forecast_replicates=2")
+    touch_s = reference["contact_start_s"]
+    message = (f"uncertainty.lead_s = 1 s would put the snapshot at t = {touch_s - 1:.3f} s, "
+               f"before the run starts: it was taken at t = 0, {touch_s:.3f} s before the "
+               f"ideal run's first touch")
+    result = run_scenario(config, ideal=reference, preflight_done=True)
+    coll = result.metrics["collision"]
+    assert message in coll["warnings"]
+    assert result.emulator.snapshot.t_s == 0.0 and coll["restitution_sd"] is not None
+    assert forecast(config, reference)["note"] == message
 
 
 def test_the_forecasts_twin_gets_the_noise_its_calibration_would_measure():
