@@ -422,7 +422,10 @@ METRIC_MEANINGS = {
     "collision.restitution_error": "(e − e_ideal) / e_ideal",
     "collision.true_impulse_ratio": "|J_true| / |J_true,ideal| per satellite",
     "collision.restitution_sd": "the restitution's standard deviation from the noise",
-    "collision.restitution_interval_95": "the 95 % interval of e",
+    "collision.restitution_interval_95": "the 95 % interval of e (the noise's, widened by "
+    "the systematic error on the ideal's side)",
+    "collision.restitution_systematic": "the chain's systematic error on this contact, "
+    "e_twin − e_ideal (the forecast's noise-free twin)",
     "collision.uncertainty": "how the interval was obtained (replicates, method)",
     "collision_forecast.restitution_sd": "forecast standard deviation of e",
     "collision_forecast.restitution_sd_se": "the forecast sd's own sampling error (its "
@@ -444,6 +447,9 @@ METRIC_MEANINGS = {
     "collision_forecast.replicates": "replicates the forecast ran",
     "collision_forecast.replicates_with_restitution": "those that measured an e",
     "collision_forecast.note": "what limits the forecast, in words",
+    "collision_forecast.restitution_noise_free": "e of the noise-free twin's contact",
+    "collision_forecast.restitution_systematic": "that minus the ideal e: the chain's "
+    "systematic error",
     "cycle_time_us.p50": "median cycle time", "cycle_time_us.p99": "99th percentile cycle time",
     "safety_stop.robot": "the arm that stopped", "safety_stop.t_s": "when it stopped",
     "safety_stop.reason": "why (e.g. \"joint 3 speed limit\")",

@@ -562,7 +562,7 @@ def add_forecast(folder: Path) -> None:
     it, added to its metrics.json, summary.txt and ideal.json."""
     from app.runs.headless import headless_config
     from app.runs.report import run_summary
-    from app.runs.uncertainty import forecast
+    from app.runs.uncertainty import add_systematic, forecast
 
     ideal_path, metrics_path = folder / "ideal.json", folder / "metrics.json"
     if not ideal_path.is_file() or not metrics_path.is_file():
@@ -579,6 +579,7 @@ def add_forecast(folder: Path) -> None:
     ideal["forecast"] = forecast(config, ideal)
     metrics = json.loads(metrics_path.read_text())
     metrics["collision_forecast"] = ideal["forecast"]
+    add_systematic(metrics.get("collision"), ideal["forecast"])
     write_json(ideal_path, ideal)
     write_json(metrics_path, metrics)
     try:

@@ -6,6 +6,7 @@ request changes nothing.
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 import time
@@ -220,6 +221,8 @@ class EmulatorService:
         fault = self.runner.fault()
         if fault is not None:
             snap.update(status="fault", reason=fault)
+        if snap.get("interval"):
+            snap["interval"] = self._with_systematic(snap)
         course = self._course_warnings(snap)
         unrecorded = None if self.recorder is None else self.recorder.warning()
         if unrecorded is not None:  # (a full disk, a runs folder gone or unwritable)
@@ -227,6 +230,19 @@ class EmulatorService:
         if course:
             snap["warnings"] = [*snap.get("warnings", []), *course]
         return snap
+
+    def _with_systematic(self, snap: dict) -> dict:
+        """The loop's interval of the run of ``snap`` widened by the chain's systematic
+        error from its forecast (app.runs.uncertainty.add_systematic; the noise's alone
+        while the forecast is not known), as /api/metrics has it."""
+        from app.runs.uncertainty import add_systematic
+
+        ring, reference = self._reference
+        forecast = (reference or {}).get("forecast") \
+            if ring is not None and ring is self.runner.ring_of(snap) else None
+        interval = copy.deepcopy(snap["interval"])
+        add_systematic(interval, forecast)
+        return interval
 
     def _course_warnings(self, state: dict) -> list[str]:
         """A warning per carried satellite of a running hil run whose force-free course
@@ -786,7 +802,10 @@ class EmulatorService:
         if interval and coll and coll["pair"] == interval["pair"] \
                 and coll["restitution"] == interval["restitution"]:  # the loop's, after the run
             for key in ("restitution_sd", "restitution_interval_95", "uncertainty"):
-                coll[key] = interval[key]
+                coll[key] = copy.deepcopy(interval[key])
+            from app.runs.uncertainty import add_systematic
+
+            add_systematic(coll, metrics.get("collision_forecast"))
         return metrics
 
     def run_archive(self) -> Path:

@@ -16,7 +16,7 @@ from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
 from app.runs.preflight import preflight
 from app.runs.report import write_json, write_telemetry_csv
-from app.runs.uncertainty import forecast, snapshot_time_s, spread_of_run
+from app.runs.uncertainty import add_systematic, forecast, snapshot_time_s, spread_of_run
 from app.sim.loop import Emulator
 
 
@@ -143,8 +143,10 @@ def _add_uncertainty(em: Emulator, metrics: dict) -> None:
         return
     try:
         spread_of_run(em, coll)
+        add_systematic(coll, metrics.get("collision_forecast"))
     except Exception as err:  # noqa: BLE001 - the run's record matters more
         coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
+        coll["restitution_systematic"] = None
         coll["warnings"].append(f"the restitution's interval failed: {type(err).__name__}: "
                                 f"{err}")
 

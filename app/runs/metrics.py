@@ -459,6 +459,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
             coll["warnings"] += _off_normal_warnings(
                 coll, _sensor_noise(config, bool(facts.arm_of)))
             coll["restitution_sd"] = coll["restitution_interval_95"] = None  # hil: filled
+            coll["restitution_systematic"] = None
             coll["uncertainty"] = None  # by app/runs/uncertainty.py after the run
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
                 coll["warnings"].append(

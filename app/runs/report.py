@@ -247,9 +247,12 @@ def interval_text(coll: dict) -> str | None:
     holds = "" if ideal is None else (
         f"; holds the ideal {ideal:.3f}" if interval[0] <= ideal <= interval[1]
         else f"; does NOT hold the ideal {ideal:.3f}")
+    delta = coll.get("restitution_systematic")
+    chain = "" if delta is None else (
+        f", widened by the chain's systematic error {delta:+.3f} (noise-free twin)")
     return (f"restitution 95 % interval [{interval[0]:.3f}, {interval[1]:.3f}] (sd "
             f"{sd:.3f}, {how.get('replicates', '?')} replicates of the contact with the "
-            f"noise measured at calibration{holds})")
+            f"noise measured at calibration{chain}{holds})")
 
 
 def forecast_text(forecast: dict) -> str:

@@ -32,9 +32,9 @@ from app.runs.metrics import collision_metrics
 from app.sim.loop import Emulator, StartPoseError
 from app.sim.rotations import skew
 
-__all__ = ["SensorNoise", "configured_noise", "forecast", "lead_warning", "measured_noise",
-           "replicate", "restitution_spread", "run_interval", "sd_standard_error",
-           "snapshot_time_s", "spread_of_run"]
+__all__ = ["SensorNoise", "add_systematic", "configured_noise", "forecast", "lead_warning",
+           "measured_noise", "replicate", "restitution_spread", "run_interval",
+           "sd_standard_error", "snapshot_time_s", "spread_of_run"]
 
 QUIET_S = 0.05
 """A contact ends once the bodies have been apart this long (app/runs/metrics.py)."""
@@ -264,7 +264,9 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     replicates' mean and its error against the ideal: the chain's predicted bias),
     "restitution_sd_se" (the forecast's own sampling error, :func:`sd_standard_error`: its
     draws are the configuration's, the same for every seed, so this error is not averaged
-    out over seeds)}.
+    out over seeds), "restitution_noise_free" (the twin's own restitution, its contact
+    window run on without noise) and "restitution_systematic" (that against the ideal
+    restitution: the chain's systematic error on this contact, :func:`add_systematic`)}.
     """
     at_s = snapshot_time_s(config, ideal)
     if at_s is None or not config.robots or ideal.get("restitution") is None:
@@ -273,7 +275,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
                                      "loop": {"telemetry_capacity": 100}})
     sigma = config.sensor.noise_force_N
     out = {"restitution_sd": None, "restitution_sd_se": None, "restitution_mean": None,
-           "restitution_error_mean": None,
+           "restitution_error_mean": None, "restitution_noise_free": None,
+           "restitution_systematic": None,
            "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
            "replicates": config.uncertainty.forecast_count}
@@ -296,6 +299,11 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     pair = tuple(int(p[3:]) for p in ideal["pair"])
     until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
     snap = twin.copy_state()
+    quiet_coll = replicate(snap, pair, min(until_s, config.loop.duration_s))
+    if quiet_coll is not None and quiet_coll["restitution"] is not None:
+        out["restitution_noise_free"] = float(quiet_coll["restitution"])
+        out["restitution_systematic"] = (float(quiet_coll["restitution"])
+                                         - float(ideal["restitution"]))
     spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
                                 noise, config.uncertainty.forecast_count, _rng(config, 2))
     out["restitution_sd"] = spread["restitution_sd"]
@@ -307,6 +315,37 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
         out["restitution_mean"] = mean
         out["restitution_error_mean"] = (mean - ideal["restitution"]) / ideal["restitution"]
     return out
+
+
+def add_systematic(coll: dict | None, forecast_: dict | None) -> None:
+    """Widen a run's noise interval (in ``coll``, in place) by the chain's systematic error
+    on this contact, the forecast's ``restitution_systematic`` δ = e_twin − e_ideal (its
+    noise-free twin against the ideal run): the interval reaches δ further on the side
+    where the ideal lies,
+
+        [e − 1.96 sd − max(δ, 0),  e + 1.96 sd + max(−δ, 0)],
+
+    so that with the noise at zero (sd 0, e = e_twin) it still holds e_ideal. The run's
+    e is not corrected by δ: the twin's δ is measured without the state a noisy approach
+    leaves at the contact's start, and is a small part of the noise's spread with the
+    default sensor. ``coll["restitution_systematic"]``: δ (None without a forecast, which
+    leaves the interval the noise's alone, and ``coll["uncertainty"]`` says so)."""
+    if coll is None:
+        return
+    delta = None if not forecast_ else forecast_.get("restitution_systematic")
+    coll["restitution_systematic"] = delta
+    interval = coll.get("restitution_interval_95")
+    if interval is None:
+        return
+    if delta is None:
+        if coll.get("uncertainty") is not None:
+            coll["uncertainty"]["systematic"] = "not included (no forecast)"
+        return
+    coll["restitution_interval_95"] = [interval[0] - max(delta, 0.0),
+                                       interval[1] + max(-delta, 0.0)]
+    if coll.get("uncertainty") is not None:
+        coll["uncertainty"]["systematic"] = (
+            "the forecast's noise-free twin against the ideal run, added on the ideal's side")
 
 
 def run_interval(em: Emulator, tick=None) -> dict | None:

@@ -213,8 +213,10 @@ def test_hil_metrics_compare_the_actual_mockups_with_the_ideal_run(hil, ideal):
     # the interval (app/runs/uncertainty.py) replaced the unchecked open-loop bound
     e, sd = coll["restitution"], coll["restitution_sd"]
     assert sd > 0.0
-    assert coll["restitution_interval_95"] == pytest.approx([e - 1.959964 * sd,
-                                                             e + 1.959964 * sd])
+    delta = hil.metrics["collision_forecast"]["restitution_systematic"]
+    assert coll["restitution_systematic"] == delta  # the chain's, added on the ideal's side
+    assert coll["restitution_interval_95"] == pytest.approx(
+        [e - 1.959964 * sd - max(delta, 0.0), e + 1.959964 * sd + max(-delta, 0.0)])
     assert ref["restitution_sd"] is None and ref["restitution_interval_95"] is None  # ideal
     assert hil.metrics["collision_forecast"]["restitution_sd"] > 0.0
 

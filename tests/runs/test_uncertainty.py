@@ -88,10 +88,12 @@ def test_interval_and_forecast_match_the_spread_over_seeds(reference):
     runs = [run_scenario(merge_overrides(config, {"loop": {"seed": s}}), ideal=reference,
                          preflight_done=True).metrics["collision"] for s in range(6)]
     e = np.array([c["restitution"] for c in runs])
-    for c in runs:
+    delta = reference["forecast"]["restitution_systematic"]
+    for c in runs:  # the noise's interval, reaching the chain's systematic error further
+        assert c["restitution_systematic"] == delta
         assert c["restitution_interval_95"] == pytest.approx(
-            [c["restitution"] - Z95 * c["restitution_sd"],
-             c["restitution"] + Z95 * c["restitution_sd"]])
+            [c["restitution"] - Z95 * c["restitution_sd"] - max(delta, 0.0),
+             c["restitution"] + Z95 * c["restitution_sd"] + max(-delta, 0.0)])
         assert c["uncertainty"]["replicates_with_restitution"] == 8
     holds = sum(lo <= ei <= hi for lo, hi in (c["restitution_interval_95"] for c in runs))
     assert holds >= 5
@@ -189,6 +191,26 @@ def test_a_lead_before_the_start_is_named_with_the_lead_used(reference):
     assert message in coll["warnings"]
     assert result.emulator.snapshot.t_s == 0.0 and coll["restitution_sd"] is not None
     assert forecast(config, reference)["note"] == message
+
+
+@pytest.mark.parametrize("material", ["sponge", "rigid"])
+def test_with_the_noise_at_zero_the_interval_holds_the_ideal(material):
+    """No noise: the replicates agree (sd ~ 0), and the interval is the chain's systematic
+    error alone, the forecast's noise-free twin against the ideal run: it reaches from
+    the run's e to the ideal e (sponge vs rigid, and rigid vs rigid)."""
+    config = short_collision("sensor.noise_force_N=0", "sensor.noise_torque_Nm=0",
+                             "uncertainty.replicates=2", "uncertainty.forecast_replicates=2",
+                             f'satellites.1.material="{material}"')
+    ref = checked_reference(config, config.loop.duration_s)
+    coll = run_scenario(config, ideal=ref, preflight_done=True).metrics["collision"]
+    e, e_ideal, delta = coll["restitution"], ref["restitution"], coll["restitution_systematic"]
+    assert coll["restitution_sd"] < 1e-9
+    assert delta == pytest.approx(e - e_ideal, abs=1e-9)  # the twin is this very run
+    assert abs(delta) > 1e-4  # a point interval would miss the ideal
+    low, high = coll["restitution_interval_95"]
+    assert low <= e_ideal <= high and low <= e <= high
+    assert high - low == pytest.approx(abs(delta), abs=1e-9)
+    assert coll["uncertainty"]["systematic"].startswith("the forecast's noise-free twin")
 
 
 def test_the_forecasts_twin_gets_the_noise_its_calibration_would_measure():
