@@ -450,6 +450,8 @@ METRIC_MEANINGS = {
     "collision_forecast.restitution_noise_free": "e of the noise-free twin's contact",
     "collision_forecast.restitution_systematic": "that minus the ideal e: the chain's "
     "systematic error",
+    "collision_forecast.velocity_sd_mps": "per satellite, the sd of its velocity after the "
+    "contact (R, per axis): the pre-flight's drift check",
     "cycle_time_us.p50": "median cycle time", "cycle_time_us.p99": "99th percentile cycle time",
     "safety_stop.robot": "the arm that stopped", "safety_stop.t_s": "when it stopped",
     "safety_stop.reason": "why (e.g. \"joint 3 speed limit\")",

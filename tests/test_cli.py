@@ -38,6 +38,16 @@ MISTAKES = {
     "one replicate": (["run", "collision", "--set", "uncertainty.replicates=1"],
                       "uncertainty.replicates: must be 2 or more (a standard deviation needs "
                       "two replicates), got 1"),
+    "shoulder singularity": (["run", "collision", "--set", "loop.duration_s=12", "--set",
+                              'satellites.1.material="rigid"', "--set", "loop.seed=9001"],
+                             "pre-flight: the ideal run predicts that robot 1 (ceiling): "
+                             "satellite 'cubesat' takes the arm's wrist to 0.194 m from its "
+                             "base axis (limit 0.194 m: the shoulder is singular at 0.17415 m) "
+                             "at t = 10.47 s; robot 2 (floor): satellite 'sponge' takes the "
+                             "arm's wrist to 0.194 m from its base axis (limit 0.194 m: the "
+                             "shoulder is singular at 0.17415 m) at t = 10.47 s; and before "
+                             "any of that, at t = 3.12 s, the mockups of 'cubesat' and "
+                             "'sponge' touch (up to 11 N). The arms have not moved"),
     "uncertainty keys while off": (["run", "collision", "--set", "uncertainty.enabled=false",
                                     "--set", "uncertainty.replicates=8"],
                                    "uncertainty: replicates is set but enabled is false: it "

@@ -14,7 +14,7 @@ from app.config import EmulatorConfig, merge_overrides
 from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
 from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
-from app.runs.preflight import preflight
+from app.runs.preflight import check_drift, preflight
 from app.runs.report import write_json, write_telemetry_csv
 from app.runs.uncertainty import add_systematic, forecast, snapshot_time_s, spread_of_run
 from app.sim.loop import Emulator
@@ -70,6 +70,7 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
     reference = collision_of(prediction)  # at the run's rate (two satellites)
     if reference:  # the fidelity forecast (app/runs/uncertainty.py), in metrics.json
         reference["forecast"] = forecast(config, reference)
+        check_drift(config, prediction, reference)  # the noise's drift after the contact
     return reference
 
 

@@ -141,8 +141,13 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
             break
     em.record_final()
     bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
-    return collision_metrics(em.telemetry.rows(), em.telemetry.index, dt_s, *pair,
-                             bodies=bodies)
+    rows, index = em.telemetry.rows(), em.telemetry.index
+    coll = collision_metrics(rows, index, dt_s, *pair, bodies=bodies)
+    if coll is not None:  # the satellites' velocities (R) as the replicate ends
+        coll["velocity_after_mps"] = {
+            f"sat{s}": rows[-1, [index[f"sat{s}_v{a}_mps"] for a in "xyz"]].tolist()
+            for s in pair}
+    return coll
 
 
 def _redraw(em: Emulator, noise: list[SensorNoise], rng: np.random.Generator) -> None:
@@ -159,19 +164,27 @@ def _redraw(em: Emulator, noise: list[SensorNoise], rng: np.random.Generator) ->
 def restitution_spread(snapshot: Emulator, pair: tuple[int, int], until_s: float,
                        noise: list[SensorNoise], replicates: int,
                        rng: np.random.Generator, tick=None) -> dict:
-    """{"restitution_sd", "replicates", "replicates_with_restitution", "restitutions"}:
-    the standard deviation (ddof 1) of the replicates' restitutions (None with fewer than
-    two). ``tick``: called before each replicate (a supervisor's heartbeat)."""
-    values = []
+    """{"restitution_sd", "replicates", "replicates_with_restitution", "restitutions",
+    "velocity_sd_mps"}: the standard deviation (ddof 1) of the replicates' restitutions
+    (None with fewer than two), and per satellite of the pair of their velocities (R, per
+    axis) as they end, after the contact. ``tick``: called before each replicate (a
+    supervisor's heartbeat)."""
+    values, after = [], []
     for _ in range(replicates):
         if tick is not None:
             tick()
         coll = replicate(snapshot, pair, until_s, noise, rng)
         values.append(None if coll is None else coll["restitution"])
+        if coll is not None and coll["restitution"] is not None:
+            after.append(coll["velocity_after_mps"])
     got = [v for v in values if v is not None]
+    velocity_sd = None
+    if len(after) > 1:
+        velocity_sd = {name: np.std([a[name] for a in after], axis=0, ddof=1).tolist()
+                       for name in after[0]}
     return {"restitution_sd": float(np.std(got, ddof=1)) if len(got) > 1 else None,
             "replicates": replicates, "replicates_with_restitution": len(got),
-            "restitutions": values}
+            "restitutions": values, "velocity_sd_mps": velocity_sd}
 
 
 def sd_standard_error(values) -> float | None:
@@ -266,7 +279,10 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     draws are the configuration's, the same for every seed, so this error is not averaged
     out over seeds), "restitution_noise_free" (the twin's own restitution, its contact
     window run on without noise) and "restitution_systematic" (that against the ideal
-    restitution: the chain's systematic error on this contact, :func:`add_systematic`)}.
+    restitution: the chain's systematic error on this contact, :func:`add_systematic`),
+    "velocity_sd_mps" (per satellite of the pair, the replicates' per-axis standard
+    deviation of its velocity after the contact, R: the pre-flight's drift check,
+    app.runs.preflight.check_drift)}.
     """
     at_s = snapshot_time_s(config, ideal)
     if at_s is None or not config.robots or ideal.get("restitution") is None:
@@ -276,7 +292,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     sigma = config.sensor.noise_force_N
     out = {"restitution_sd": None, "restitution_sd_se": None, "restitution_mean": None,
            "restitution_error_mean": None, "restitution_noise_free": None,
-           "restitution_systematic": None,
+           "restitution_systematic": None, "velocity_sd_mps": None,
            "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
            "replicates": config.uncertainty.forecast_count}
@@ -307,6 +323,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
                                 noise, config.uncertainty.forecast_count, _rng(config, 2))
     out["restitution_sd"] = spread["restitution_sd"]
+    out["velocity_sd_mps"] = spread["velocity_sd_mps"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
     got = [e for e in spread["restitutions"] if e is not None]
     out["restitution_sd_se"] = sd_standard_error(got)

@@ -6,10 +6,23 @@ import math
 import numpy as np
 import pytest
 
-from app.config import merge_overrides
-from app.runs.preflight import HOLD_RADIUS_M, PreflightRefused, preflight
+from app.config import assignment_override, merge_overrides
+from app.runs.headless import collision_of, headless_config
+from app.runs.preflight import (
+    DRIFT_SIGMAS,
+    HOLD_RADIUS_M,
+    MIN_WRIST_RADIUS_M,
+    PreflightRefused,
+    check_drift,
+    predict,
+    preflight,
+    wrist_radius_m,
+)
+from app.runs.uncertainty import forecast
 from app.scenarios import load_scenario, scenario_names
-from app.sim.ur10e import SHOULDER_B_M, T_W_B_from_config
+from app.sim.loop import Emulator
+from app.sim.rotations import make_transform, quat_to_matrix
+from app.sim.ur10e import DH_D_M, SHOULDER_B_M, T_W_B_from_config, flange_pose_B
 
 
 @pytest.mark.parametrize("name", scenario_names())
@@ -140,3 +153,55 @@ def test_run_refuses_an_unreachable_variant_of_each_scenario_before_the_arms_mov
     assert "pre-flight: the ideal run predicts that" in proc.stderr, proc.stderr
     assert robot in proc.stderr and "The arms have not moved" in proc.stderr, proc.stderr
     assert not out.exists()
+
+
+def _rigid_collision(*extra: str):
+    config = load_scenario("collision")
+    for a in ['satellites.1.material="rigid"', *extra]:
+        config = merge_overrides(config, assignment_override(a))
+    return headless_config(config, config.loop.duration_s)
+
+
+def test_the_wrist_radius_from_the_course_is_the_arms_own():
+    """The wrist's distance from joint 1's axis, from a satellite's pose and the mockup's
+    mounting, is the one the arm's forward kinematics gives from its joint angles while
+    it holds that satellite (to its tracking error, here well under a millimetre)."""
+    config = _rigid_collision("loop.duration_s=0.2")
+    em = Emulator(config)
+    em.run(0.2)
+    rows, index = em.telemetry.rows(), em.telemetry.index
+    T_W_R = make_transform(quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m)
+    for k, robot in enumerate(config.robots):
+        s = config.satellite_index(robot.satellite) + 1
+        predicted = wrist_radius_m(robot, s, rows[-1:], index, T_W_R)[0]
+        q = rows[-1, [index[f"rob{k + 1}_q{j}_rad"] for j in range(1, 7)]]
+        T_B_F = flange_pose_B(q)
+        wrist = T_B_F[:3, 3] - DH_D_M[5] * T_B_F[:3, 2]
+        assert predicted == pytest.approx(np.hypot(wrist[0], wrist[1]), abs=1e-3)
+        assert predicted > MIN_WRIST_RADIUS_M
+
+
+def test_the_noise_drift_after_a_contact_is_refused_with_a_duration_that_fits():
+    """Rigid vs rigid for 10 s: the ideal course keeps the wrists clear of the shoulder
+    singularity (it reaches it at 10.47 s), but a satellite leaving the contact 3 sd
+    faster than the ideal does not: refused (as checked_reference does it), naming the
+    drift, the limit and a duration that passes with the same forecast."""
+    config = _rigid_collision("loop.duration_s=10", "uncertainty.forecast_replicates=4")
+    prediction = preflight(config, 10.0)  # the ideal course alone passes
+    reference = collision_of(prediction)
+    reference["forecast"] = forecast(config, reference)
+    with pytest.raises(PreflightRefused) as err:
+        check_drift(config, prediction, reference)
+    text = str(err.value)
+    rate = DRIFT_SIGMAS * np.linalg.norm(reference["forecast"]["velocity_sd_mps"]["sat1"])
+    assert text.startswith(f"pre-flight: after the contact (t = 3.15 s) the sensor's noise "
+                           f"scatters the satellites' velocities (the forecast: 3 sd = "
+                           f"{rate:.3g} m/s); with that drift, robot 1 (ceiling): satellite "
+                           f"'cubesat' takes the arm's wrist to ")
+    assert (f"m from its base axis (limit {MIN_WRIST_RADIUS_M:.3f} m: the shoulder is "
+            f"singular at 0.17415 m) at t = ") in text
+    said = float(text.split("loop.duration_s = ")[1].split(" ")[0])
+    assert 3.2 < said < 10.0
+    assert text.endswith(f"The arms have not moved; shorten the run (loop.duration_s = "
+                         f"{said:g} keeps it within every limit) or change the scenario")
+    check_drift(config, predict(config, said), reference)  # (the duration it names passes)
