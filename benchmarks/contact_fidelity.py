@@ -10,6 +10,7 @@
     .venv/bin/python -m benchmarks.contact_fidelity --rig-table --rig-seeds 10   # the lab's rig
     .venv/bin/python -m benchmarks.contact_fidelity --pool 200 --first-seed 7000  # vs forecast
     .venv/bin/python -m benchmarks.contact_fidelity --replicate-means 40 --first-seed 7000
+    .venv/bin/python -m benchmarks.contact_fidelity --mismatch 10 --first-seed 7000  # model
 
 Each figure is of a whole headless run (`orbit-emulator run`), measured against the ideal
 run of the same configuration (contact integrated within the ODS step: app/sim/reference.py).
@@ -36,10 +37,13 @@ Free-floating: tracking, each push's Δv against impulse × force_scale / mass, 
 spin left after the force-only pushes.
 
 ``--seeds``: the shipped collision chain over many seeds (sponge vs rigid on seeds 0-29,
-rigid vs rigid on 0-19; ``--first-seed 1000`` for the tuning seeds 1000-1029), without
-noise (one run: without noise every seed is the same run) and with the data sheet's:
-mean restitution error, its standard deviation, the worst run, the median off-normal
-share, stops; with ``--factors`` each bias factor's share: the mean error with that
+rigid vs rigid on 0-19; ``--first-seed 1000`` for the tuning seeds 1000-1029;
+``--sponge-seeds N --rigid-seeds M`` for a shorter try), without noise (one run: without
+noise every seed is the same run) and with the data sheet's, each run as the CLI runs it
+(the pre-flight's forecast, the run's interval): mean restitution error, its standard
+deviation, the worst run, the median off-normal share, how many intervals hold the ideal
+restitution, the forecast's sd against the across-seed sd, stops; with ``--factors``
+each bias factor's share (issue 28 item 7, in one run): the mean error with that
 part of the chain as it was (``FACTORS``) minus the shipped chain's, same seeds. The
 table is one function per column (``SEED_COLUMNS``), so that columns can be added. Then
 the ideal run with the chain's noise acting on the pair during the contact
@@ -174,9 +178,18 @@ FACTORS = {
     "30 Hz filter in contact": ["wrench.contact_lowpass_hz=30"],
     "tank 1 mJ": ["passivity.tank_max_J=0.001"],
     "no estimator": ["wrench.contact_estimator=false"],
+    "no pair fusion": ["wrench.fuse_pair_contact=false"],
+    "no contact gate (deadband always)": ["wrench.contact_gate=false",
+                                          "wrench.fuse_pair_contact=false",
+                                          "wrench.contact_estimator=false"],
+    "deadband without its noise floor": ["wrench.deadband_noise_sigmas=0"],
+    "no lag compensation": ["compensation.enabled=false"],
+    "no passivity layer": ["passivity.enabled=false"],
 }
-"""The parts of the chain that turned the noise or the loop's lag into a bias, each as
-it was before issue 28: what each contributes (its mean error minus the shipped one)."""
+"""The parts of the chain that turned (or may turn) the noise or the loop's lag into a
+bias, each switched off or back to what it was before issue 28: what each contributes
+(its mean error minus the shipped one). The contact gate's row also drops the fusion and
+the estimator, which need it: the deadband then applies to the contact too."""
 
 
 def seed_run(args: tuple) -> dict:
@@ -187,6 +200,24 @@ def seed_run(args: tuple) -> dict:
            if coll and any(v is not None for v in coll["off_normal_ratio"].values()) else None)
     return {"error": coll["restitution_error"] if coll else None, "off_normal": off,
             "status": run["status"]}
+
+
+def fidelity_run(args: tuple) -> dict:
+    """One run for the per-seed table, as the CLI runs it given its reference (with its
+    forecast): its error, off-normal share and status, and its interval and whether it
+    holds the ideal restitution; ``forecast_sd``: the reference's."""
+    assignments, seed, reference = args
+    run = interval_run((assignments, seed, reference))
+    coll = run.pop("collision")
+    off = None
+    if coll and any(v is not None for v in coll["off_normal_ratio"].values()):
+        off = max(v for v in coll["off_normal_ratio"].values() if v is not None)
+    ei = reference["restitution"]
+    fc = reference.get("forecast") or {}
+    return {**run, "off_normal": off,
+            "holds": None if run["interval"] is None
+            else run["interval"][0] <= ei <= run["interval"][1],
+            "forecast_sd": fc.get("restitution_sd")}
 
 
 def _errors(runs: list[dict]) -> list[float]:
@@ -220,11 +251,28 @@ def col_finished(runs: list[dict]) -> str:
     return f"{sum(r['status'] == 'finished' for r in runs)}/{len(runs)}"
 
 
+def col_coverage(runs: list[dict]) -> str:
+    held = [r.get("holds") for r in runs if r.get("holds") is not None]
+    return f"{sum(held)}/{len(held)}" if held else "—"
+
+
+def col_forecast(runs: list[dict]) -> str:
+    """The forecast's sd of e against the across-seed sd of e."""
+    e = [r["restitution"] for r in runs if r.get("restitution") is not None]
+    fc = next((r["forecast_sd"] for r in runs if r.get("forecast_sd") is not None), None)
+    if fc is None or len(e) < 2:
+        return "—" if fc is None else f"{fc:.3f} / —"
+    sd = statistics.stdev(e)
+    return f"{fc:.3f} / {sd:.3f}" + (f" = {fc / sd:.2f}" if sd > 0 else "")
+
+
 SEED_COLUMNS = {
     "mean error (SE)": col_mean,
     "sd": col_sd,
     "worst": col_worst,
     "off-normal share (median)": col_off_normal,
+    "interval holds e_ideal": col_coverage,
+    "forecast sd / sd of e across seeds": col_forecast,
     "finished": col_finished,
 }
 """The per-seed table's columns: name → function of the case's runs."""
@@ -287,27 +335,36 @@ def noisy_ideal_table(pool, first_seed: int, repeat: int = 10) -> None:
               f"{len(e)}/{len(seeds)} |", flush=True)
 
 
-def seeds_table(pool, first_seed: int, factors: bool | list[str]) -> None:
-    """The shipped chain over SEED_CASES' seeds from ``first_seed``, without noise and
-    with the data sheet's, and (``factors``) each bias factor's share."""
+def seeds_table(pool, first_seed: int, factors: bool | list[str],
+                counts: dict[str, int] | None = None) -> None:
+    """The shipped chain over SEED_CASES' seeds from ``first_seed`` (``counts``: per case,
+    another number of seeds), without noise and with the data sheet's, each run as the
+    CLI runs it (its pre-flight's forecast, its interval), and (``factors``) each bias
+    factor's share (those runs without their interval)."""
+    cases = {case: (extra, (counts or {}).get(case, n)) for case, (extra, n) in
+             SEED_CASES.items()}
     names = list(SEED_COLUMNS)
     print("| case | noise | runs | " + " | ".join(names) + " |")
     print("|---" * (len(names) + 3) + "|")
     shipped = {}
-    for case, (extra, n) in SEED_CASES.items():
+    for case, (extra, n) in cases.items():
         ideal = _ideal(extra)
         for noise, assignments in NOISES.items():
             seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
-            runs = _seed_runs(pool, extra + assignments, seeds, ideal)
+            config = configure(load_scenario("collision"), extra + assignments)
+            config = headless_config(config, config.loop.duration_s)
+            reference = checked_reference(config, config.loop.duration_s)
+            runs = pool.map(fidelity_run, [(extra + assignments, s, reference) for s in seeds])
             shipped[(case, noise)] = runs
             print(f"| {case} (e_ideal {ideal['restitution']:.3f}) | {noise} | "
                   f"{'1 (every seed alike)' if len(seeds) == 1 else len(seeds)} | "
                   + " | ".join(f(runs) for f in SEED_COLUMNS.values()) + " |", flush=True)
     if not factors:
         return
-    print("\n| case | noise | factor as it was | mean error with it | its share |")
+    print("\n| case | noise | factor switched off or as it was | mean error with it | "
+          "its share |")
     print("|---|---|---|---|---|")
-    for case, (extra, n) in SEED_CASES.items():
+    for case, (extra, n) in cases.items():
         ideal = _ideal(extra)
         for noise, assignments in NOISES.items():
             seeds = [first_seed] if noise == "no noise" else list(range(first_seed, first_seed + n))
@@ -315,7 +372,8 @@ def seeds_table(pool, first_seed: int, factors: bool | list[str]) -> None:
             for factor, change in FACTORS.items():
                 if isinstance(factors, list) and factor not in factors:
                     continue
-                runs = _seed_runs(pool, extra + assignments + change, seeds, ideal)
+                runs = _seed_runs(pool, extra + assignments + change
+                                  + ["uncertainty.enabled=false"], seeds, ideal)
                 e = _errors(runs)
                 share = (f"{100 * (statistics.fmean(e) - base):+.1f} points"
                          if e else "—")
@@ -342,6 +400,41 @@ def calibration_table(pool, seeds: list[int]) -> None:
               f"{chatter}/{len(runs)} |", flush=True)
 
 
+HERTZ_SCALE = 12.6
+"""k of the n = 1.5 law over k of the linear one: 1 / sqrt(6.3 mm), the sponge contact's
+peak depth, so that the Hertz contact peaks at about the same force and depth."""
+MISMATCHES = {
+    "as modelled (linear, as drawn, frictionless)": [],
+    "Hertz law (n = 1.5)": ["materials.sponge.exponent=1.5", "materials.rigid.exponent=1.5",
+                            f"materials.sponge.stiffness_Npm={500.0 * HERTZ_SCALE:g}",
+                            f"materials.rigid.stiffness_Npm={2.0e4 * HERTZ_SCALE:g}"],
+    "mockups 2 mm larger than drawn": ["satellites.0.size_error_m=0.002",
+                                       "satellites.1.size_error_m=0.002"],
+    "friction mu = 0.3": ["materials.sponge.friction=0.3", "materials.rigid.friction=0.3"],
+}
+"""Contacts the lab's model does not describe: the identification fits F = k d (1 + c ḋ),
+the gate and the estimator use the drawn boxes; each case is also the ideal reference
+(the physics as it is), so the error is the chain's against the real contact."""
+
+
+def mismatch_table(pool, first_seed: int, n: int) -> None:
+    """The shipped collision (sponge vs rigid, default sensor) with each MISMATCHES case:
+    mean error, sd, worst, off-normal share, interval coverage, forecast / across-seed sd
+    over seeds first_seed.. (each run as the CLI runs it)."""
+    names = list(SEED_COLUMNS)
+    seeds = list(range(first_seed, first_seed + n))
+    print(f"| contact (sponge vs rigid, seeds {seeds[0]}-{seeds[-1]}) | e_ideal | "
+          + " | ".join(names) + " |")
+    print("|---" * (len(names) + 2) + "|")
+    for case, extra in MISMATCHES.items():
+        config = configure(load_scenario("collision"), extra)
+        config = headless_config(config, config.loop.duration_s)
+        reference = checked_reference(config, config.loop.duration_s)
+        runs = pool.map(fidelity_run, [(extra, s, reference) for s in seeds])
+        print(f"| {case} | {reference['restitution']:.3f} | "
+              + " | ".join(f(runs) for f in SEED_COLUMNS.values()) + " |", flush=True)
+
+
 FEW_FORECAST = 60
 """The forecast's replicate count before issue 28's calibration follow-up (shown beside)."""
 CHECK_CASES = {"sponge vs rigid": ([], list(range(30))), "rigid vs rigid": (RIGID, list(range(20)))}
@@ -362,7 +455,7 @@ def interval_run(args: tuple) -> dict:
     return {"status": result.metrics["status"], "restitution": coll.get("restitution"),
             "error": coll.get("restitution_error"), "sd": coll.get("restitution_sd"),
             "interval": coll.get("restitution_interval_95"),
-            "wall_s": total_s - run_wall_s, "run_wall_s": run_wall_s}
+            "wall_s": total_s - run_wall_s, "run_wall_s": run_wall_s, "collision": coll}
 
 
 def calibration_check(pool, cases: dict = CHECK_CASES, assignments: list[str] = ()) -> list[str]:
@@ -788,6 +881,14 @@ def main() -> None:
                         help="with --seeds: each bias factor's share")
     parser.add_argument("--factor", action="append", choices=list(FACTORS),
                         help="with --seeds --factors: only these factors (repeatable)")
+    parser.add_argument("--mismatch", type=int, metavar="SEEDS", default=None,
+                        help="instead: the collision with contacts the lab's model does not "
+                             "describe (Hertz law, mockups larger than drawn, friction), "
+                             "SEEDS seeds from --first-seed")
+    parser.add_argument("--sponge-seeds", type=int, default=None, metavar="N",
+                        help="with --seeds: N sponge seeds instead of 30 (a shorter try)")
+    parser.add_argument("--rigid-seeds", type=int, default=None, metavar="N",
+                        help="with --seeds: N rigid seeds instead of 20")
     parser.add_argument("--no-perfect-emulator", action="store_true",
                         help="with --seeds: skip the perfect emulator + noise table")
     parser.add_argument("--pool", type=int, metavar="SEEDS", default=None,
@@ -819,10 +920,17 @@ def main() -> None:
                          for case, (extra, seeds) in CHECK_CASES.items()}
                 calibration_check(pool, cases, assignments=args.set)
             else:
+                counts = {case: n for case, n in (("sponge vs rigid", args.sponge_seeds),
+                                                  ("rigid vs rigid", args.rigid_seeds))
+                          if n is not None}
                 seeds_table(pool, args.first_seed,
-                            (args.factor or True) if args.factors else False)
+                            (args.factor or True) if args.factors else False, counts)
                 if not args.no_perfect_emulator:
                     noisy_ideal_table(pool, args.first_seed)
+            print(f"\n({time.perf_counter() - t0:.0f} s)")
+            return
+        if args.mismatch:
+            mismatch_table(pool, args.first_seed, args.mismatch)
             print(f"\n({time.perf_counter() - t0:.0f} s)")
             return
         if args.replicate_means:

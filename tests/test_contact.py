@@ -142,3 +142,45 @@ def test_two_body_collision_momentum_impulse_and_restitution(mat_a, mat_b, e_lo,
     np.testing.assert_allclose(m * (v1 - v0), impulse[:, 0], rtol=1e-9)
     e = (v1[1] - v1[0]) / (v0[0] - v0[1])
     assert e_lo < e < e_hi
+
+
+def test_an_undamped_hertz_impact_is_elastic_and_lasts_its_closed_form():
+    """F = k d^1.5 without damping (Hertz): the ideal collision returns the satellites at
+    their approach speed (e = 1) after the closed-form duration of a Hertz impact,
+    T = 2.9432 δ_max / v₀ with δ_max = (5 m v₀² / (4 k))^(2/5), m the reduced mass
+    (Johnson, Contact Mechanics §11.4); the linear law's would be π sqrt(m / k), 40 ms."""
+    from app.config import merge_overrides
+    from app.runs.headless import ideal_collision
+    from app.scenarios import load_scenario
+
+    hertz = {"stiffness_Npm": 6300.0, "damping_spm": 0.0, "exponent": 1.5}
+    config = merge_overrides(load_scenario("collision"),
+                             {"materials": {"sponge": hertz, "rigid": hertz}})
+    coll = ideal_collision(config, 4.0)
+    k = 6300.0 / 2.0  # two equal surfaces in series
+    v0 = coll["approach_speed_mps"]
+    t_exact = 2.9432 * (5.0 * 0.5 * v0**2 / (4.0 * k)) ** 0.4 / v0
+    assert coll["restitution"] == pytest.approx(1.0, abs=2e-3)
+    assert coll["contact_duration_s"] == pytest.approx(t_exact, abs=0.003)
+    assert hunt_crossley_force(0.004, 0.1, 6300.0, 2.0, 1.5) == pytest.approx(
+        6300.0 * 0.004**1.5 * 1.2)
+
+
+def test_mockups_built_larger_than_drawn_touch_earlier_and_the_lab_keeps_the_drawing():
+    """Each mockup 2 mm larger than its drawing: the physics' boxes touch 2 mm of approach
+    (2 mm / v₀) before the drawn ones would, while the lab's geometry stays the drawing."""
+    from app.config import merge_overrides
+    from app.runs.headless import ideal_collision
+    from app.scenarios import load_scenario
+    from app.sim.loop import Emulator
+
+    base = load_scenario("collision")
+    grown = merge_overrides(base, {"satellites": {"0": {"size_error_m": 0.002},
+                                                  "1": {"size_error_m": 0.002}}})
+    drawn, built = ideal_collision(base, 4.0), ideal_collision(grown, 4.0)
+    early_s = drawn["contact_start_s"] - built["contact_start_s"]
+    assert early_s == pytest.approx(0.002 / drawn["approach_speed_mps"], abs=0.002)
+    em = Emulator(grown)
+    assert em.interaction.contact._sizes_m[0] == pytest.approx((0.202, 0.202, 0.102))
+    assert em.lab_geometry._sizes_m[0] == pytest.approx((0.2, 0.2, 0.1))
+    assert Emulator(base).lab_geometry is not None

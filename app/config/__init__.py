@@ -244,6 +244,11 @@ class SatelliteConfig(_Model):
     """The body the ODS integrates (under the paper's law: the mockup itself)."""
     size_m: PositiveVec3 = (0.2, 0.2, 0.1)
     """The mockup's box (lab metres): contact, drawing, and the default inertia."""
+    size_error_m: Annotated[float, AfterValidator(_finite), Field(ge=-0.01, le=0.01)] = 0.0
+    """How much larger along each axis the mockup as built is than ``size_m`` (negative:
+    smaller): the contact happens at the built size, while the lab's geometry (the contact
+    gate, the estimator's normal and point, the identification's depth) uses ``size_m``,
+    the drawing. 0: built as drawn."""
     inertia_kgm2: PositiveVec3 | None = None
     """Principal moments [Ixx, Iyy, Izz]; default: uniform box of mass_kg and size_m
     (times the length scale under "similarity")."""
@@ -808,6 +813,12 @@ class ContactMaterial(_Model):
     """Coulomb friction coefficient μ of the surface (0: frictionless). Two surfaces in
     contact slide with √(μ_a μ_b), regularised near zero sliding speed
     (app/sim/contact.py)."""
+    exponent: Annotated[float, AfterValidator(_finite), Field(ge=1.0, le=2.0)] = 1.0
+    """Hunt–Crossley exponent n of F = k dⁿ (1 + c ḋ) (1: the linear law the lab's
+    contact identification assumes; 1.5: Hertz's law of a sphere), ``stiffness_Npm`` then
+    in N/mⁿ. Two surfaces of different n meet with the larger (their k and c combined as
+    for n = 1). For measuring a contact the lab's model does not describe
+    (benchmarks/contact_fidelity.py --mismatch)."""
 
 
 DEFAULT_MATERIALS = {

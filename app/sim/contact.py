@@ -82,16 +82,19 @@ def coulomb_friction(normal_force_N: float, slip_W_mps: np.ndarray, mu: float) -
 
 
 def hunt_crossley_force(
-    depth_m: float, depth_rate_mps: float, stiffness_Npm: float, damping_spm: float
+    depth_m: float, depth_rate_mps: float, stiffness_Npm: float, damping_spm: float,
+    exponent: float = 1.0,
 ) -> float:
-    """Normal force (N, ≥ 0) of the law F = k d (1 + c ḋ); zero when not overlapping.
+    """Normal force (N, ≥ 0) of the law F = k dⁿ (1 + c ḋ), n = ``exponent`` (1: linear);
+    zero when not overlapping.
 
     The clamp at zero is the no-pull condition: a fast-separating contact (ḋ < −1/c)
     exerts no adhesive force.
     """
     if depth_m <= 0.0:
         return 0.0
-    return max(0.0, stiffness_Npm * depth_m * (1.0 + damping_spm * depth_rate_mps))
+    spring = depth_m if exponent == 1.0 else depth_m**exponent
+    return max(0.0, stiffness_Npm * spring * (1.0 + damping_spm * depth_rate_mps))
 
 
 @dataclass(frozen=True)
@@ -174,6 +177,8 @@ class BoxContactModel:
         self.pairs = [(min(a, b), max(a, b)) for a, b in pairs]
         self._law = {(a, b): combine_materials(materials[a], materials[b]) for a, b in self.pairs}
         self._mu = {(a, b): combine_friction(materials[a], materials[b]) for a, b in self.pairs}
+        self._exponent = {(a, b): max(materials[a].exponent, materials[b].exponent)
+                          for a, b in self.pairs}
         self.frames: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         """Per pair (a < b), the last contact frame :meth:`clearances` measured within its
         margin: (unit normal from a towards b, contact point), W; kept once they part."""
@@ -214,9 +219,13 @@ class BoxContactModel:
         cls,
         satellites: Sequence[SatelliteConfig],
         materials: Mapping[str, ContactMaterial] = DEFAULT_MATERIALS,
+        built: bool = False,
     ) -> BoxContactModel:
-        """Boxes of each satellite's size_m with its named material."""
-        return cls([s.size_m for s in satellites], [materials[s.material] for s in satellites])
+        """Boxes of each satellite's size_m with its named material; ``built``: as the
+        mockups were built, size_m + size_error_m along each axis (the physics' boxes)."""
+        sizes = [tuple(x + (s.size_error_m if built else 0.0) for x in s.size_m)
+                 for s in satellites]
+        return cls(sizes, [materials[s.material] for s in satellites])
 
     def exclude(self, a: int, b: int) -> None:
         """Bodies a and b no longer touch (they were latched together: their contact is
@@ -325,7 +334,8 @@ class BoxContactModel:
             r_a, r_b = p - T_W_C[a][:3, 3], p - T_W_C[b][:3, 3]
             v_rel = _point_velocity(v[a], w[a], r_a) - _point_velocity(v[b], w[b], r_b)
             depth_rate = float(v_rel @ n)  # > 0 while approaching
-            f_n = hunt_crossley_force(geo.depth_m, depth_rate, *self._law[(a, b)])
+            f_n = hunt_crossley_force(geo.depth_m, depth_rate, *self._law[(a, b)],
+                                      self._exponent[(a, b)])
             mu = self._mu[(a, b)]
             friction = (None if mu == 0.0
                         else coulomb_friction(f_n, v_rel - depth_rate * n, mu))

@@ -133,8 +133,12 @@ class Emulator:
         self.n_sat = len(config.satellites)
         self.hand = OperatorHand(config, self.R_W_R)
         self.interaction = PhysicalInteraction(
-            BoxContactModel.from_satellites(config.satellites, config.materials), self.hand
-        )
+            BoxContactModel.from_satellites(config.satellites, config.materials, built=True),
+            self.hand)
+        self._drawn_boxes = None  # the lab's geometry where the mockups differ from it
+        if any(s.size_error_m != 0.0 for s in config.satellites):
+            self._drawn_boxes = BoxContactModel.from_satellites(config.satellites,
+                                                                config.materials)
         self.arms: list[ArmRig] = []
         if self.mode == "hil":
             seeds = np.random.SeedSequence(config.loop.seed).spawn(len(config.robots))
@@ -324,7 +328,7 @@ class Emulator:
             return
         single = [s for s in np.nonzero(near & self._is_carried & alone)[0]
                   if partner[s] >= 0 and not self._is_carried[partner[s]]]
-        contact = self.interaction.contact
+        contact = self.lab_geometry
         identified = wrench.contact_force == "identified"
         fused = {s for pair in pairs for s in pair} if wrench.fuse_pair_contact else set()
         model_N: dict[tuple[int, int], float] = {}
@@ -363,7 +367,7 @@ class Emulator:
         ``[wrench] contact_gate``."""
         if self.gate is None:
             return np.zeros(self.n_sat, dtype=bool), np.full(self.n_sat, -1)
-        clearance, nearest, crowd = self.interaction.contact.clearances(bodies.T_W_C,
+        clearance, nearest, crowd = self.lab_geometry.clearances(bodies.T_W_C,
                                                                         self.gate.margin_m)
         if self.config.wrench.contact_force == "identified":
             self._record_contact_kinematics(clearance, nearest, bodies)
@@ -375,7 +379,7 @@ class Emulator:
         distance of the mockups' boxes at their FK poses and their FK velocities at the
         contact point along its normal (ḋ > 0 approaching); kept for as many cycles as a
         reading can be old."""
-        frames = self.interaction.contact.frames
+        frames = self.lab_geometry.frames
         now = {}
         for a in range(self.n_sat):
             b = int(nearest[a])
@@ -497,6 +501,8 @@ class Emulator:
         spread(self.compound, row, p.orbit_rate_radps, self.ods.y)
         self._compound_y = (row, row)
         self.interaction.contact.exclude(c, t)
+        if self._drawn_boxes is not None:
+            self._drawn_boxes.exclude(c, t)
         self._drift_after_capture({c, t})
         self.capture_event = {"t_s": float(self.ods.t_s), "position_miss_m": miss,
                               "relative_speed_mps": speed, "relative_angle_rad": angle,
@@ -697,6 +703,13 @@ class Emulator:
     @property
     def t_s(self) -> float:
         return self.ods.t_s
+
+    @property
+    def lab_geometry(self) -> BoxContactModel:
+        """The mockups' boxes as the lab knows them (their drawing, ``size_m``): the
+        contact gate's clearances, the estimator's frames, μ. The simulated contact's own
+        boxes unless a mockup was built another size (``size_error_m``)."""
+        return self.interaction.contact if self._drawn_boxes is None else self._drawn_boxes
 
     @property
     def contact_active(self) -> bool:
