@@ -1143,11 +1143,15 @@ class EmulatorConfig(_Model):
 
     def rail_settings(self) -> list[dict | None]:
         """Per robot, its rail as the web panel and the REST settings show it (None: no
-        rail): the axis, travel, start and the carriage's limits."""
+        rail): the axis, travel, start, the carriage's limits and its servo (response,
+        feedforward, delay)."""
         return [None if r.rail is None else {
             "robot": r.name, "axis_W": list(r.rail.axis_W), "travel_m": list(r.rail.travel_m),
             "start_m": r.rail.start_m, "speed_limit_mps": r.rail.speed_limit_mps,
-            "accel_limit_mps2": r.rail.accel_limit_mps2} for r in self.robots]
+            "accel_limit_mps2": r.rail.accel_limit_mps2, "bandwidth_hz": r.rail.bandwidth_hz,
+            "damping_ratio": r.rail.damping_ratio,
+            "velocity_feedforward": r.rail.velocity_feedforward,
+            "delay_cycles": r.rail.delay_cycles} for r in self.robots]
 
     def satellite_index(self, name: str) -> int:
         return [s.name for s in self.satellites].index(name)
@@ -1301,10 +1305,15 @@ def assignment_override(text: str) -> dict:
     The value is read as TOML (``0.5``, ``true``, ``[0.1, 0, 0]``, ``"rigid"``), a bare
     word as a string; a numeric key picks an item of a list (``robots.1.q_home_rad=...``
     → ``{"robots": {"1": {"q_home_rad": ...}}}``); a list value replaces the whole list.
+    The bare word ``null`` (TOML has none) removes the setting, which takes its default, as
+    a merge patch's null does (``robots.0.rail=null``: the robot without its rail; the
+    string is ``'"null"'``).
     """
     key, sep, value = text.partition("=")
     if not sep:
         raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text!r}")
+    if value.strip() == "null":
+        return dotted_override(key, None, text)
     try:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:
