@@ -323,14 +323,22 @@ class RailConfig(_Model):
 
     The servo (delay, second-order response, speed and acceleration limits, protective stop
     at the travel ends and on a set-point's speed or acceleration beyond the limits) is the
-    joints' (ServoConfig) in metres. Defaults: a belt- or rack-driven floor track of the
-    cobot class, taken at the low end of that class's catalogue figures rather than from one
-    product: 1 m/s and 1 m/s² (1000 mm/s², also the default "maximum permissible axis
-    acceleration" of a linear axis in Beckhoff's TwinCAT CNC, parameter P-AXIS-00008), a
-    10 Hz position loop (a carriage with a 40 kg arm on it answers several times slower
-    than the arm's own joints) with velocity feedforward (a drive's usual tuning for a
-    path: the following error on a ramp is then the delay's alone) and one cycle of delay,
-    as the arm's.
+    joints' (ServoConfig) in metres.
+
+    The defaults' sources, plainly: they are not one product's. No data sheet of a robot
+    track (Güdel TrackMotion, KUKA KL, ABB IRBT, Festo, Yaskawa) with its speed,
+    acceleration or servo figures could be consulted for this project; the one product
+    figure found, 1.89 m/s for KUKA's KL 4000 track (payload up to 4000 kg), is quoted
+    second-hand (a support article citing it, not KUKA's data sheet). So:
+    ``speed_limit_mps`` 1 m/s, below that figure and equal to the UR10e's TCP speed limit
+    (what the pre-flight lets a course ask of the arm it carries); ``accel_limit_mps2``
+    1 m/s², the default maximum axis acceleration of a linear axis in Beckhoff's TwinCAT
+    CNC (parameter P-AXIS-00008, 1000 mm/s²: a controller's presetting, not a track's
+    rating); ``bandwidth_hz`` 10 Hz, ``damping_ratio`` 1, ``velocity_feedforward`` and
+    ``delay_cycles`` 1 are this project's assumptions with no source (a carriage carrying
+    a 40 kg arm answering several times slower than the arm's joints, tuned to follow a
+    path, one cycle late as the arm's servo is). Set them from your axis's data sheet or
+    a measured step response.
 
     ``virtual_mass_kg`` and ``posture_stiffness_Nm_per_rad`` belong to the VFDM's virtual
     model (app/sim/rail.py explains them): the carriage's conditioned mass and the spring
@@ -344,10 +352,17 @@ class RailConfig(_Model):
     travel_m: tuple[Finite, Finite] = (-2.0, 2.0)
     start_m: Finite = 0.0
     speed_limit_mps: Positive = 1.0
+    """The carriage's speed limit [m/s] (default: the UR10e's TCP limit, below the one track
+    figure found, KUKA KL 4000's 1.89 m/s; see the class's note on sources)."""
     accel_limit_mps2: Positive = 1.0
+    """The carriage's acceleration limit [m/s²] (default: TwinCAT CNC's presetting of a
+    linear axis, P-AXIS-00008 = 1000 mm/s²; no track data sheet)."""
     bandwidth_hz: Positive = 10.0
+    """The carriage's position loop's natural frequency [Hz] (an assumption, no source)."""
     damping_ratio: Positive = 1.0
+    """The position loop's damping ratio (critically damped; an assumption)."""
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    """The carriage's transport delay in control cycles (the arm servo's; an assumption)."""
     velocity_feedforward: StrictBool = True
     """The drive feeds the set-points' speed forward (as a following axis is tuned): on a
     ramp the carriage trails by its delay only (app/sim/rail_servo.py)."""
