@@ -353,7 +353,8 @@ class RailConfig(_Model):
     start_m: Finite = 0.0
     speed_limit_mps: Positive = 1.0
     """The carriage's speed limit [m/s] (default: the UR10e's TCP limit, below the one track
-    figure found, KUKA KL 4000's 1.89 m/s; see the class's note on sources)."""
+    figure found, KUKA KL 4000's 1.89 m/s, second-hand; the Rails page says where each default
+    comes from)."""
     accel_limit_mps2: Positive = 1.0
     """The carriage's acceleration limit [m/s²] (default: TwinCAT CNC's presetting of a
     linear axis, P-AXIS-00008 = 1000 mm/s²; no track data sheet)."""
