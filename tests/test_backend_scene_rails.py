@@ -80,11 +80,11 @@ def _project_from(box, position_W, look_at_W, points_W, fov_rad: float) -> np.nd
 
 @pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
 def test_in_the_browser_the_panel_sets_the_rail_and_the_carriage_moves_in_the_scene(live):
-    """The page's settings offer the rail's start and travel (the scenario's as
-    placeholders); a Start from the page runs with the travel typed in; and in the 3D view
-    (Chromium, software WebGL) the arm's base moves along the rail: seen from beside the
-    rail, the pixels that change at the base's height lie between where the base was and
-    where it went, and span most of that way."""
+    """The page's settings offer the rail's start, travel and speed limit (the scenario's
+    as placeholders); a Start from the page runs with the travel and speed typed in; and in
+    the 3D view (Chromium, software WebGL) the arm's base moves along the rail: seen from
+    beside the rail, the pixels that change at the base's height lie between where the base
+    was and where it went, and span most of that way."""
     playwright = pytest.importorskip("playwright.sync_api")
     pytest.importorskip("PIL.Image")
     rail = load_scenario("free-flying-rails").robots[0].rail
@@ -101,15 +101,20 @@ def test_in_the_browser_the_panel_sets_the_rail_and_the_carriage_moves_in_the_sc
             assert page.get_attribute("#set-rail-0-min", "placeholder") == f"{rail.travel_m[0]:g}"
             assert page.get_attribute("#set-rail-0-max", "placeholder") == f"{rail.travel_m[1]:g}"
             assert page.get_attribute("#set-rail-0-start", "placeholder") == f"{rail.start_m:g}"
+            assert page.get_attribute("#set-rail-0-speed",
+                                      "placeholder") == f"{rail.speed_limit_mps:g}"
             page.fill("#set-rail-0-max", "1.7")
+            page.fill("#set-rail-0-speed", "0.8")
             page.click("#settings-pop summary")  # (closed again: the view unhidden)
             page.click("#start-button")
             st = live.wait_for(lambda s: s["status"] == "running" and s["t_s"] > 0.1,
                                timeout_s=60.0)
             assert st["scenario"] == "free-flying-rails"
             assert st["settings"]["rails"][0]["travel_m"] == [rail.travel_m[0], 1.7]
+            assert st["settings"]["rails"][0]["speed_limit_mps"] == 0.8
             page.wait_for_function("document.getElementById('settings').textContent"
-                                   ".includes('travel [-1.6, 1.7] m')", timeout=10_000)
+                                   ".includes('travel [-1.6, 1.7] m, ≤ 0.8 m/s')",
+                                   timeout=10_000)
             live.wait_for_scene()
             robot = load_scenario("free-flying-rails").robots[0]
             base0 = np.array(robot.base_position_m)

@@ -323,14 +323,22 @@ class RailConfig(_Model):
 
     The servo (delay, second-order response, speed and acceleration limits, protective stop
     at the travel ends and on a set-point's speed or acceleration beyond the limits) is the
-    joints' (ServoConfig) in metres. Defaults: a belt- or rack-driven floor track of the
-    cobot class, taken at the low end of that class's catalogue figures rather than from one
-    product: 1 m/s and 1 m/s² (1000 mm/s², also the default "maximum permissible axis
-    acceleration" of a linear axis in Beckhoff's TwinCAT CNC, parameter P-AXIS-00008), a
-    10 Hz position loop (a carriage with a 40 kg arm on it answers several times slower
-    than the arm's own joints) with velocity feedforward (a drive's usual tuning for a
-    path: the following error on a ramp is then the delay's alone) and one cycle of delay,
-    as the arm's.
+    joints' (ServoConfig) in metres.
+
+    The defaults' sources, plainly: they are not one product's. No data sheet of a robot
+    track (Güdel TrackMotion, KUKA KL, ABB IRBT, Festo, Yaskawa) with its speed,
+    acceleration or servo figures could be consulted for this project; the one product
+    figure found, 1.89 m/s for KUKA's KL 4000 track (payload up to 4000 kg), is quoted
+    second-hand (a support article citing it, not KUKA's data sheet). So:
+    ``speed_limit_mps`` 1 m/s, below that figure and equal to the UR10e's TCP speed limit
+    (what the pre-flight lets a course ask of the arm it carries); ``accel_limit_mps2``
+    1 m/s², the default maximum axis acceleration of a linear axis in Beckhoff's TwinCAT
+    CNC (parameter P-AXIS-00008, 1000 mm/s²: a controller's presetting, not a track's
+    rating); ``bandwidth_hz`` 10 Hz, ``damping_ratio`` 1, ``velocity_feedforward`` and
+    ``delay_cycles`` 1 are this project's assumptions with no source (a carriage carrying
+    a 40 kg arm answering several times slower than the arm's joints, tuned to follow a
+    path, one cycle late as the arm's servo is). Set them from your axis's data sheet or
+    a measured step response.
 
     ``virtual_mass_kg`` and ``posture_stiffness_Nm_per_rad`` belong to the VFDM's virtual
     model (app/sim/rail.py explains them): the carriage's conditioned mass and the spring
@@ -344,10 +352,18 @@ class RailConfig(_Model):
     travel_m: tuple[Finite, Finite] = (-2.0, 2.0)
     start_m: Finite = 0.0
     speed_limit_mps: Positive = 1.0
+    """The carriage's speed limit [m/s] (default: the UR10e's TCP limit, below the one track
+    figure found, KUKA KL 4000's 1.89 m/s, second-hand; the Rails page says where each default
+    comes from)."""
     accel_limit_mps2: Positive = 1.0
+    """The carriage's acceleration limit [m/s²] (default: TwinCAT CNC's presetting of a
+    linear axis, P-AXIS-00008 = 1000 mm/s²; no track data sheet)."""
     bandwidth_hz: Positive = 10.0
+    """The carriage's position loop's natural frequency [Hz] (an assumption, no source)."""
     damping_ratio: Positive = 1.0
+    """The position loop's damping ratio (critically damped; an assumption)."""
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    """The carriage's transport delay in control cycles (the arm servo's; an assumption)."""
     velocity_feedforward: StrictBool = True
     """The drive feeds the set-points' speed forward (as a following axis is tuned): on a
     ramp the carriage trails by its delay only (app/sim/rail_servo.py)."""
@@ -1143,11 +1159,15 @@ class EmulatorConfig(_Model):
 
     def rail_settings(self) -> list[dict | None]:
         """Per robot, its rail as the web panel and the REST settings show it (None: no
-        rail): the axis, travel, start and the carriage's limits."""
+        rail): the axis, travel, start, the carriage's limits and its servo (response,
+        feedforward, delay)."""
         return [None if r.rail is None else {
             "robot": r.name, "axis_W": list(r.rail.axis_W), "travel_m": list(r.rail.travel_m),
             "start_m": r.rail.start_m, "speed_limit_mps": r.rail.speed_limit_mps,
-            "accel_limit_mps2": r.rail.accel_limit_mps2} for r in self.robots]
+            "accel_limit_mps2": r.rail.accel_limit_mps2, "bandwidth_hz": r.rail.bandwidth_hz,
+            "damping_ratio": r.rail.damping_ratio,
+            "velocity_feedforward": r.rail.velocity_feedforward,
+            "delay_cycles": r.rail.delay_cycles} for r in self.robots]
 
     def satellite_index(self, name: str) -> int:
         return [s.name for s in self.satellites].index(name)
@@ -1301,10 +1321,15 @@ def assignment_override(text: str) -> dict:
     The value is read as TOML (``0.5``, ``true``, ``[0.1, 0, 0]``, ``"rigid"``), a bare
     word as a string; a numeric key picks an item of a list (``robots.1.q_home_rad=...``
     → ``{"robots": {"1": {"q_home_rad": ...}}}``); a list value replaces the whole list.
+    The bare word ``null`` (TOML has none) removes the setting, which takes its default, as
+    a merge patch's null does (``robots.0.rail=null``: the robot without its rail; the
+    string is ``'"null"'``).
     """
     key, sep, value = text.partition("=")
     if not sep:
         raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text!r}")
+    if value.strip() == "null":
+        return dotted_override(key, None, text)
     try:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:

@@ -8,6 +8,9 @@ satellite's predicted mockup centre (its COM, the arm's TCP) must stay
 * inside the robot's safety box ([[robots]] safety_box_min_m / _max_m, in W);
 * within :data:`app.sim.ur10e.HOLD_RADIUS_M` of the arm's shoulder (its reach; on a rail,
   of the segment the shoulder sweeps over the carriage's travel);
+* with the arm's wrist outside the cylinder of radius :data:`INNER_RADIUS_M` around its
+  base joint's axis (the reach's inner limit, which no posture of the arm enters; on a
+  rail, for some carriage position that also keeps the reach);
 * below :data:`MAX_TCP_SPEED_MPS` and :data:`MAX_TCP_RATE_RADPS` (what the arm can follow).
 
 What an operator will do cannot be predicted: the web app's hand can still push a
@@ -24,10 +27,25 @@ from app.config import ConfigError, EmulatorConfig, merge_overrides
 from app.runs.metrics import contact_pair
 from app.sim.loop import Emulator
 from app.sim.rotations import make_transform, quat_to_matrix
-from app.sim.ur10e import HOLD_RADIUS_M, SHOULDER_B_M, T_W_B_from_config
+from app.sim.ur10e import (
+    DH_D_M,
+    HOLD_RADIUS_M,
+    SHOULDER_B_M,
+    T_F_C_from_config,
+    T_W_B_from_config,
+)
 
-__all__ = ["MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS", "PredictionFailed", "PreflightRefused",
-           "Violation", "check_course", "predict", "preflight"]
+__all__ = ["INNER_RADIUS_M", "MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS", "PredictionFailed",
+           "PreflightRefused", "Violation", "check_course", "predict", "preflight",
+           "wrist_axis_distance"]
+
+INNER_RADIUS_M = DH_D_M[3]
+"""The reach's inner limit: the UR10e's wrist point (the flange less d6 along the flange's
+axis, where joints 5 and 6 meet) is never nearer than the shoulder offset d4 = 0.174 m to
+the base joint's axis: the base joint's angle has no solution inside that cylinder, and on
+its wall it is singular (the arm's shoulder singularity; the UR manuals ask to keep the
+tool out of the cylinder above and below the base). A course through it cannot be
+followed, however slowly."""
 
 MAX_TCP_SPEED_MPS = 1.0
 """The UR10e's TCP speed limit (data sheet: 1 m/s)."""
@@ -116,6 +134,9 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
     reach, whose = _reach(p_W, shoulder_W, robot.rail), "its shoulder"
     if robot.rail is not None:
         whose = "its shoulder's line along the rail"
+    quat = rows[:, [index[f"sat{s}_q{a}"] for a in "wxyz"]]
+    wrist = wrist_axis_distance(robot, T_W_R, p_W, quat)
+    inside = (wrist < INNER_RADIUS_M) & (reach <= HOLD_RADIUS_M)
     lo, hi = np.asarray(robot.safety_box_min_m), np.asarray(robot.safety_box_max_m)
     checks = [
         (np.any((p_W < lo) | (p_W > hi), axis=1),
@@ -124,6 +145,11 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
         (reach > HOLD_RADIUS_M,
          lambda j: f"leaves the arm's reach ({reach[j]:.3f} m from {whose}; limit "
                    f"{HOLD_RADIUS_M:g} m)"),
+        (inside,
+         lambda j: f"leaves the arm's reach (its wrist would pass "
+                   f"{wrist[inside].min():.3f} m from its base joint's axis"
+                   f"{' wherever the carriage stands' if robot.rail else ''}; inner limit "
+                   f"{INNER_RADIUS_M:.3f} m)"),
         (speed > MAX_TCP_SPEED_MPS,
          lambda j: f"moves faster than the arm's TCP ({speed[j]:.3g} m/s; limit "
                    f"{MAX_TCP_SPEED_MPS:g} m/s)"),
@@ -148,6 +174,38 @@ def _reach(p_W: np.ndarray, shoulder_W: np.ndarray, rail) -> np.ndarray:
     axis = np.asarray(rail.axis_W)
     s = np.clip((p_W - shoulder_W) @ axis, *rail.travel_m)
     return np.linalg.norm(p_W - shoulder_W - s[:, None] * axis, axis=1)
+
+
+def wrist_axis_distance(robot, T_W_R: np.ndarray, p_W: np.ndarray,
+                        quat_wxyz: np.ndarray) -> np.ndarray:
+    """Each pose's distance of the arm's wrist point from its base joint's axis when its
+    mockup (the satellite's body frame) is at ``p_W`` (n, 3) with attitude ``quat_wxyz``
+    (n, 4, in R): the flange is ``T_W_C · T_F_C⁻¹``, the wrist point the flange less d6
+    along its axis (:data:`INNER_RADIUS_M`). On a rail, the largest such distance over
+    the carriage positions within the travel that keep the TCP within the reach (the
+    distance is convex in s: the largest is at an end of that interval)."""
+    T_W_B = T_W_B_from_config(robot)
+    R_B_W = T_W_B[:3, :3].T
+    T_F_C = T_F_C_from_config(robot)
+    R_C_F = T_F_C[:3, :3].T
+    p_C_F = -R_C_F @ T_F_C[:3, 3]
+    q = np.asarray(quat_wxyz, dtype=float)
+    R_W_C = np.einsum("ab,nbc->nac", T_W_R[:3, :3], quat_to_matrix(q))
+    z_F_W = R_W_C @ R_C_F[:, 2]
+    wrist_W = p_W + R_W_C @ p_C_F - DH_D_M[5] * z_F_W
+    u = (wrist_W - T_W_B[:3, 3]) @ R_B_W.T  # in B0 (the carriage at 0)
+    rail = robot.rail
+    if rail is None:
+        return np.hypot(u[:, 0], u[:, 1])
+    axis_W = np.asarray(rail.axis_W)
+    b = R_B_W @ axis_W
+    shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+    rel = p_W - shoulder_W
+    c = rel @ axis_W
+    w = np.sqrt(np.maximum(HOLD_RADIUS_M**2 - (np.einsum("na,na->n", rel, rel) - c * c), 0.0))
+    lo = np.clip(c - w, *rail.travel_m)
+    hi = np.clip(c + w, *rail.travel_m)
+    return np.maximum(*(np.hypot(u[:, 0] - s * b[0], u[:, 1] - s * b[1]) for s in (lo, hi)))
 
 
 def _fmt(v) -> str:

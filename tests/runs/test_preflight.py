@@ -7,9 +7,22 @@ import numpy as np
 import pytest
 
 from app.config import merge_overrides
-from app.runs.preflight import HOLD_RADIUS_M, PreflightRefused, preflight
+from app.runs.preflight import (
+    HOLD_RADIUS_M,
+    INNER_RADIUS_M,
+    PreflightRefused,
+    preflight,
+    wrist_axis_distance,
+)
 from app.scenarios import load_scenario, scenario_names
-from app.sim.ur10e import SHOULDER_B_M, T_W_B_from_config
+from app.sim.rotations import make_transform, matrix_to_quat, quat_to_matrix
+from app.sim.ur10e import (
+    DH_D_M,
+    SHOULDER_B_M,
+    T_F_C_from_config,
+    T_W_B_from_config,
+    flange_pose_B,
+)
 
 
 @pytest.mark.parametrize("name", scenario_names())
@@ -43,6 +56,44 @@ def test_a_satellite_drifting_out_of_reach_is_refused_with_the_robot_time_and_li
     assert "leaves the safety volume (at (-0.303, 1.500, 1.000) m in W" in text  # 30 s
     assert text.endswith("The arms have not moved; change the scenario (or run it "
                          "--mode ideal)")
+
+
+def test_the_wrist_s_distance_from_the_base_axis_is_the_arm_s_own_and_never_inside():
+    """For random postures of collision's ceiling arm, the distance the pre-flight derives
+    from the mockup's pose (position and attitude in R) is the one of the wrist point (the
+    flange less d6 along its axis) that the forward kinematics puts there, and it is never
+    under the inner limit d4 (which is why a course inside it is refused). On a rail along
+    x the carriage can take the base away from a point under the shoulder."""
+    cfg = load_scenario("collision")
+    robot = cfg.robots[0]
+    T_W_R = make_transform(quat_to_matrix(cfg.lab.r_attitude_wxyz), cfg.lab.r_origin_m)
+    T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
+    qs = np.random.default_rng(7).uniform(-math.pi, math.pi, (200, 6))
+    T_B_F = np.stack([flange_pose_B(q) for q in qs])
+    wrist_B = T_B_F[:, :3, 3] - DH_D_M[5] * T_B_F[:, :3, 2]
+    T_R_C = np.linalg.inv(T_W_R) @ T_W_B @ T_B_F @ T_F_C
+    p_W = (T_W_R @ T_R_C)[:, :3, 3]
+    quats = np.stack([matrix_to_quat(T[:3, :3]) for T in T_R_C])
+    got = wrist_axis_distance(robot, T_W_R, p_W, quats)
+    np.testing.assert_allclose(got, np.hypot(wrist_B[:, 0], wrist_B[:, 1]), atol=1e-9)
+    assert got.min() >= INNER_RADIUS_M - 1e-9
+    # a mockup right under the shoulder, flange down: fixed, the wrist is on the axis; on a
+    # rail along x (travel ±1 m) the carriage can stand as far off as the reach allows,
+    # sqrt(1.2² − h²) with h the shoulder's height over the mockup
+    below = np.array([[robot.base_position_m[0], 0.0, 1.0]])
+    down = matrix_to_quat(np.linalg.inv(T_W_R[:3, :3]) @ T_W_B[:3, :3]
+                          @ T_F_C[:3, :3])[None]
+    assert wrist_axis_distance(robot, T_W_R, below, down)[0] == pytest.approx(0.0, abs=1e-9)
+    on_rail = robot.model_copy(update={"rail": _rail_x()})
+    h = robot.base_position_m[2] - DH_D_M[0] - 1.0
+    assert wrist_axis_distance(on_rail, T_W_R, below, down)[0] == pytest.approx(
+        math.sqrt(HOLD_RADIUS_M**2 - h * h))
+
+
+def _rail_x():
+    from app.config import RailConfig
+
+    return RailConfig(axis_W=(1.0, 0.0, 0.0), travel_m=(-1.0, 1.0))
 
 
 def test_a_satellite_faster_than_the_arm_is_refused_at_once():
