@@ -36,19 +36,32 @@ COPY pyproject.toml README.md ./
 COPY scripts/container-entry /usr/local/bin/container-entry
 COPY app ./app
 COPY static ./static
-# pycollada: trimesh needs it to load the UR10 .dae meshes of the 3D view
+# pycollada: trimesh needs it to load the UR10 .dae meshes of the 3D view; [docs]: MkDocs,
+# which builds the manual below
 # (a cache mount: a rebuild on the same machine downloads nothing again, and the image
 # keeps no pip cache)
-RUN --mount=type=cache,target=/root/.cache/pip pip install . pycollada \
+RUN --mount=type=cache,target=/root/.cache/pip pip install ".[docs]" pycollada \
     && useradd --create-home --uid 1000 emulator \
     && mkdir -p /opt/numba-cache && chmod 1777 /opt/numba-cache \
     && mkdir -p /app/runs && chmod 1777 /app/runs
 # (/app/runs: where `serve` keeps its web runs, runs/web, whatever the user it runs as;
 # mount a volume there to keep them)
 
+# the manual, built now (strict: a broken link fails the build) into /app/site, which
+# `serve` offers at /manual/ with its search; its sources are not kept. Nothing in it is
+# fetched when it is read (no web fonts, a local KaTeX and search index).
+COPY mkdocs.yml ./
+COPY docs ./docs
+COPY docs_src ./docs_src
+RUN NO_MKDOCS_2_WARNING=1 mkdocs build --strict --quiet --site-dir /app/site \
+    && test -f /app/site/index.html && test -f /app/site/search/search_index.json \
+    && rm -rf docs docs_src mkdocs.yml
+
 USER emulator
-# static/ is found in the working directory (the installed package lives elsewhere)
-ENV ORBIT_EMULATOR_STATIC=/app/static
+# static/ and the manual are found in the working directory (the installed package lives
+# elsewhere)
+ENV ORBIT_EMULATOR_STATIC=/app/static \
+    ORBIT_EMULATOR_MANUAL=/app/site
 # compile the numba kernels now, into the image, for a generic x86-64 CPU (numba's cache
 # is keyed to the CPU it compiled for): a first run on any host then loads them instead
 # of compiling for 20 s; the cache folder and the ones numba made in it are open to any
