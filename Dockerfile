@@ -36,11 +36,10 @@ COPY pyproject.toml README.md ./
 COPY scripts/container-entry /usr/local/bin/container-entry
 COPY app ./app
 COPY static ./static
-# pycollada: trimesh needs it to load the UR10 .dae meshes of the 3D view; [docs]: MkDocs,
-# which builds the manual below
+# pycollada: trimesh needs it to load the UR10 .dae meshes of the 3D view
 # (a cache mount: a rebuild on the same machine downloads nothing again, and the image
 # keeps no pip cache)
-RUN --mount=type=cache,target=/root/.cache/pip pip install ".[docs]" pycollada \
+RUN --mount=type=cache,target=/root/.cache/pip pip install . pycollada \
     && useradd --create-home --uid 1000 emulator \
     && mkdir -p /opt/numba-cache && chmod 1777 /opt/numba-cache \
     && mkdir -p /app/runs && chmod 1777 /app/runs
@@ -49,7 +48,14 @@ RUN --mount=type=cache,target=/root/.cache/pip pip install ".[docs]" pycollada \
 
 # the manual, built now (strict: a broken link fails the build) into /app/site, which
 # `serve` offers at /manual/ with its search; its sources are not kept. Nothing in it is
-# fetched when it is read (no web fonts, a local KaTeX and search index).
+# fetched when it is read (no web fonts, a local KaTeX and search index). Its tools (the
+# docs extra of pyproject.toml) are not held to PIP_CONSTRAINT: they change no number the
+# emulator computes, and a base's older Python may not take the host's versions
+# (pymdown-extensions 13 needs Python 3.11.5, Debian bookworm has 3.11.2).
+RUN --mount=type=cache,target=/root/.cache/pip python -c "import tomllib; \
+        print('\n'.join(tomllib.load(open('pyproject.toml', 'rb')) \
+                        ['project']['optional-dependencies']['docs']))" >/tmp/docs.txt \
+    && env -u PIP_CONSTRAINT pip install -r /tmp/docs.txt && rm /tmp/docs.txt
 COPY mkdocs.yml ./
 COPY docs ./docs
 COPY docs_src ./docs_src
