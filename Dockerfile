@@ -59,9 +59,12 @@ RUN --mount=type=cache,target=/root/.cache/pip python -c "import tomllib; \
 COPY mkdocs.yml ./
 COPY docs ./docs
 COPY docs_src ./docs_src
-RUN NO_MKDOCS_2_WARNING=1 mkdocs build --strict --quiet --site-dir /app/site \
+# (the build imports app: numba's cache of it goes to a folder of its own, not the image's
+# cache, which the warm-up below fills as the user that runs the image)
+RUN NO_MKDOCS_2_WARNING=1 NUMBA_CACHE_DIR=/tmp/docs-numba-cache \
+        mkdocs build --strict --quiet --site-dir /app/site \
     && test -f /app/site/index.html && test -f /app/site/search/search_index.json \
-    && rm -rf docs docs_src mkdocs.yml
+    && rm -rf docs docs_src mkdocs.yml /tmp/docs-numba-cache
 
 USER emulator
 # static/ and the manual are found in the working directory (the installed package lives
