@@ -23,14 +23,10 @@ from app.backend.server import create_app
 from app.campaign.sweep import METRIC_FIELDS
 from app.cli import build_parser
 from app.config import EmulatorConfig
+from tests.browser import HAVE_CHROMIUM, NEEDS_CHROMIUM, chromium
 
 ROOT = Path(__file__).resolve().parent.parent
 MKDOCS = Path(sys.executable).parent / "mkdocs"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--no-first-run",
-]
 
 pytestmark = pytest.mark.skipif(not MKDOCS.exists(), reason="needs mkdocs (the docs extra)")
 
@@ -166,32 +162,28 @@ def test_the_readme_fits_on_two_screens():
     assert not missing, missing
 
 
-@pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
+@pytest.mark.skipif(not HAVE_CHROMIUM, reason=NEEDS_CHROMIUM)
 def test_serve_offers_the_manual_and_its_search_finds_restitution(site, monkeypatch,
                                                                   tmp_path):
     """The manual is looked for at each request: one built (here: pointed to) while the
     server runs is served at the next reload."""
-    playwright = pytest.importorskip("playwright.sync_api")
+    pytest.importorskip("playwright.sync_api")
     from tests.live_server import LiveServer
 
     (tmp_path / "index.html").write_text("<title>an older manual</title>")
     monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(tmp_path))
-    with LiveServer() as live, playwright.sync_playwright() as p:
+    with LiveServer() as live, chromium() as browser:
         assert "an older manual" in live.client.get("/manual/").text
         monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(site))
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1200, "height": 800})
-            page.goto(live.url + "/")
-            href = page.get_attribute("#manual-link", "href")
-            assert href == "/manual/"
-            page.goto(live.url + href)
-            assert "orbit-emulator manual" in page.title()
-            page.click("input.md-search__input")  # typed as a reader does: the worker
-            page.keyboard.type("restitution", delay=50)  # answers each keystroke
-            results = page.locator(".md-search-result__item")
-            results.first.wait_for(timeout=15_000)
-            assert results.count() >= 3
-            assert "restitution" in results.first.inner_text().lower()
-        finally:
-            browser.close()
+        page = browser.new_page(viewport={"width": 1200, "height": 800})
+        page.goto(live.url + "/")
+        href = page.get_attribute("#manual-link", "href")
+        assert href == "/manual/"
+        page.goto(live.url + href)
+        assert "orbit-emulator manual" in page.title()
+        page.click("input.md-search__input")  # typed as a reader does: the worker
+        page.keyboard.type("restitution", delay=50)  # answers each keystroke
+        results = page.locator(".md-search-result__item")
+        results.first.wait_for(timeout=15_000)
+        assert results.count() >= 3
+        assert "restitution" in results.first.inner_text().lower()
