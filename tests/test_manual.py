@@ -59,6 +59,19 @@ def _rows(site: Path, page: str) -> dict[str, str]:
     return rows
 
 
+def _meanings(site: Path, page: str) -> dict[str, list[str]]:
+    """A built page's table rows by their first cell's code: each such row's last cell's text."""
+    raw = (site / page / "index.html").read_text()
+    cells = {}
+    for row in re.findall(r"<tr>(.*?)</tr>", raw, re.S):
+        tds = re.findall(r"<td>(.*?)</td>", row, re.S)
+        first = re.match(r"\s*<code>(.*?)</code>\s*$", tds[0]) if tds else None
+        if first:
+            cells.setdefault(html.unescape(first.group(1)), []).append(
+                html.unescape(re.sub(r"<[^>]+>", "", tds[-1])).strip())
+    return cells
+
+
 def _held(tp) -> tuple[str, type] | None:
     """(how its keys are written, model) of a field that holds a table: directly or
     optionally (``.``), as an array of tables (``.<i>.``), as a table of tables
@@ -108,6 +121,11 @@ def test_every_configuration_key_is_in_the_reference_with_its_docstring(site):
     row = " ".join(rows["vfdm.internal_dt_s"].split())
     assert "Virtual-model integration step" in row
     assert "float" in row and "0.02" in row and " s " in row and "> 0" in row
+    # every key says what it is: a description of three words or more
+    meanings = _meanings(site, "reference/configuration")
+    short = [p for p in paths if len(meanings[p][0].split()) < 3]
+    assert not short, short
+    assert "N·m/rad" in rows["robots.<i>.rail.posture_stiffness_Nm_per_rad"]
 
 
 def test_every_cli_command_and_option_is_in_the_reference(site):
@@ -130,6 +148,26 @@ def test_every_rest_path_is_in_the_reference(site):
     for path, ops in paths.items():
         for method in ops:
             assert f"{method.upper()} {path}" in text, (method, path)
+    # every parameter (path, query) says what it takes
+    meanings = _meanings(site, "reference/rest")
+    for name in ("name", "run_id", "mode", "format", "a", "figure", "rate_hz"):
+        assert all(len(m.split()) >= 2 for m in meanings[name]), (name, meanings[name])
+
+
+def test_every_telemetry_column_is_in_the_reference_with_its_unit(site):
+    """Those of two satellites and two arms on rails: each column, its satellite or arm
+    number written {i} or {k}, has a row with the unit its suffix states and a meaning."""
+    from app.sim.telemetry import loop_columns
+
+    rows = _meanings(site, "reference/telemetry")
+    units = _rows(site, "reference/telemetry")
+    columns = {re.sub(r"^rob\d+_", "rob{k}_", re.sub(r"^sat\d+_", "sat{i}_", c))
+               for c in loop_columns(2, 2, [1, 2])}
+    assert "rob{k}_rail_s_m" in columns and len(columns) > 50
+    missing = [c for c in columns if c not in rows or len(rows[c][0].split()) < 2]
+    assert not missing, missing
+    assert units["rob{k}_rail_v_mps"].split()[0] == "m/s"
+    assert units["sat{i}_tx_Nm"].split()[0] == "N·m"
 
 
 def test_every_metrics_field_is_in_the_reference_with_a_meaning(site):
