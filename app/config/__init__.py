@@ -102,8 +102,8 @@ class OrbitConfig(_Model):
     """Altitude of the circular observer orbit whose frame R the ODS works in; it sets the
     orbit rate n of the Clohessy-Wiltshire equations (paper Eqs. 1-3)."""
     gravity_gradient: StrictBool = True
-    """Apply the gravity-gradient torque to the attitude (paper Eqs. 4-6); false: torque-
-    free attitude."""
+    """Apply the gravity-gradient torque to the attitude (paper Eqs. 4-6); false: the
+    attitude is torque-free."""
     force_scale: NonNegative | None = None
     """The paper's law only: multiplies every measured force before it enters the ODS
     (default 1). Under [scaling] law = "similarity" it is derived, not set."""
@@ -259,7 +259,9 @@ class SatelliteConfig(_Model):
     omega_radps: Vec3 = (0.0, 0.0, 0.0)
     """Angular velocity relative to R, body axes (zero: at rest in the lab)."""
     material: Literal["rigid", "sponge"] = "rigid"
-    """The mockup's contact face: a key of [materials]."""
+    """The mockup's contact face: "rigid" or "sponge", with the properties [materials]
+    gives that name (a [materials] table may hold other names, but a satellite names one
+    of these two)."""
     gnc: GncConfig | None = None
     """The satellite's own thrusters and wheels under a GNC (none: it is free)."""
 
@@ -349,27 +351,44 @@ class RailConfig(_Model):
     """
 
     axis_W: Vec3 = (1.0, 0.0, 0.0)
+    """The direction the carriage moves the base along, in the lab frame W (normalised)."""
     travel_m: tuple[Finite, Finite] = (-2.0, 2.0)
+    """[min, max] of the carriage's position s along ``axis_W`` (s = 0: the base at
+    ``base_position_m``); reaching an end is a protective stop."""
     start_m: Finite = 0.0
+    """Where the carriage starts, within ``travel_m``."""
     speed_limit_mps: Positive = 1.0
-    """The carriage's speed limit [m/s] (default: the UR10e's TCP limit, below the one track
-    figure found, KUKA KL 4000's 1.89 m/s, second-hand; the Rails page says where each default
-    comes from)."""
+    """The carriage's speed limit [m/s]; a set-point asking for more is a protective stop
+    (default: the UR10e's TCP limit, below the one track figure found, KUKA KL 4000's
+    1.89 m/s, second-hand; the Rails page says where each default comes from)."""
     accel_limit_mps2: Positive = 1.0
-    """The carriage's acceleration limit [m/s²] (default: TwinCAT CNC's presetting of a
-    linear axis, P-AXIS-00008 = 1000 mm/s²; no track data sheet)."""
+    """The carriage's acceleration limit [m/s²]; a set-point asking for more is a
+    protective stop (default: TwinCAT CNC's presetting of a linear axis, P-AXIS-00008 =
+    1000 mm/s²; no track data sheet)."""
     bandwidth_hz: Positive = 10.0
-    """The carriage's position loop's natural frequency [Hz] (an assumption, no source)."""
+    """Natural frequency [Hz] of the carriage's position loop, a second-order response (an
+    assumption, no source)."""
     damping_ratio: Positive = 1.0
-    """The position loop's damping ratio (critically damped; an assumption)."""
+    """Damping ratio of the carriage's position loop (1: critical; an assumption)."""
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
-    """The carriage's transport delay in control cycles (the arm servo's; an assumption)."""
+    """Transport delay of a carriage set-point, in loop cycles (the arm servo's; an
+    assumption)."""
     velocity_feedforward: StrictBool = True
     """The drive feeds the set-points' speed forward (as a following axis is tuned): on a
     ramp the carriage trails by its delay only (app/sim/rail_servo.py)."""
     virtual_mass_kg: Positive = 1.0
+    """The carriage's mass in the VFDM's virtual model (a conditioning figure, not the real
+    carriage's; 1 kg as Table 1's end link): the inertia of the chain's null-space motion
+    (the carriage moving while the arm holds the TCP), which follows the posture spring
+    the slower the heavier it is; the Cartesian response does not depend on it."""
     posture_stiffness_Nm_per_rad: NonNegative = 0.5
+    """Stiffness K of the virtual joint spring that pulls the arm's joints toward
+    ``posture_rad`` through the chain's null space, so that the rail carries the gross
+    motion and the arm the fine (0: no pull; the carriage then moves only by the small
+    share of a Cartesian push the arm leaves it)."""
     posture_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] | None = None
+    """The joint posture the spring pulls toward (None: the arm's start posture, the one
+    that holds the satellite's start pose with the carriage at ``start_m``)."""
 
     @model_validator(mode="after")
     def _rail(self) -> RailConfig:
@@ -533,9 +552,11 @@ class ServoConfig(_Model):
     """Joint position limit (±); beyond is a protective stop."""
     lookahead_time_s: Annotated[float | None,
                                 _within(*SERVOJ_LOOKAHEAD_RANGE_S, "lookahead_time")] = None
-    """servoj only (None: 0.03 s)."""
+    """servoj only: how far ahead (s) the target is projected with the current velocity,
+    0.03 to 0.2 s as UR's servoj takes it (None: 0.03 s)."""
     gain: Annotated[float | None, _within(*SERVOJ_GAIN_RANGE, "gain")] = None
-    """servoj only (None: 1200)."""
+    """servoj only: the proportional gain from the projected error to the acceleration,
+    100 to 2000 as UR's servoj takes it (None: 1200)."""
 
     @model_validator(mode="after")
     def _servoj_only(self) -> ServoConfig:
