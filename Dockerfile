@@ -46,9 +46,31 @@ RUN --mount=type=cache,target=/root/.cache/pip pip install . pycollada \
 # (/app/runs: where `serve` keeps its web runs, runs/web, whatever the user it runs as;
 # mount a volume there to keep them)
 
+# the manual, built now (strict: a broken link fails the build) into /app/site, which
+# `serve` offers at /manual/ with its search; its sources are not kept. Nothing in it is
+# fetched when it is read (no web fonts, a local KaTeX and search index). Its tools (the
+# docs extra of pyproject.toml) are not held to PIP_CONSTRAINT: they change no number the
+# emulator computes, and a base's older Python may not take the host's versions
+# (pymdown-extensions 13 needs Python 3.11.5, Debian bookworm has 3.11.2).
+RUN --mount=type=cache,target=/root/.cache/pip python -c "import tomllib; \
+        print('\n'.join(tomllib.load(open('pyproject.toml', 'rb')) \
+                        ['project']['optional-dependencies']['docs']))" >/tmp/docs.txt \
+    && env -u PIP_CONSTRAINT pip install -r /tmp/docs.txt && rm /tmp/docs.txt
+COPY mkdocs.yml ./
+COPY docs ./docs
+COPY docs_src ./docs_src
+# (the build imports app: numba's cache of it goes to a folder of its own, not the image's
+# cache, which the warm-up below fills as the user that runs the image)
+RUN NO_MKDOCS_2_WARNING=1 NUMBA_CACHE_DIR=/tmp/docs-numba-cache \
+        mkdocs build --strict --quiet --site-dir /app/site \
+    && test -f /app/site/index.html && test -f /app/site/search/search_index.json \
+    && rm -rf docs docs_src mkdocs.yml /tmp/docs-numba-cache
+
 USER emulator
-# static/ is found in the working directory (the installed package lives elsewhere)
-ENV ORBIT_EMULATOR_STATIC=/app/static
+# static/ and the manual are found in the working directory (the installed package lives
+# elsewhere)
+ENV ORBIT_EMULATOR_STATIC=/app/static \
+    ORBIT_EMULATOR_MANUAL=/app/site
 # compile the numba kernels now, into the image, for a generic x86-64 CPU (numba's cache
 # is keyed to the CPU it compiled for): a first run on any host then loads them instead
 # of compiling for 20 s; the cache folder and the ones numba made in it are open to any

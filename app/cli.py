@@ -207,11 +207,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("propagate", help="run the Orbital Dynamics Simulator alone")
+    p = sub.add_parser(
+        "propagate", help="run the Orbital Dynamics Simulator alone",
+        description="Propagate the satellites of a scenario file with the Orbital Dynamics "
+                    "Simulator alone (no arms, no loop; its pulses applied) and write "
+                    "OUT/telemetry.csv: one row per step, the satellites' columns of a run's "
+                    f"telemetry. At most {MAX_PROPAGATE_STEPS:,} steps (--duration / --dt).")
     p.add_argument("--config", help="scenario TOML file (default: built-in defaults)")
-    p.add_argument("--duration", type=_positive_float, default=600.0, help="seconds")
-    p.add_argument("--dt", type=_positive_float, default=0.002, help="step in seconds")
-    p.add_argument("--out", default="out", help="output directory")
+    p.add_argument("--duration", type=_positive_float, default=600.0,
+                   help="seconds of orbit time to propagate (default 600)")
+    p.add_argument("--dt", type=_positive_float, default=0.002,
+                   help="integration step in seconds (default 0.002)")
+    p.add_argument("--out", default="out", help="output directory (default: out)")
     p.set_defaults(func=_cmd_propagate)
 
     p = sub.add_parser(

@@ -33,7 +33,8 @@ log = logging.getLogger("mkdocs.plugins.orbit_reference")
 ROOT = Path(__file__).resolve().parent.parent
 
 UNITS = (  # name suffix -> unit, longest first where one ends another
-    ("_Nmprad", "N·m/rad"), ("_sprad", "s/rad"), ("_kgm2", "kg·m²"), ("_mps2", "m/s²"),
+    ("_Nmprad", "N·m/rad"), ("_Nm_per_rad", "N·m/rad"), ("_sprad", "s/rad"),
+    ("_kgm2", "kg·m²"), ("_mps2", "m/s²"),
     ("_radps2", "rad/s²"), ("_radps", "rad/s"), ("_mps", "m/s"), ("_Npm", "N/m"),
     ("_spm", "s/m"), ("_Nm", "N·m"), ("_Ns", "N·s"), ("_N", "N"), ("_kg", "kg"),
     ("_m", "m"), ("_s", "s"), ("_hz", "Hz"), ("_rad", "rad"), ("_deg", "°"), ("_J", "J"),
@@ -211,11 +212,15 @@ def configuration_page() -> str:
         out += [f"## {title}", "", f'<a id="{model.__name__.lower()}"></a>'
                 if table and not _first_use(groups, owners, table) else "", ""]
         doc = _model_doc(model) if model is not EmulatorConfig else _model_doc(model)
-        if doc:
-            out += [f"*{model.__name__}*: " + doc.split("\n\n")[0].replace("\n", " "), ""]
+        if doc:  # every paragraph: a key's description may refer to the table's
+            first, *rest = doc.split("\n\n")
+            out += [f"*{model.__name__}*: " + first.replace("\n", " "), ""]
+            out += [p.replace("\n", " ") + "\n" for p in rest]
         out += ["| key | type | default | unit | bounds | description |",
                 "|---|---|---|---|---|---|"]
         for path, name, field in keys:
+            if not (field.description or _table_doc(field.annotation)):
+                log.warning("reference: configuration key %s has no docstring", path)
             out.append("| " + " | ".join([
                 f"`{path}`", _cell(_type_text(field.annotation)), _cell(_default_text(field)),
                 unit_of(name), _cell(_bounds(field.annotation, field.metadata)),
@@ -277,11 +282,11 @@ def cli_page() -> str:
         usage = sub.format_usage().replace("usage: ", "").strip()
         usage = " ".join(usage.split())
         out += [f"## `{name}`", "", _cell(sub.description or helps.get(name) or ""), "",
-                "```text", usage, "```", "",
-                "| argument | default | meaning |", "|---|---|---|"]
-        for action in sub._actions:
-            if isinstance(action, argparse._HelpAction):
-                continue
+                "```text", usage, "```", ""]
+        arguments = [a for a in sub._actions if not isinstance(a, argparse._HelpAction)]
+        out += ["| argument | default | meaning |", "|---|---|---|"] if arguments else [
+            "No arguments."]
+        for action in arguments:
             names = ", ".join(action.option_strings) or (action.metavar or action.dest)
             if action.choices and not action.option_strings and action.metavar:
                 names = str(action.metavar)
@@ -303,6 +308,26 @@ def openapi_document() -> dict:
     from app.backend.server import create_app
 
     return create_app(token="x" * 32, runs_dir=None).openapi()
+
+
+PARAMETER_MEANINGS = {  # (the path's first segments, parameter) of those with no description
+    ("/api/scenarios", "name"): "a scenario's name (GET /api/scenarios lists them)",
+    ("/api/scenarios", "mode"): "`hil` or `ideal` (default: the scenario's own mode)",
+    ("/api/telemetry", "format"): "`csv`, the only format",
+    ("/api/runs", "run_id"): "a run's id (GET /api/runs lists them)",
+    ("/api/runs", "name"): "a file of the run's folder (GET /api/runs/{run_id} lists them)",
+}
+
+
+def _parameter_meaning(path: str, parameter: dict) -> str:
+    """The OpenAPI description of a parameter, else PARAMETER_MEANINGS' line for it."""
+    if parameter.get("description"):
+        return parameter["description"]
+    for (prefix, name), meaning in PARAMETER_MEANINGS.items():
+        if name == parameter["name"] and path.startswith(prefix):
+            return meaning
+    log.warning("reference: parameter %r of %s has no description", parameter["name"], path)
+    return ""
 
 
 def rest_page() -> str:
@@ -327,7 +352,7 @@ def rest_page() -> str:
                     kind = schema.get("type") or ", ".join(
                         s.get("type", "") for s in schema.get("anyOf", []))
                     out.append(f"| `{p['name']}` | {p['in']} | {kind} | "
-                               f"{_cell(p.get('description', ''))} |")
+                               f"{_cell(_parameter_meaning(path, p))} |")
                 out.append("")
             body = op.get("requestBody", {}).get("content", {}).get("application/json")
             if body:
@@ -372,8 +397,11 @@ def _body_table(doc: dict, schema: dict) -> list[str]:
 METRIC_MEANINGS = {
     "scenario": "the scenario's name",
     "mode": "`hil` (arms in the loop) or `ideal` (the reference without arms)",
-    "status": "`ok`, `safety_stop` or `error`",
-    "error": "why a run with status `error` failed (the exception), else null",
+    "status": "`finished` (ran its duration), `safety_stop` (a protective stop: see "
+              "`safety_stop`) or `error` (it raised: see `error`); a web run may also be "
+              "`stopped` (by the operator) or `fault` (its loop process died or stalled)",
+    "error": "why a run with status `error` or `fault` ended (the exception or the "
+             "fault), else null",
     "duration_s": "scenario seconds run",
     "cycles": "loop cycles run",
     "rate_hz": "the loop's rate",
@@ -507,7 +535,9 @@ def metrics_page() -> str:
            "not finite (e.g. an infinite period) is `null`. Units follow the suffix.", "",
            "| field | unit | meaning |", "|---|---|---|"]
     for path in metric_fields():
-        out.append(f"| `{path}` | {unit_of(path)} | "
+        # a field without a unit of its own takes its table's (cycle_time_us.p50: µs)
+        unit = unit_of(path) or unit_of(path.rpartition(".")[0])
+        out.append(f"| `{path}` | {unit} | "
                    f"{_cell(_meaning(METRIC_MEANINGS, path, 'metrics field'))} |")
     return "\n".join(out) + "\n"
 
@@ -531,6 +561,10 @@ COLUMN_MEANINGS = {
     "sat.true_fx_N": "true external force on the actual mockup, in R",
     "sat.gnc_fx_N": "the satellite's own GNC thrust, in R, orbit units (zeros without GNC)",
     "sat.gnc_tx_Nm": "its reaction wheels' torque, body axes, orbit units",
+    "rob.rail_s_m": "the carriage's position s along the rail's axis (0: the base at "
+                    "`base_position_m`)",
+    "rob.rail_v_mps": "the carriage's speed along the rail's axis",
+    "rob.rail_sp_m": "the carriage's position set-point, as the VFDM sent it",
 }
 
 
@@ -547,13 +581,15 @@ def _column_key(kind: str, field: str) -> str:
 
 
 def telemetry_page() -> str:
-    from app.sim.telemetry import GNC_FIELDS, ROBOT_FIELDS, SAT_FIELDS, loop_columns
+    from app.sim.telemetry import GNC_FIELDS, RAIL_FIELDS, ROBOT_FIELDS, SAT_FIELDS, loop_columns
 
     groups = [("sat", "per satellite `i` (1-based), its ODS state", SAT_FIELDS, "sat{i}_"),
               ("rob", "per arm `k`, its mockup, joints and F/T", ROBOT_FIELDS, "rob{k}_"),
               ("sat", "per satellite `i`, the true force", ("true_fx_N", "true_fy_N",
                                                            "true_fz_N"), "sat{i}_"),
-              ("sat", "per satellite `i`, its GNC", GNC_FIELDS, "sat{i}_")]
+              ("sat", "per satellite `i`, its GNC", GNC_FIELDS, "sat{i}_"),
+              ("rob", "per arm `k` on a rail (`[robots.<i>.rail]`), its carriage; only "
+                      "those arms, last", RAIL_FIELDS, "rob{k}_")]
     out = ["# telemetry.csv", "",
            "One row per loop cycle (2 ms by default), written by `run` and by every web "
            "run; columns generated from `app/sim/telemetry.py` when this manual was built, "
@@ -567,7 +603,10 @@ def telemetry_page() -> str:
                        f"{_cell(_meaning(COLUMN_MEANINGS, _column_key(kind, f), 'column'))} |")
     cols = loop_columns(2, 2)
     out += ["", f"A two-satellite, two-arm run (the `collision`) has {len(cols)} columns:", "",
-            "```text", ", ".join(cols), "```", ""]
+            "```text", ", ".join(cols), "```", "",
+            "Each arm on a rail adds its three after all of these (`collision-rails`, both "
+            f"arms on rails: {len(loop_columns(2, 2, [1, 2]))} columns, ending "
+            f"{', '.join(loop_columns(0, 0, [1, 2])[1:])}).", ""]
     return "\n".join(out)
 
 

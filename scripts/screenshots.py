@@ -19,34 +19,16 @@ import argparse
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from playwright.sync_api import sync_playwright  # noqa: E402
-
+from tests.browser import chromium  # noqa: E402
 from tests.live_server import LiveServer  # noqa: E402
 
 IMG = ROOT / "docs" / "img"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--no-first-run",
-]
 VIEWPORT = {"width": 1280, "height": 800}
-
-
-def _wait(live: LiveServer, done, timeout_s: float = 60.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        state = live.state()
-        if done(state):
-            return state
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"state never reached: {state.get('status')}")
-        time.sleep(0.1)
 
 
 def _hide_notices(page) -> None:
@@ -60,32 +42,28 @@ def _hide_notices(page) -> None:
 
 def page_shots() -> None:
     """page.png and push.png from a live server and a real browser."""
-    with LiveServer(default_scenario="free-floating") as live, sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport=VIEWPORT)
-            page.goto(live.url + "/")
-            live.wait_for_scene()
-            started = live.client.post("/api/scenarios/free-floating/start",
-                                       json={"loop": {"duration_s": 20.0}}).json()
-            assert started["status"] == "running", started
-            _wait(live, lambda s: s["t_s"] >= 2.0)
-            page.wait_for_timeout(1500)  # the viewer draws the scene
-            _hide_notices(page)
-            page.screenshot(path=str(IMG / "page.png"))
-            print(f"page.png at t = {live.state()['t_s']:.2f} s")
-            pushed = live.client.post("/api/push", json={
-                "satellite": 1, "force_N": [0.0, 10.0, 0.0], "duration_s": 0.3})
-            assert pushed.status_code == 200, pushed.text
-            t_push = pushed.json()["t_s"]
-            _wait(live, lambda s: s["t_s"] >= t_push + 3.0)
-            page.wait_for_timeout(1500)
-            _hide_notices(page)
-            page.screenshot(path=str(IMG / "push.png"))
-            print(f"push.png at t = {live.state()['t_s']:.2f} s (pushed at {t_push:.2f} s)")
-            live.client.post("/api/stop")
-        finally:
-            browser.close()
+    with LiveServer(default_scenario="free-floating") as live, chromium() as browser:
+        page = browser.new_page(viewport=VIEWPORT)
+        page.goto(live.url + "/")
+        live.wait_for_scene()
+        started = live.client.post("/api/scenarios/free-floating/start",
+                                   json={"loop": {"duration_s": 20.0}}).json()
+        assert started["status"] == "running", started
+        live.wait_for(lambda s: s["t_s"] >= 2.0, timeout_s=60.0)
+        page.wait_for_timeout(1500)  # the viewer draws the scene
+        _hide_notices(page)
+        page.screenshot(path=str(IMG / "page.png"))
+        print(f"page.png at t = {live.state()['t_s']:.2f} s")
+        pushed = live.client.post("/api/push", json={
+            "satellite": 1, "force_N": [0.0, 10.0, 0.0], "duration_s": 0.3})
+        assert pushed.status_code == 200, pushed.text
+        t_push = pushed.json()["t_s"]
+        live.wait_for(lambda s: s["t_s"] >= t_push + 3.0, timeout_s=60.0)
+        page.wait_for_timeout(1500)
+        _hide_notices(page)
+        page.screenshot(path=str(IMG / "push.png"))
+        print(f"push.png at t = {live.state()['t_s']:.2f} s (pushed at {t_push:.2f} s)")
+        live.client.post("/api/stop")
 
 
 def collision_figures() -> None:

@@ -9,6 +9,8 @@ here, written for readability rather than speed, with Pinocchio doing the rigid-
 * :class:`PinArm` — forward kinematics, the TCP Jacobian (LOCAL_WORLD_ALIGNED, shifted from
   the flange to the TCP) and ``H⁻¹ τ`` by ABA at zero velocity;
 * :class:`RefVfdm` — one VFDM internal step with Pinocchio (paper Eqs. 9-13);
+  :class:`RefRailVfdm` — the same on the 7-joint rail chain (:func:`build_rail_model`),
+  with the null-space posture term by the dynamically consistent projector;
 * :class:`RefServo` — the simulated UR10e servo: delay ring, protective-stop checks,
   second-order tracking, braking, saturation;
 * :func:`sensor_load_S`, :class:`RefSensor`, :class:`RefProcessor`, :func:`deadband` — the
@@ -35,6 +37,7 @@ __all__ = [
     "RefProcessor",
     "RefSensor",
     "RefServo",
+    "RefRailVfdm",
     "RefVfdm",
     "build_model",
     "build_rail_model",
@@ -290,6 +293,62 @@ class RefVfdm:
         self.q = self.q + h * self.qd
         hit = np.abs(self.q) > POSITION_LIMIT
         self.q = np.clip(self.q, -POSITION_LIMIT, POSITION_LIMIT)
+        self.qd[hit] = 0.0
+
+
+class RefRailVfdm(RefVfdm):
+    """:class:`RefVfdm` on the UR10e on a rail (:func:`build_rail_model`, q = [s, q1 … q6]),
+    plus the null-space posture term written with the dynamically consistent projector,
+    ``q̈_p = H⁻¹ Nᵀ τ_p``, ``N = I − H⁻¹ Jᵀ Λ J``, ``Λ = (J H⁻¹ Jᵀ)⁻¹``, ``τ_p = −K [0; q_arm −
+    posture]`` (away from singularities only: it inverts J H⁻¹ Jᵀ), and the carriage
+    clamped to ``travel_m`` as the arm's joints to ±2π. No speed or acceleration limits."""
+
+    def __init__(self, cfg, rail, T_F_C: np.ndarray, q0: np.ndarray, posture: np.ndarray):
+        self.cfg, self.rail = cfg, rail
+        axis = np.asarray(rail.axis_W, dtype=float)  # (the base at the identity: W = B0)
+        self.model = build_rail_model(axis, virtual_inertias(cfg, T_F_C), rail.virtual_mass_kg,
+                                      T_F_C, cfg.joint_armature_kgm2)
+        self.data = self.model.createData()
+        self.tcp_id = self.model.getFrameId("tcp")
+        self.posture = np.asarray(posture, dtype=float)
+        s = cfg.error_scale
+        self.kp = s * np.array([cfg.kp_lin] * 3 + [cfg.kp_rot] * 3)
+        self.kd = s * np.array([cfg.kd_lin] * 3 + [cfg.kd_rot] * 3)
+        self.keep = 1.0 - cfg.damping if cfg.velocity_mode == "damped" else 1.0
+        self.lo = np.array([rail.travel_m[0]] + [-POSITION_LIMIT] * 6)
+        self.hi = np.array([rail.travel_m[1]] + [POSITION_LIMIT] * 6)
+        self.reset(q0)
+
+    def reset(self, q: np.ndarray) -> None:
+        super().reset(q)
+        self.q = np.clip(np.array(q, dtype=float), self.lo, self.hi)
+        self.qd = np.zeros(7)
+
+    def step(self, T_target: np.ndarray) -> None:
+        cfg, model, data, h = self.cfg, self.model, self.data, self.cfg.internal_dt_s
+        pin.computeJointJacobians(model, data, self.q)
+        oMc = pin.updateFramePlacement(model, data, self.tcp_id)
+        J = pin.getFrameJacobian(model, data, self.tcp_id, _LWA)
+        e = np.empty(6)
+        e[:3] = clamp_norm(T_target[:3, 3] - oMc.translation, cfg.max_error_lin_m)
+        e[3:] = clamp_norm(pin.log3(T_target[:3, :3] @ oMc.rotation.T), cfg.max_error_rot_rad)
+        f = self.kp * e + self.ff
+        if self.e_prev is not None:
+            f += self.kd * (e - self.e_prev) / h
+        self.e_prev, self.last_error = e, e.copy()
+        zero = np.zeros(7)
+        qdd = pin.aba(model, data, self.q, zero, J.T @ f).copy()
+        k = self.rail.posture_stiffness_Nm_per_rad
+        if k:
+            H = pin.crba(model, data, self.q)
+            H = np.triu(H) + np.triu(H, 1).T
+            Hi = np.linalg.inv(H)
+            N = np.eye(7) - Hi @ J.T @ np.linalg.inv(J @ Hi @ J.T) @ J
+            qdd += Hi @ N.T @ np.concatenate([[0.0], -k * (self.q[1:] - self.posture)])
+        self.qd = (self.qd + h * qdd) * self.keep
+        self.q = self.q + h * self.qd
+        hit = (self.q < self.lo) | (self.q > self.hi)
+        self.q = np.clip(self.q, self.lo, self.hi)
         self.qd[hit] = 0.0
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
 import threading
 import time
 from pathlib import Path
@@ -19,22 +18,26 @@ import numpy as np
 import pytest
 
 from app.backend.scene import CAMERA_FOV_RAD, GIZMO_OFFSET_W
+from tests.browser import (
+    CLIENT_FOV_RAD,
+    HAVE_CHROMIUM,
+    NEEDS_CHROMIUM,
+    chromium,
+    project,
+    project_initial,
+    screenshot,
+)
 from tests.live_server import LiveServer
 
-playwright = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("playwright.sync_api")
 PIL = pytest.importorskip("PIL.Image")
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--no-first-run",
-]
 VIEWPORT = {"width": 1000, "height": 700}
 ARROW_HEAD = 0.9
 """Where a gizmo arrow is taken, in units of the gizmo's scale: on its head (0.77-1.05),
 clear of the rotation rings, which end on each axis at 0.65."""
 
-pytestmark = pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
+pytestmark = pytest.mark.skipif(not HAVE_CHROMIUM, reason=NEEDS_CHROMIUM)
 
 
 @pytest.fixture(scope="module")
@@ -45,39 +48,14 @@ def live():
 
 @pytest.fixture(scope="module")
 def page(live):
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    with chromium() as browser:
         page = browser.new_page(viewport=VIEWPORT)
         page.goto(live.url + "/")
         yield page
-        browser.close()
-
-
-def _screenshot(page) -> np.ndarray:
-    return np.asarray(PIL.open(io.BytesIO(page.screenshot())).convert("RGB")).astype(int)
 
 
 def _viewer_box(page) -> dict:
     return page.locator("#viewer").bounding_box()
-
-
-def _project(live, page, points_W) -> np.ndarray:
-    """Page pixel coordinates of lab points, seen by viser's initial camera (its vertical
-    field of view, z up) in the iframe."""
-    cam = live.app.state.viser.initial_camera
-    box = _viewer_box(page)
-    pos, look = np.asarray(cam.position, float), np.asarray(cam.look_at, float)
-    f = (look - pos) / np.linalg.norm(look - pos)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(cam.fov / 2)
-    out = []
-    for p in np.atleast_2d(points_W):
-        v = np.asarray(p, float) - pos
-        out.append([box["x"] + box["width"] / 2 + fpx * (r @ v) / (f @ v),
-                    box["y"] + box["height"] / 2 + fpx * (d @ v) / (f @ v)])
-    return np.array(out)
 
 
 def _wait_rendered(page, live, timeout_s: float = 60.0) -> np.ndarray:
@@ -86,7 +64,7 @@ def _wait_rendered(page, live, timeout_s: float = 60.0) -> np.ndarray:
     box = _viewer_box(page)
     deadline = time.monotonic() + timeout_s
     while True:
-        img = _screenshot(page)
+        img = screenshot(page)
         y0, x0 = int(box["y"]), int(box["x"])
         area = img[y0:y0 + int(box["height"]), x0:x0 + int(box["width"] * 0.65)]
         non_bg = np.abs(area - area.reshape(-1, 3)[0]).sum(axis=2) > 60
@@ -107,7 +85,7 @@ def test_viewer_renders_both_arms(live, page):
     # the whole rig in view (the default camera frames the mockups, not the arms' homes)
     _set_cameras(live, (1.9, -2.3, 1.7), (0.0, 0.0, 0.95))
     page.wait_for_timeout(1500)  # let the meshes settle
-    base = _screenshot(page)
+    base = screenshot(page)
     scene = live.app.state.scene
     assert len(scene._active_arms) == 2
     box = _viewer_box(page)
@@ -118,7 +96,7 @@ def test_viewer_renders_both_arms(live, page):
             changed = 0
             for _ in range(20):
                 page.wait_for_timeout(500)
-                img = _screenshot(page)
+                img = screenshot(page)
                 diff = np.abs(img - base).sum(axis=2)[int(box["y"]):, :x_max] > 60
                 changed = int(diff.sum())
                 if changed > 1500:
@@ -127,7 +105,7 @@ def test_viewer_renders_both_arms(live, page):
             view.root.visible = True
         assert changed > 1500, f"hiding an arm changed only {changed} pixels"
     cam = live.app.state.viser.initial_camera
-    _set_cameras(live, cam.position, cam.look_at)  # back to the default, which _project uses
+    _set_cameras(live, cam.position, cam.look_at)  # back to the default, which project_initial uses
     page.wait_for_timeout(1000)
 
 
@@ -183,8 +161,9 @@ def test_gizmo_mouse_drag_moves_the_satellite(live, page):
     # the rotation rings: the camera goes close, looking at the mockup from +x.
     eye = m + [0.75, -0.25, 0.45]
     with _camera_at(live, page, eye, m):
-        center, tip = _project_from(page, eye, m, [m, m + [0.0, ARROW_HEAD * scale, 0.0]])
-        img = _screenshot(page)
+        center, tip = project(_viewer_box(page), eye, m,
+                              [m, m + [0.0, ARROW_HEAD * scale, 0.0]], CLIENT_FOV_RAD)
+        img = screenshot(page)
         r, g, b = img[int(round(tip[1])), int(round(tip[0]))]
         assert g > 150 and g > r + 40, f"no green gizmo arrow at {tip}: {(r, g, b)}"
         direction = (tip - center) / np.linalg.norm(tip - center)
@@ -233,8 +212,8 @@ def _drag_arrow(live, page, origin_W, axis_W, check, attempts: int = 2) -> dict:
     """Drag the gizmo arrow that starts at origin_W along axis_W by ~20 px; the state
     once check(state) holds (a second drag where the first press missed the arrow)."""
     scale = 0.35  # the gizmo's scale (scene.py): its arrows are that long in metres
-    center, tip = _project(live, page, [origin_W,
-                                        origin_W + ARROW_HEAD * scale * np.asarray(axis_W)])
+    center, tip = project_initial(live, page, [origin_W,
+                                               origin_W + ARROW_HEAD * scale * np.asarray(axis_W)])
     direction = (tip - center) / np.linalg.norm(tip - center)
     for attempt in range(attempts):
         page.mouse.move(*tip)
@@ -282,7 +261,7 @@ def test_a_click_grabs_the_mockup_off_centre_and_a_drag_spins_it(live, page):
     m = np.array(s0["robots"][0]["mockup_position_W_m"])
     r_B = np.array([-0.02, -0.1, -0.02])  # on the -y face (body = lab axes at rest),
     # well inside it (the mockup is ~85 px across in the test's 1000 px wide page)
-    (click,) = _project(live, page, [m + r_B])
+    (click,) = project_initial(live, page, [m + r_B])
     sat_view = live.app.state.scene._sats[0]
     cam = live.app.state.viser.initial_camera  # the layout's camera, whatever the
     with _camera_at(live, page, cam.position, cam.look_at):  # test before left
@@ -564,23 +543,6 @@ def test_with_a_token_the_cookie_from_another_port_does_not_help(page):
         _attack_and_own_page(server, page.context.browser, token=token)
 
 
-def _project_from(page, position_W, look_at_W, points_W,
-                  fov_rad: float = np.radians(75.0)) -> np.ndarray:
-    """Page pixels of lab points seen from a camera at position_W looking at look_at_W
-    (vertical FOV 75 deg, z up: a camera a client is sent keeps viser's default field of
-    view), as :func:`_project` for the initial camera."""
-    box = _viewer_box(page)
-    pos, look = np.asarray(position_W, float), np.asarray(look_at_W, float)
-    f = (look - pos) / np.linalg.norm(look - pos)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(fov_rad / 2)
-    v = np.atleast_2d(points_W) - pos
-    return np.column_stack([box["x"] + box["width"] / 2 + fpx * (v @ r) / (v @ f),
-                            box["y"] + box["height"] / 2 + fpx * (v @ d) / (v @ f)])
-
-
 def test_a_press_held_5_s_pushes_one_way_and_a_twist_on_a_ring_spins(live, page):
     """free-floating (hil), the camera close to the mockup, the grab at the centre.
     A twist: the gizmo's blue ring (about z), taken near its y end (its x end meets the
@@ -624,9 +586,10 @@ def _twist_about_z(live, page, eye, m) -> None:
     scale = 0.35  # the gizmo's scale (scene.py); its rings' radius is 0.65 of it (drei)
     angles = np.radians([70.0, 90.0, 110.0])  # 40 degrees round the ring, in two moves
     # (few moves: each takes ~1-2 s in software WebGL while a gizmo is dragged)
-    ring = _project_from(page, eye, m, [m + 0.65 * scale * np.array([np.cos(a), np.sin(a), 0])
-                                        for a in angles], CAMERA_FOV_RAD)
-    ring[0] = _nearest_pixel(_screenshot(page), ring[0], lambda r, g, b: b > 180 and
+    ring = project(_viewer_box(page), eye, m,
+                   [m + 0.65 * scale * np.array([np.cos(a), np.sin(a), 0]) for a in angles],
+                   CAMERA_FOV_RAD)
+    ring[0] = _nearest_pixel(screenshot(page), ring[0], lambda r, g, b: b > 180 and
                              b > r + 60 and b > g + 40, "the blue ring")
     page.mouse.move(*ring[0])
     page.mouse.down()
@@ -662,10 +625,10 @@ def _press_along_x_and_hold(live, page, eye, m) -> None:
     scale = 0.35
     s = live.state()
     m = np.array(s["robots"][0]["mockup_position_W_m"]) + GIZMO_OFFSET_W  # the gizmo
-    center, tip = _project_from(page, eye, m, [m, m + [ARROW_HEAD * scale, 0.0, 0.0]],
-                                CAMERA_FOV_RAD)
+    center, tip = project(_viewer_box(page), eye, m, [m, m + [ARROW_HEAD * scale, 0.0, 0.0]],
+                          CAMERA_FOV_RAD)
     direction = (tip - center) / np.linalg.norm(tip - center)
-    tip = _nearest_pixel(_screenshot(page), tip, lambda r, g, b: r > 180 and r > g + 60
+    tip = _nearest_pixel(screenshot(page), tip, lambda r, g, b: r > 180 and r > g + 60
                          and r > b + 60, "the red arrow")
     gizmo = live.app.state.scene._sats[0].gizmo
     x0 = float(gizmo.position[0])

@@ -9,7 +9,6 @@ One server and one browser for the module.
 
 from __future__ import annotations
 
-import os
 import re
 import time
 from collections import deque
@@ -19,20 +18,16 @@ import numpy as np
 import pytest
 
 from app.backend.scene import GIZMO_OFFSET_W, PLOT_WINDOW_S, trim_window
+from tests.browser import HAVE_CHROMIUM, NEEDS_CHROMIUM, chromium, project_initial
 from tests.live_server import LiveServer
 
-playwright = pytest.importorskip("playwright.sync_api")
+pytest.importorskip("playwright.sync_api")
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--no-first-run",
-]
 VIEWPORT = {"width": 1280, "height": 720}
 GIZMO_ARROW_M = 0.7 * 0.35  # the gizmo's arrows: 0.7 of its scale (scene.py)
 R_AXIS_M = 0.25  # frame R's axes (scene.py)
 
-pytestmark = pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
+pytestmark = pytest.mark.skipif(not HAVE_CHROMIUM, reason=NEEDS_CHROMIUM)
 
 # Every text a 2D canvas draws (the plots' axis labels), where, and how wide, in each frame.
 RECORD_TEXT = """(() => {
@@ -63,10 +58,8 @@ def live():
 
 @pytest.fixture(scope="module")
 def browser():
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    with chromium() as browser:
         yield browser
-        browser.close()
 
 
 @pytest.fixture(scope="module")
@@ -105,22 +98,6 @@ def page(live, offline):
     page.wait_for_function("document.getElementById('scenario').options.length > 0",
                            timeout=30_000)
     yield page
-
-
-def _project(live, page, points_W) -> np.ndarray:
-    """Page pixel coordinates of lab points through viser's initial camera (its position,
-    look-at point and vertical field of view; z up) in the viewer's frame."""
-    cam = live.app.state.viser.initial_camera
-    box = page.locator("#viewer").bounding_box()
-    pos, look = np.asarray(cam.position, float), np.asarray(cam.look_at, float)
-    f = (look - pos) / np.linalg.norm(look - pos)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(cam.fov / 2)
-    v = np.atleast_2d(np.asarray(points_W, float)) - pos
-    return np.stack([box["x"] + box["width"] / 2 + fpx * (v @ r) / (v @ f),
-                     box["y"] + box["height"] / 2 + fpx * (v @ d) / (v @ f)], axis=1)
 
 
 def _box_corners(centre_W, size_m) -> np.ndarray:
@@ -264,17 +241,18 @@ def test_the_default_camera_frames_each_mockup_at_least_100_px(live, page):
         layout = s["layout"]
         box = page.locator("#viewer").bounding_box()
         T_W_R = np.asarray(layout["T_W_R"])
-        r_axes = [(_project(live, page, [T_W_R[:3, 3], T_W_R[:3, 3] + R_AXIS_M * T_W_R[:3, k]]))
+        r_axes = [project_initial(live, page,
+                                  [T_W_R[:3, 3], T_W_R[:3, 3] + R_AXIS_M * T_W_R[:3, k]])
                   for k in range(3)]
         for sat, (_, size, _) in zip(s["satellites"], layout["satellites"], strict=True):
-            px = _project(live, page, _box_corners(sat["position_W_m"], size))
+            px = project_initial(live, page, _box_corners(sat["position_W_m"], size))
             across = px.max(axis=0) - px.min(axis=0)
             assert across[0] >= 100 and across[1] >= 50, (scenario, across)
             assert px[:, 0].min() > box["x"] and px[:, 0].max() < box["x"] + box["width"] - 330
             assert px[:, 1].min() > box["y"] and px[:, 1].max() < box["y"] + box["height"]
             gizmo = np.asarray(sat["position_W_m"]) + GIZMO_OFFSET_W
             for k in range(3):
-                arrow = _project(live, page, [gizmo, gizmo + GIZMO_ARROW_M * np.eye(3)[k]])
+                arrow = project_initial(live, page, [gizmo, gizmo + GIZMO_ARROW_M * np.eye(3)[k]])
                 gap = min(_segment_distance_px(*arrow, *axis) for axis in r_axes)
                 assert gap >= 15, (scenario, "xyz"[k], gap)
 
@@ -310,7 +288,7 @@ def test_the_mockup_is_where_the_camera_projection_says(live, page, free_floatin
     the pixels inside its projected outline (and the outline is over 100 px across)."""
     s = live.wait_for(lambda s: s["t_s"] > 1.0)
     corners = _box_corners(s["robots"][0]["mockup_position_W_m"], s["layout"]["satellites"][0][1])
-    px = _project(live, page, corners)
+    px = project_initial(live, page, corners)
     x0, y0 = (int(v) for v in px.min(axis=0))
     x1, y1 = (int(v) for v in px.max(axis=0))
     assert x1 - x0 >= 100
@@ -403,7 +381,7 @@ def test_a_new_run_grabs_the_mockup_at_its_centre(live, page, free_floating):
     s0 = live.wait_for(lambda s: s["t_s"] > 1.0)
     m = np.array(s0["robots"][0]["mockup_position_W_m"])
     sat_view = live.app.state.scene._sats[0]
-    (click,) = _project(live, page, [m + [-0.06, -0.1, -0.02]])
+    (click,) = project_initial(live, page, [m + [-0.06, -0.1, -0.02]])
     for _ in range(3):
         page.mouse.click(*click)
         for _ in range(20):

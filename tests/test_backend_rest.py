@@ -1077,17 +1077,20 @@ def test_a_robot_s_rail_is_listed_set_by_the_start_body_and_bad_values_named(liv
     assert listed["free-flying-rails"]["rails"] == [{
         "robot": "ceiling", "axis_W": list(rail.axis_W), "travel_m": list(rail.travel_m),
         "start_m": rail.start_m, "speed_limit_mps": rail.speed_limit_mps,
-        "accel_limit_mps2": rail.accel_limit_mps2}]
+        "accel_limit_mps2": rail.accel_limit_mps2, "bandwidth_hz": rail.bandwidth_hz,
+        "damping_ratio": rail.damping_ratio, "velocity_feedforward": rail.velocity_feedforward,
+        "delay_cycles": rail.delay_cycles}]
     assert listed["collision"]["rails"] == [None, None]
     live.client.post("/api/stop")
     live.wait_for_scene()
+    every = {"axis_W": [0.0, 0.6, 0.8], "travel_m": [-1.8, 1.9], "start_m": 0.1,
+             "speed_limit_mps": 0.8, "accel_limit_mps2": 1.5, "bandwidth_hz": 8.0,
+             "damping_ratio": 0.9, "velocity_feedforward": False, "delay_cycles": 2}
     s = live.client.post("/api/scenarios/free-flying-rails/start", json={
-        "mode": "ideal", "robots": {"0": {"rail": {"travel_m": [-1.8, 1.9], "start_m": 0.1}}},
-    })
+        "mode": "ideal", "robots": {"0": {"rail": every}}})
     assert s.status_code == 200, s.text
     ran = s.json()
-    assert ran["settings"]["rails"][0]["travel_m"] == [-1.8, 1.9]
-    assert ran["settings"]["rails"][0]["start_m"] == 0.1
+    assert ran["settings"]["rails"][0] == {"robot": "ceiling", **every}
     generation = ran["generation"]
     for body, detail in [
         ({"robots": {"0": {"rail": {"start_m": 5}}}},
@@ -1098,6 +1101,16 @@ def test_a_robot_s_rail_is_listed_set_by_the_start_body_and_bad_values_named(liv
          "robots.0.rail: axis_W must be a non-zero direction in the lab frame W"),
         ({"robots": {"0": {"rail": {"speed_limit_mps": 0}}}},
          "robots.0.rail.speed_limit_mps: Input should be greater than 0"),
+        ({"robots": {"0": {"rail": {"accel_limit_mps2": -1}}}},
+         "robots.0.rail.accel_limit_mps2: Input should be greater than 0"),
+        ({"robots": {"0": {"rail": {"bandwidth_hz": 0}}}},
+         "robots.0.rail.bandwidth_hz: Input should be greater than 0"),
+        ({"robots": {"0": {"rail": {"damping_ratio": -0.5}}}},
+         "robots.0.rail.damping_ratio: Input should be greater than 0"),
+        ({"robots": {"0": {"rail": {"delay_cycles": 101}}}},
+         "robots.0.rail.delay_cycles: Input should be less than or equal to 100"),
+        ({"robots": {"0": {"rail": {"velocity_feedforward": "yes"}}}},
+         "robots.0.rail.velocity_feedforward: Input should be a valid boolean"),
         ({"robots": {"0": {"rail": {"stroke_m": 2}}}}, "robots.0.rail.stroke_m: "),
     ]:
         r = live.client.post("/api/scenarios/free-flying-rails/start", json=body)

@@ -351,84 +351,80 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
     restitution against the ideal run's and its plots, read from the run's folder; two runs
     chosen in the runs list are compared (settings that differ, plots side by side)."""
     sync_api = pytest.importorskip("playwright.sync_api")
-    from tests.test_backend_browser import CHROMIUM, CHROMIUM_ARGS, VIEWPORT
+    from tests.browser import HAVE_CHROMIUM, NEEDS_CHROMIUM, chromium
 
-    if not os.path.exists(CHROMIUM):
-        pytest.skip("needs " + CHROMIUM)
+    if not HAVE_CHROMIUM:
+        pytest.skip(NEEDS_CHROMIUM)
     live.wait_for(lambda s: s["status"] not in ("running", "starting"))
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    with chromium() as browser:
+        page = browser.new_page(viewport={"width": 1000, "height": 700})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(live.url + "/")
+        page.wait_for_selector("#run-result", state="attached", timeout=60_000)
+        page.locator("#runs-toggle").click()  # the panel opens on a click only
+        r = live.client.post("/api/scenarios/collision/start",
+                             json={**SHORT_COLLISION, "mode": "hil"})
+        assert r.status_code == 200, r.text
+        run_id = live.client.get("/api/runs").json()["recording"]
+        record = _ended(live, run_id, 90.0)
+        h = record["headline"]
+        expected = (f"restitution {h['restitution']:.3f} (95 % interval "
+                    f"{h['restitution_interval_95'][0]:.3f} – "
+                    f"{h['restitution_interval_95'][1]:.3f}) · ideal run "
+                    f"{h['restitution_ideal']:.3f}")
         try:
-            page = browser.new_page(viewport=VIEWPORT)
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(live.url + "/")
-            page.wait_for_selector("#run-result", state="attached", timeout=60_000)
-            page.locator("#runs-toggle").click()  # the panel opens on a click only
-            r = live.client.post("/api/scenarios/collision/start",
-                                 json={**SHORT_COLLISION, "mode": "hil"})
-            assert r.status_code == 200, r.text
-            run_id = live.client.get("/api/runs").json()["recording"]
-            record = _ended(live, run_id, 90.0)
-            h = record["headline"]
-            expected = (f"restitution {h['restitution']:.3f} (95 % interval "
-                        f"{h['restitution_interval_95'][0]:.3f} – "
-                        f"{h['restitution_interval_95'][1]:.3f}) · ideal run "
-                        f"{h['restitution_ideal']:.3f}")
-            try:
-                page.wait_for_function(
-                    "([id, text]) => { const r = document.getElementById('run-result');"
-                    " return r && r.dataset.runId === id && r.querySelector('img.run-plot')"
-                    " && r.textContent.includes(text); }", arg=[run_id, expected],
-                    timeout=60_000)
-                page.wait_for_function(  # a plot drawn, served from the run's folder
-                    "() => [...document.querySelectorAll('#run-result img.run-plot')]"
-                    ".some((i) => i.complete && i.naturalWidth > 300)", timeout=60_000)
-            except sync_api.TimeoutError:
-                pytest.fail(f"the result panel shows {page.locator('#run-result').inner_text()!r}"
-                            f"; expected run {run_id} with {expected!r} and a plot; page "
-                            f"errors: {errors}")
-            assert (f"restitution {h['restitution']:.3f} (ideal {h['restitution_ideal']:.3f}"
-                    in page.locator("#runs-headline").inner_text())  # the line at a glance
-            src = page.locator("#run-result img.run-plot").first.get_attribute("src")
-            assert src.startswith(f"/api/runs/{run_id}/files/") and ".png" in src
-            assert page.locator("#runs-retention").inner_text().startswith("the newest 6 runs")
-            # compare it with an ideal run
-            other = next(x["id"] for x in live.client.get("/api/runs").json()["runs"]
-                         if x["mode"] == "ideal" and x["status"] == "finished")
-            for rid in (run_id, other):
-                page.locator(f"input.run-choose[data-run-id='{rid}']").check()
-            page.locator("#compare-button").click()
-            page.wait_for_function(  # the figures overlaid, drawn by the server
-                "() => { const c = document.getElementById('run-compare');"
-                " return c && c.querySelector('.compare-diff') && [...c.querySelectorAll("
-                "'img.compare-overlay')].some((i) => i.complete && i.naturalWidth > 300); }",
-                timeout=90_000)
-            diff = page.locator("#run-compare .compare-diff").inner_text()
-            assert "mode" in diff and "hil" in diff and "ideal" in diff
-            assert "loop.duration_s" in diff  # 1.2 s against the ideal run's
-            assert page.locator("#run-compare .run-summary").count() == 2
-            a, b = sorted((run_id, other))
-            src = page.locator("#run-compare img.compare-overlay").first.get_attribute("src")
-            assert src.startswith(f"/api/runs/compare/plot?a={a}&b={b}&figure=")
-            # the runs list offers the run's 3D replay, which opens and loads in a new tab
-            link = page.locator(f"#runs-list tr[data-run-id='{run_id}'] a.run-replay")
-            link.wait_for(timeout=20_000)
-            assert link.get_attribute("href") == f"/api/runs/{run_id}/files/replay.html"
-            assert link.get_attribute("target") == "_blank"
-            logs: list[str] = []
-            page.context.on("console", lambda m: logs.append(m.text))  # (every tab's)
-            with page.context.expect_page() as opened:
-                link.click()
-            viewer = opened.value
-            viewer.bring_to_front()  # (a tab in the background is not drawn)
-            deadline = time.monotonic() + 60
-            while not any("File loaded" in t for t in logs) and time.monotonic() < deadline:
-                viewer.wait_for_timeout(250)
-            assert any("File loaded" in t for t in logs), logs[-10:]
-            assert viewer.title() == "orbit-emulator replay: collision (hil)"
-        finally:
-            browser.close()
+            page.wait_for_function(
+                "([id, text]) => { const r = document.getElementById('run-result');"
+                " return r && r.dataset.runId === id && r.querySelector('img.run-plot')"
+                " && r.textContent.includes(text); }", arg=[run_id, expected],
+                timeout=60_000)
+            page.wait_for_function(  # a plot drawn, served from the run's folder
+                "() => [...document.querySelectorAll('#run-result img.run-plot')]"
+                ".some((i) => i.complete && i.naturalWidth > 300)", timeout=60_000)
+        except sync_api.TimeoutError:
+            pytest.fail(f"the result panel shows {page.locator('#run-result').inner_text()!r}"
+                        f"; expected run {run_id} with {expected!r} and a plot; page "
+                        f"errors: {errors}")
+        assert (f"restitution {h['restitution']:.3f} (ideal {h['restitution_ideal']:.3f}"
+                in page.locator("#runs-headline").inner_text())  # the line at a glance
+        src = page.locator("#run-result img.run-plot").first.get_attribute("src")
+        assert src.startswith(f"/api/runs/{run_id}/files/") and ".png" in src
+        assert page.locator("#runs-retention").inner_text().startswith("the newest 6 runs")
+        # compare it with an ideal run
+        other = next(x["id"] for x in live.client.get("/api/runs").json()["runs"]
+                     if x["mode"] == "ideal" and x["status"] == "finished")
+        for rid in (run_id, other):
+            page.locator(f"input.run-choose[data-run-id='{rid}']").check()
+        page.locator("#compare-button").click()
+        page.wait_for_function(  # the figures overlaid, drawn by the server
+            "() => { const c = document.getElementById('run-compare');"
+            " return c && c.querySelector('.compare-diff') && [...c.querySelectorAll("
+            "'img.compare-overlay')].some((i) => i.complete && i.naturalWidth > 300); }",
+            timeout=90_000)
+        diff = page.locator("#run-compare .compare-diff").inner_text()
+        assert "mode" in diff and "hil" in diff and "ideal" in diff
+        assert "loop.duration_s" in diff  # 1.2 s against the ideal run's
+        assert page.locator("#run-compare .run-summary").count() == 2
+        a, b = sorted((run_id, other))
+        src = page.locator("#run-compare img.compare-overlay").first.get_attribute("src")
+        assert src.startswith(f"/api/runs/compare/plot?a={a}&b={b}&figure=")
+        # the runs list offers the run's 3D replay, which opens and loads in a new tab
+        link = page.locator(f"#runs-list tr[data-run-id='{run_id}'] a.run-replay")
+        link.wait_for(timeout=20_000)
+        assert link.get_attribute("href") == f"/api/runs/{run_id}/files/replay.html"
+        assert link.get_attribute("target") == "_blank"
+        logs: list[str] = []
+        page.context.on("console", lambda m: logs.append(m.text))  # (every tab's)
+        with page.context.expect_page() as opened:
+            link.click()
+        viewer = opened.value
+        viewer.bring_to_front()  # (a tab in the background is not drawn)
+        deadline = time.monotonic() + 60
+        while not any("File loaded" in t for t in logs) and time.monotonic() < deadline:
+            viewer.wait_for_timeout(250)
+        assert any("File loaded" in t for t in logs), logs[-10:]
+        assert viewer.title() == "orbit-emulator replay: collision (hil)"
 
 
 def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):

@@ -5,13 +5,11 @@ settings set the rail and the rendered carriage moves."""
 
 from __future__ import annotations
 
-import io
-import os
-
 import numpy as np
 import pytest
 
 from app.scenarios import load_scenario
+from tests.browser import HAVE_CHROMIUM, NEEDS_CHROMIUM, chromium, project, screenshot
 from tests.live_server import LiveServer
 
 
@@ -51,91 +49,66 @@ def test_the_arm_rides_its_carriage_along_the_drawn_rail(live):
 
 # --- in a real browser ------------------------------------------------------------------------
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--no-first-run",
-]
 
-
-def _screenshot(page) -> np.ndarray:
-    from PIL import Image
-
-    return np.asarray(Image.open(io.BytesIO(page.screenshot())).convert("RGB")).astype(int)
-
-
-def _project_from(box, position_W, look_at_W, points_W, fov_rad: float) -> np.ndarray:
-    """Page pixels of lab points seen from a camera at position_W looking at look_at_W
-    (vertical field of view fov_rad, z up) in the viewer's frame at box."""
-    pos, look = np.asarray(position_W, float), np.asarray(look_at_W, float)
-    f = (look - pos) / np.linalg.norm(look - pos)
-    r = np.cross(f, [0.0, 0.0, 1.0])
-    r /= np.linalg.norm(r)
-    d = np.cross(f, r)
-    fpx = (box["height"] / 2) / np.tan(fov_rad / 2)
-    v = np.atleast_2d(points_W) - pos
-    return np.column_stack([box["x"] + box["width"] / 2 + fpx * (v @ r) / (v @ f),
-                            box["y"] + box["height"] / 2 + fpx * (v @ d) / (v @ f)])
-
-
-@pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
+@pytest.mark.skipif(not HAVE_CHROMIUM, reason=NEEDS_CHROMIUM)
 def test_in_the_browser_the_panel_sets_the_rail_and_the_carriage_moves_in_the_scene(live):
-    """The page's settings offer the rail's start and travel (the scenario's as
-    placeholders); a Start from the page runs with the travel typed in; and in the 3D view
-    (Chromium, software WebGL) the arm's base moves along the rail: seen from beside the
-    rail, the pixels that change at the base's height lie between where the base was and
-    where it went, and span most of that way."""
-    playwright = pytest.importorskip("playwright.sync_api")
+    """The page's settings offer the rail's start, travel and speed limit (the scenario's
+    as placeholders); a Start from the page runs with the travel and speed typed in; and in
+    the 3D view (Chromium, software WebGL) the arm's base moves along the rail: seen from
+    beside the rail, the pixels that change at the base's height lie between where the base
+    was and where it went, and span most of that way."""
+    pytest.importorskip("playwright.sync_api")
     pytest.importorskip("PIL.Image")
     rail = load_scenario("free-flying-rails").robots[0].rail
     live.client.post("/api/stop")
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1000, "height": 700})
-            page.goto(live.url + "/")
-            page.wait_for_function("document.getElementById('set-rail-0-max') !== null",
-                                   timeout=30_000)
-            page.select_option("#scenario", "free-flying-rails")
-            page.click("#settings-pop summary")
-            assert page.get_attribute("#set-rail-0-min", "placeholder") == f"{rail.travel_m[0]:g}"
-            assert page.get_attribute("#set-rail-0-max", "placeholder") == f"{rail.travel_m[1]:g}"
-            assert page.get_attribute("#set-rail-0-start", "placeholder") == f"{rail.start_m:g}"
-            page.fill("#set-rail-0-max", "1.7")
-            page.click("#settings-pop summary")  # (closed again: the view unhidden)
-            page.click("#start-button")
-            st = live.wait_for(lambda s: s["status"] == "running" and s["t_s"] > 0.1,
-                               timeout_s=60.0)
-            assert st["scenario"] == "free-flying-rails"
-            assert st["settings"]["rails"][0]["travel_m"] == [rail.travel_m[0], 1.7]
-            page.wait_for_function("document.getElementById('settings').textContent"
-                                   ".includes('travel [-1.6, 1.7] m')", timeout=10_000)
-            live.wait_for_scene()
-            robot = load_scenario("free-flying-rails").robots[0]
-            base0 = np.array(robot.base_position_m)
-            # beside the rail, its first leg (toward -y) in the left of the view (the
-            # viewer's panel covers the right third)
-            eye, look = base0 + [-3.2, -1.4, -0.4], base0 + [0.0, -1.4, -0.4]
-            for client in live.app.state.viser.get_clients().values():
-                client.camera.position, client.camera.look_at = tuple(eye), tuple(look)
-            fov = float(next(iter(live.app.state.viser.get_clients().values())).camera.fov)
-            shots = []
-            axis = np.array(rail.axis_W)
-            along = lambda s: np.array(s["robots"][0]["base_position_W_m"]) @ axis  # noqa: E731
-            for wanted in (lambda s: s["t_s"] > 3.0,  # then 0.3 m further along the rail
-                           lambda s: abs(along(s) - shots[0][1] @ axis) > 0.3):
-                live.wait_for(wanted, timeout_s=60.0)
-                page.wait_for_timeout(400)  # (the scene's 30 Hz frames, the renderer's)
-                img = _screenshot(page)
-                shots.append((img, np.array(live.state()["robots"][0]["base_position_W_m"])))
-            box = page.locator("#viewer").bounding_box()
-        finally:
-            browser.close()
+    with chromium() as browser:
+        page = browser.new_page(viewport={"width": 1000, "height": 700})
+        page.goto(live.url + "/")
+        page.wait_for_function("document.getElementById('set-rail-0-max') !== null",
+                               timeout=30_000)
+        page.select_option("#scenario", "free-flying-rails")
+        page.click("#settings-pop summary")
+        assert page.get_attribute("#set-rail-0-min", "placeholder") == f"{rail.travel_m[0]:g}"
+        assert page.get_attribute("#set-rail-0-max", "placeholder") == f"{rail.travel_m[1]:g}"
+        assert page.get_attribute("#set-rail-0-start", "placeholder") == f"{rail.start_m:g}"
+        assert page.get_attribute("#set-rail-0-speed",
+                                  "placeholder") == f"{rail.speed_limit_mps:g}"
+        page.fill("#set-rail-0-max", "1.7")
+        page.fill("#set-rail-0-speed", "0.8")
+        page.click("#settings-pop summary")  # (closed again: the view unhidden)
+        page.click("#start-button")
+        st = live.wait_for(lambda s: s["status"] == "running" and s["t_s"] > 0.1,
+                           timeout_s=60.0)
+        assert st["scenario"] == "free-flying-rails"
+        assert st["settings"]["rails"][0]["travel_m"] == [rail.travel_m[0], 1.7]
+        assert st["settings"]["rails"][0]["speed_limit_mps"] == 0.8
+        page.wait_for_function("document.getElementById('settings').textContent"
+                               ".includes('travel [-1.6, 1.7] m, ≤ 0.8 m/s')",
+                               timeout=10_000)
+        live.wait_for_scene()
+        robot = load_scenario("free-flying-rails").robots[0]
+        base0 = np.array(robot.base_position_m)
+        # beside the rail, its first leg (toward -y) in the left of the view (the
+        # viewer's panel covers the right third)
+        eye, look = base0 + [-3.2, -1.4, -0.4], base0 + [0.0, -1.4, -0.4]
+        for client in live.app.state.viser.get_clients().values():
+            client.camera.position, client.camera.look_at = tuple(eye), tuple(look)
+        fov = float(next(iter(live.app.state.viser.get_clients().values())).camera.fov)
+        shots = []
+        axis = np.array(rail.axis_W)
+        along = lambda s: np.array(s["robots"][0]["base_position_W_m"]) @ axis  # noqa: E731
+        for wanted in (lambda s: s["t_s"] > 3.0,  # then 0.3 m further along the rail
+                       lambda s: abs(along(s) - shots[0][1] @ axis) > 0.3):
+            live.wait_for(wanted, timeout_s=60.0)
+            page.wait_for_timeout(400)  # (the scene's 30 Hz frames, the renderer's)
+            img = screenshot(page)
+            shots.append((img, np.array(live.state()["robots"][0]["base_position_W_m"])))
+        box = page.locator("#viewer").bounding_box()
     live.client.post("/api/stop")
     (img1, b1), (img2, b2) = shots
     moved_m = (b2 - b1) @ np.array(rail.axis_W)
     assert abs(moved_m) > 0.25, moved_m  # the carriage travelled between the shots
-    (u1, v1), (u2, _) = _project_from(box, eye, look, [b1, b2], fov)
+    (u1, v1), (u2, _) = project(box, eye, look, [b1, b2], fov)
     x_max = box["x"] + 0.65 * box["width"]
     assert max(u1, u2) < x_max - 40  # (both in view, clear of the panel)
     # what changed, less the thin lines (the rail, the safety box's edges) whose

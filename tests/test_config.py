@@ -171,6 +171,8 @@ def test_bad_patches_name_what_is_wrong(patch, message):
          {"satellites": {"1": {"velocity_mps": [0.1, 0, 0]}}}),
         ("satellites.0.material=rigid", {"satellites": {"0": {"material": "rigid"}}}),
         ("pulses=[]", {"pulses": []}),
+        ("robots.0.rail=null", {"robots": {"0": {"rail": None}}}),  # removes the setting
+        ('satellites.0.name="null"', {"satellites": {"0": {"name": "null"}}}),
     ],
 )
 def test_assignment_override(text, expected):

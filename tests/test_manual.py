@@ -23,14 +23,10 @@ from app.backend.server import create_app
 from app.campaign.sweep import METRIC_FIELDS
 from app.cli import build_parser
 from app.config import EmulatorConfig
+from tests.browser import HAVE_CHROMIUM, NEEDS_CHROMIUM, chromium
 
 ROOT = Path(__file__).resolve().parent.parent
 MKDOCS = Path(sys.executable).parent / "mkdocs"
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--no-first-run",
-]
 
 pytestmark = pytest.mark.skipif(not MKDOCS.exists(), reason="needs mkdocs (the docs extra)")
 
@@ -61,6 +57,19 @@ def _rows(site: Path, page: str) -> dict[str, str]:
             rows[html.unescape(first.group(1))] = html.unescape(
                 re.sub(r"<[^>]+>", " ", first.group(2)))
     return rows
+
+
+def _meanings(site: Path, page: str) -> dict[str, list[str]]:
+    """A built page's table rows by their first cell's code: each such row's last cell's text."""
+    raw = (site / page / "index.html").read_text()
+    cells = {}
+    for row in re.findall(r"<tr>(.*?)</tr>", raw, re.S):
+        tds = re.findall(r"<td>(.*?)</td>", row, re.S)
+        first = re.match(r"\s*<code>(.*?)</code>\s*$", tds[0]) if tds else None
+        if first:
+            cells.setdefault(html.unescape(first.group(1)), []).append(
+                html.unescape(re.sub(r"<[^>]+>", "", tds[-1])).strip())
+    return cells
 
 
 def _held(tp) -> tuple[str, type] | None:
@@ -112,6 +121,11 @@ def test_every_configuration_key_is_in_the_reference_with_its_docstring(site):
     row = " ".join(rows["vfdm.internal_dt_s"].split())
     assert "Virtual-model integration step" in row
     assert "float" in row and "0.02" in row and " s " in row and "> 0" in row
+    # every key says what it is: a description of three words or more
+    meanings = _meanings(site, "reference/configuration")
+    short = [p for p in paths if len(meanings[p][0].split()) < 3]
+    assert not short, short
+    assert "N·m/rad" in rows["robots.<i>.rail.posture_stiffness_Nm_per_rad"]
 
 
 def test_every_cli_command_and_option_is_in_the_reference(site):
@@ -134,6 +148,26 @@ def test_every_rest_path_is_in_the_reference(site):
     for path, ops in paths.items():
         for method in ops:
             assert f"{method.upper()} {path}" in text, (method, path)
+    # every parameter (path, query) says what it takes
+    meanings = _meanings(site, "reference/rest")
+    for name in ("name", "run_id", "mode", "format", "a", "figure", "rate_hz"):
+        assert all(len(m.split()) >= 2 for m in meanings[name]), (name, meanings[name])
+
+
+def test_every_telemetry_column_is_in_the_reference_with_its_unit(site):
+    """Those of two satellites and two arms on rails: each column, its satellite or arm
+    number written {i} or {k}, has a row with the unit its suffix states and a meaning."""
+    from app.sim.telemetry import loop_columns
+
+    rows = _meanings(site, "reference/telemetry")
+    units = _rows(site, "reference/telemetry")
+    columns = {re.sub(r"^rob\d+_", "rob{k}_", re.sub(r"^sat\d+_", "sat{i}_", c))
+               for c in loop_columns(2, 2, [1, 2])}
+    assert "rob{k}_rail_s_m" in columns and len(columns) > 50
+    missing = [c for c in columns if c not in rows or len(rows[c][0].split()) < 2]
+    assert not missing, missing
+    assert units["rob{k}_rail_v_mps"].split()[0] == "m/s"
+    assert units["sat{i}_tx_Nm"].split()[0] == "N·m"
 
 
 def test_every_metrics_field_is_in_the_reference_with_a_meaning(site):
@@ -166,32 +200,28 @@ def test_the_readme_fits_on_two_screens():
     assert not missing, missing
 
 
-@pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs " + CHROMIUM)
+@pytest.mark.skipif(not HAVE_CHROMIUM, reason=NEEDS_CHROMIUM)
 def test_serve_offers_the_manual_and_its_search_finds_restitution(site, monkeypatch,
                                                                   tmp_path):
     """The manual is looked for at each request: one built (here: pointed to) while the
     server runs is served at the next reload."""
-    playwright = pytest.importorskip("playwright.sync_api")
+    pytest.importorskip("playwright.sync_api")
     from tests.live_server import LiveServer
 
     (tmp_path / "index.html").write_text("<title>an older manual</title>")
     monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(tmp_path))
-    with LiveServer() as live, playwright.sync_playwright() as p:
+    with LiveServer() as live, chromium() as browser:
         assert "an older manual" in live.client.get("/manual/").text
         monkeypatch.setenv("ORBIT_EMULATOR_MANUAL", str(site))
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1200, "height": 800})
-            page.goto(live.url + "/")
-            href = page.get_attribute("#manual-link", "href")
-            assert href == "/manual/"
-            page.goto(live.url + href)
-            assert "orbit-emulator manual" in page.title()
-            page.click("input.md-search__input")  # typed as a reader does: the worker
-            page.keyboard.type("restitution", delay=50)  # answers each keystroke
-            results = page.locator(".md-search-result__item")
-            results.first.wait_for(timeout=15_000)
-            assert results.count() >= 3
-            assert "restitution" in results.first.inner_text().lower()
-        finally:
-            browser.close()
+        page = browser.new_page(viewport={"width": 1200, "height": 800})
+        page.goto(live.url + "/")
+        href = page.get_attribute("#manual-link", "href")
+        assert href == "/manual/"
+        page.goto(live.url + href)
+        assert "orbit-emulator manual" in page.title()
+        page.click("input.md-search__input")  # typed as a reader does: the worker
+        page.keyboard.type("restitution", delay=50)  # answers each keystroke
+        results = page.locator(".md-search-result__item")
+        results.first.wait_for(timeout=15_000)
+        assert results.count() >= 3
+        assert "restitution" in results.first.inner_text().lower()

@@ -7,13 +7,13 @@ the reach, and a stop of the carriage halting the arm.
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 
 import numpy as np
 import pytest
 
 from app.config import merge_overrides
-from app.runs.preflight import PreflightRefused, preflight
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
 from app.sim.rail_rig import RailRig
@@ -73,18 +73,45 @@ def test_its_telemetry_has_the_carriage_and_the_mockup_rides_it(rail_run):
     assert np.abs((along - along[0]) - (s - s[0])).max() < 0.1 * (s.max() - s.min())
 
 
-@pytest.mark.parametrize("name", list(RAIL_SCENARIOS))
-def test_without_its_rails_the_pre_flight_refuses_it_naming_the_reach(name):
-    cfg = load_scenario(name)
-    fixed = merge_overrides(cfg, {"robots": {str(k): {"rail": None}
-                                             for k in range(len(cfg.robots))}})
-    assert all(r.rail is None for r in fixed.robots)
-    sat = cfg.robots[0].satellite
-    with pytest.raises(PreflightRefused, match=rf"robot 1 \(ceiling\): satellite '{sat}' "
-                                               r"leaves the arm's reach \(\d\.\d{3} m from "
-                                               r"its shoulder; limit 1\.2 m\)"):
-        preflight(fixed, cfg.loop.duration_s)
-    preflight(cfg, cfg.loop.duration_s)  # with them: accepted
+WITHOUT_RAILS = {
+    # scenario: (--set arguments, --duration, what the pre-flight says first)
+    "free-flying-rails": (["robots.0.rail=null"], None,
+                          r"robot 1 \(ceiling\): satellite 'freeflyer' leaves the arm's reach "
+                          r"\(1\.200 m from its shoulder; limit 1\.2 m\) at t = 8\.\d\d s"),
+    "rendezvous-rails": (["robots.0.rail=null", "robots.1.rail=null"], None,
+                         r"robot 1 \(ceiling\): satellite 'chaser' leaves the arm's reach "
+                         r"\(1\.641 m from its shoulder; limit 1\.2 m\) at t = 0\.00 s"),
+    # the chaser passes under the fixed ceiling arm's shoulder (its 6 s are enough)
+    "docking-rails": (["robots.0.rail=null", "robots.1.rail=null"], "6",
+                      r"robot 1 \(ceiling\): satellite 'chaser' leaves the arm's reach \(its "
+                      r"wrist 0\.194 m from its base axis; inner limit 0\.194 m, the "
+                      r"shoulder singular at 0\.174 m\) at t = 3\.\d\d s"),
+    # after the contact both satellites drift back under their fixed arms' shoulders
+    "collision-rails": (["robots.0.rail=null", "robots.1.rail=null"], None,
+                        r"robot 1 \(ceiling\): satellite 'cubesat' leaves the arm's reach "
+                        r"\(its wrist 0\.194 m from its base axis; inner limit 0\.194 m, the "
+                        r"shoulder singular at 0\.174 m\) at t = 2\d\.\d\d s; robot 2 \(floor\): "
+                        r"satellite 'sponge' leaves the arm's reach"),
+}
+
+
+@pytest.mark.parametrize("name", list(WITHOUT_RAILS))
+def test_without_its_rails_the_cli_refuses_it_naming_the_reach(name, tmp_path):
+    """`run SCENARIO --set robots.<i>.rail=null`: the pre-flight refuses the course the
+    fixed arms cannot follow (exit 2, nothing written), naming the reach: its outer limit
+    (the shoulder's 1.2 m) or its inner one (the cylinder around the base joint's axis
+    that the wrist cannot enter). With the rails the same scenarios run (the tests above
+    and below)."""
+    sets, duration, said = WITHOUT_RAILS[name]
+    out = tmp_path / "out"
+    cmd = [EXE, "run", name, "--out", str(out), "--quiet"]
+    cmd += [a for s in sets for a in ("--set", s)]
+    cmd += ["--duration", duration] if duration else []
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith("error: pre-flight: the ideal run predicts that "), proc.stderr
+    assert re.search(said, proc.stderr), proc.stderr
+    assert "The arms have not moved" in proc.stderr and not out.exists()
 
 
 def test_a_stop_of_the_carriage_halts_the_arm_and_the_loop_says_why():
@@ -115,8 +142,9 @@ def test_the_collision_and_docking_rail_variants_run_hil_to_the_end(name, tmp_pa
     cfg = load_scenario(name)
     assert [r.satellite for r in cfg.robots] == [r.satellite for r in load_scenario(base).robots]
     assert all(r.rail is not None for r in cfg.robots)
-    out = tmp_path / "out"
-    proc = subprocess.run([EXE, "run", name, "--out", str(out), "--quiet"],
+    out = tmp_path / "out"  # (no interval or forecast: tests/runs/test_uncertainty.py)
+    proc = subprocess.run([EXE, "run", name, "--out", str(out), "--quiet",
+                           "--set", "uncertainty.enabled=false"],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     m = json.loads((out / "metrics.json").read_text())

@@ -560,6 +560,7 @@ def add_forecast(folder: Path) -> None:
     """The restitution's forecast (app/runs/uncertainty.py: what a headless run's
     metrics.json has in ``collision_forecast``) of a hil run whose start did not compute
     it, added to its metrics.json, summary.txt and ideal.json."""
+    from app.runs.forecast_cache import cached_forecast
     from app.runs.headless import headless_config
     from app.runs.report import run_summary
     from app.runs.uncertainty import add_systematic, forecast
@@ -576,7 +577,7 @@ def add_forecast(folder: Path) -> None:
         config = headless_config(config, config.loop.duration_s)
     except ValueError:
         pass
-    ideal["forecast"] = forecast(config, ideal)
+    ideal["forecast"] = cached_forecast(config, ideal, forecast)
     metrics = json.loads(metrics_path.read_text())
     metrics["collision_forecast"] = ideal["forecast"]
     add_systematic(metrics.get("collision"), ideal["forecast"])

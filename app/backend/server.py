@@ -143,7 +143,8 @@ class ScenarioInfo(BaseModel):
         default_factory=dict, description="what a start without overrides runs with: "
         "altitude_m, velocity_mps (satellite 1), kp_lin, kp_rot, duration_s, mode, and rails "
         "(per robot its rail: robot, axis_W, travel_m, start_m, speed_limit_mps, "
-        "accel_limit_mps2; null without one; a start body sets it through robots.<i>.rail)")
+        "accel_limit_mps2, bandwidth_hz, damping_ratio, velocity_feedforward, delay_cycles; "
+        "null without one; a start body sets any of them through robots.<i>.rail)")
 
 
 NO_RUN = "no run to download yet: start one (a reset begins a new run)"

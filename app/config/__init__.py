@@ -102,8 +102,8 @@ class OrbitConfig(_Model):
     """Altitude of the circular observer orbit whose frame R the ODS works in; it sets the
     orbit rate n of the Clohessy-Wiltshire equations (paper Eqs. 1-3)."""
     gravity_gradient: StrictBool = True
-    """Apply the gravity-gradient torque to the attitude (paper Eqs. 4-6); false: torque-
-    free attitude."""
+    """Apply the gravity-gradient torque to the attitude (paper Eqs. 4-6); false: the
+    attitude is torque-free."""
     force_scale: NonNegative | None = None
     """The paper's law only: multiplies every measured force before it enters the ODS
     (default 1). Under [scaling] law = "similarity" it is derived, not set."""
@@ -264,7 +264,9 @@ class SatelliteConfig(_Model):
     omega_radps: Vec3 = (0.0, 0.0, 0.0)
     """Angular velocity relative to R, body axes (zero: at rest in the lab)."""
     material: Literal["rigid", "sponge"] = "rigid"
-    """The mockup's contact face: a key of [materials]."""
+    """The mockup's contact face: "rigid" or "sponge", with the properties [materials]
+    gives that name (a [materials] table may hold other names, but a satellite names one
+    of these two)."""
     gnc: GncConfig | None = None
     """The satellite's own thrusters and wheels under a GNC (none: it is free)."""
 
@@ -328,14 +330,22 @@ class RailConfig(_Model):
 
     The servo (delay, second-order response, speed and acceleration limits, protective stop
     at the travel ends and on a set-point's speed or acceleration beyond the limits) is the
-    joints' (ServoConfig) in metres. Defaults: a belt- or rack-driven floor track of the
-    cobot class, taken at the low end of that class's catalogue figures rather than from one
-    product: 1 m/s and 1 m/s² (1000 mm/s², also the default "maximum permissible axis
-    acceleration" of a linear axis in Beckhoff's TwinCAT CNC, parameter P-AXIS-00008), a
-    10 Hz position loop (a carriage with a 40 kg arm on it answers several times slower
-    than the arm's own joints) with velocity feedforward (a drive's usual tuning for a
-    path: the following error on a ramp is then the delay's alone) and one cycle of delay,
-    as the arm's.
+    joints' (ServoConfig) in metres.
+
+    The defaults' sources, plainly: they are not one product's. No data sheet of a robot
+    track (Güdel TrackMotion, KUKA KL, ABB IRBT, Festo, Yaskawa) with its speed,
+    acceleration or servo figures could be consulted for this project; the one product
+    figure found, 1.89 m/s for KUKA's KL 4000 track (payload up to 4000 kg), is quoted
+    second-hand (a support article citing it, not KUKA's data sheet). So:
+    ``speed_limit_mps`` 1 m/s, below that figure and equal to the UR10e's TCP speed limit
+    (what the pre-flight lets a course ask of the arm it carries); ``accel_limit_mps2``
+    1 m/s², the default maximum axis acceleration of a linear axis in Beckhoff's TwinCAT
+    CNC (parameter P-AXIS-00008, 1000 mm/s²: a controller's presetting, not a track's
+    rating); ``bandwidth_hz`` 10 Hz, ``damping_ratio`` 1, ``velocity_feedforward`` and
+    ``delay_cycles`` 1 are this project's assumptions with no source (a carriage carrying
+    a 40 kg arm answering several times slower than the arm's joints, tuned to follow a
+    path, one cycle late as the arm's servo is). Set them from your axis's data sheet or
+    a measured step response.
 
     ``virtual_mass_kg`` and ``posture_stiffness_Nm_per_rad`` belong to the VFDM's virtual
     model (app/sim/rail.py explains them): the carriage's conditioned mass and the spring
@@ -346,19 +356,44 @@ class RailConfig(_Model):
     """
 
     axis_W: Vec3 = (1.0, 0.0, 0.0)
+    """The direction the carriage moves the base along, in the lab frame W (normalised)."""
     travel_m: tuple[Finite, Finite] = (-2.0, 2.0)
+    """[min, max] of the carriage's position s along ``axis_W`` (s = 0: the base at
+    ``base_position_m``); reaching an end is a protective stop."""
     start_m: Finite = 0.0
+    """Where the carriage starts, within ``travel_m``."""
     speed_limit_mps: Positive = 1.0
+    """The carriage's speed limit [m/s]; a set-point asking for more is a protective stop
+    (default: the UR10e's TCP limit, below the one track figure found, KUKA KL 4000's
+    1.89 m/s, second-hand; the Rails page says where each default comes from)."""
     accel_limit_mps2: Positive = 1.0
+    """The carriage's acceleration limit [m/s²]; a set-point asking for more is a
+    protective stop (default: TwinCAT CNC's presetting of a linear axis, P-AXIS-00008 =
+    1000 mm/s²; no track data sheet)."""
     bandwidth_hz: Positive = 10.0
+    """Natural frequency [Hz] of the carriage's position loop, a second-order response (an
+    assumption, no source)."""
     damping_ratio: Positive = 1.0
+    """Damping ratio of the carriage's position loop (1: critical; an assumption)."""
     delay_cycles: Annotated[int, Field(ge=0, le=100)] = 1
+    """Transport delay of a carriage set-point, in loop cycles (the arm servo's; an
+    assumption)."""
     velocity_feedforward: StrictBool = True
     """The drive feeds the set-points' speed forward (as a following axis is tuned): on a
     ramp the carriage trails by its delay only (app/sim/rail_servo.py)."""
     virtual_mass_kg: Positive = 1.0
+    """The carriage's mass in the VFDM's virtual model (a conditioning figure, not the real
+    carriage's; 1 kg as Table 1's end link): the inertia of the chain's null-space motion
+    (the carriage moving while the arm holds the TCP), which follows the posture spring
+    the slower the heavier it is; the Cartesian response does not depend on it."""
     posture_stiffness_Nm_per_rad: NonNegative = 0.5
+    """Stiffness K of the virtual joint spring that pulls the arm's joints toward
+    ``posture_rad`` through the chain's null space, so that the rail carries the gross
+    motion and the arm the fine (0: no pull; the carriage then moves only by the small
+    share of a Cartesian push the arm leaves it)."""
     posture_rad: tuple[Finite, Finite, Finite, Finite, Finite, Finite] | None = None
+    """The joint posture the spring pulls toward (None: the arm's start posture, the one
+    that holds the satellite's start pose with the carriage at ``start_m``)."""
 
     @model_validator(mode="after")
     def _rail(self) -> RailConfig:
@@ -522,9 +557,11 @@ class ServoConfig(_Model):
     """Joint position limit (±); beyond is a protective stop."""
     lookahead_time_s: Annotated[float | None,
                                 _within(*SERVOJ_LOOKAHEAD_RANGE_S, "lookahead_time")] = None
-    """servoj only (None: 0.03 s)."""
+    """servoj only: how far ahead (s) the target is projected with the current velocity,
+    0.03 to 0.2 s as UR's servoj takes it (None: 0.03 s)."""
     gain: Annotated[float | None, _within(*SERVOJ_GAIN_RANGE, "gain")] = None
-    """servoj only (None: 1200)."""
+    """servoj only: the proportional gain from the projected error to the acceleration,
+    100 to 2000 as UR's servoj takes it (None: 1200)."""
 
     @model_validator(mode="after")
     def _servoj_only(self) -> ServoConfig:
@@ -1194,11 +1231,15 @@ class EmulatorConfig(_Model):
 
     def rail_settings(self) -> list[dict | None]:
         """Per robot, its rail as the web panel and the REST settings show it (None: no
-        rail): the axis, travel, start and the carriage's limits."""
+        rail): the axis, travel, start, the carriage's limits and its servo (response,
+        feedforward, delay)."""
         return [None if r.rail is None else {
             "robot": r.name, "axis_W": list(r.rail.axis_W), "travel_m": list(r.rail.travel_m),
             "start_m": r.rail.start_m, "speed_limit_mps": r.rail.speed_limit_mps,
-            "accel_limit_mps2": r.rail.accel_limit_mps2} for r in self.robots]
+            "accel_limit_mps2": r.rail.accel_limit_mps2, "bandwidth_hz": r.rail.bandwidth_hz,
+            "damping_ratio": r.rail.damping_ratio,
+            "velocity_feedforward": r.rail.velocity_feedforward,
+            "delay_cycles": r.rail.delay_cycles} for r in self.robots]
 
     def satellite_index(self, name: str) -> int:
         return [s.name for s in self.satellites].index(name)
@@ -1352,10 +1393,15 @@ def assignment_override(text: str) -> dict:
     The value is read as TOML (``0.5``, ``true``, ``[0.1, 0, 0]``, ``"rigid"``), a bare
     word as a string; a numeric key picks an item of a list (``robots.1.q_home_rad=...``
     → ``{"robots": {"1": {"q_home_rad": ...}}}``); a list value replaces the whole list.
+    The bare word ``null`` (TOML has none) removes the setting, which takes its default, as
+    a merge patch's null does (``robots.0.rail=null``: the robot without its rail; the
+    string is ``'"null"'``).
     """
     key, sep, value = text.partition("=")
     if not sep:
         raise ConfigError(f"expected KEY=VALUE with a dotted KEY, got {text!r}")
+    if value.strip() == "null":
+        return dotted_override(key, None, text)
     try:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
     except tomllib.TOMLDecodeError:

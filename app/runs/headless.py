@@ -12,6 +12,7 @@ from pathlib import Path
 
 from app.config import EmulatorConfig, merge_overrides
 from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
+from app.runs.forecast_cache import cached_forecast
 from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
 from app.runs.preflight import check_drift, preflight
@@ -68,8 +69,9 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
     if prediction is None:  # no robots: no pre-flight, but a reference still
         return ideal_collision(config, duration_s)
     reference = collision_of(prediction)  # at the run's rate (two satellites)
-    if reference:  # the fidelity forecast (app/runs/uncertainty.py), in metrics.json
-        reference["forecast"] = forecast(config, reference)
+    if reference:  # the fidelity forecast (app/runs/uncertainty.py), in metrics.json,
+        # once per setting (app/runs/forecast_cache.py)
+        reference["forecast"] = cached_forecast(config, reference, forecast)
         check_drift(config, prediction, reference)  # the noise's drift after the contact
     return reference
 

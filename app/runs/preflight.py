@@ -9,9 +9,10 @@ satellite's predicted mockup centre (its COM, the arm's TCP) must stay
 * within :data:`app.sim.ur10e.HOLD_RADIUS_M` of the arm's shoulder (its reach; on a rail,
   of the segment the shoulder sweeps over the carriage's travel);
 * with the arm's wrist (the origin of joint 5, from the mockup's pose and its mounting)
-  at least :data:`MIN_WRIST_RADIUS_M` from the axis of joint 1 (no rail): a UR's wrist
-  cannot come within d4 of that axis (the shoulder singularity), and the arm, dragged
-  there, stops on its tracking error;
+  at least :data:`MIN_WRIST_RADIUS_M` from the axis of its base joint (on a rail, for some
+  carriage position that also keeps the reach): a UR's wrist cannot come within d4 of
+  that axis (the shoulder singularity), and the arm, dragged near it, stops on its
+  tracking error;
 * below :data:`MAX_TCP_SPEED_MPS` and :data:`MAX_TCP_RATE_RADPS` (what the arm can follow).
 
 After a contact, the sensor's noise makes the hil satellites leave at a velocity the
@@ -42,18 +43,25 @@ from app.sim.ur10e import (
     T_W_B_from_config,
 )
 
-__all__ = ["DRIFT_SIGMAS", "MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS", "MIN_WRIST_RADIUS_M",
-           "PredictionFailed", "PreflightRefused", "Violation", "check_course", "check_drift",
-           "predict", "preflight", "wrist_radius_m"]
+__all__ = ["DRIFT_SIGMAS", "INNER_RADIUS_M", "MAX_TCP_RATE_RADPS", "MAX_TCP_SPEED_MPS",
+           "MIN_WRIST_RADIUS_M", "PredictionFailed", "PreflightRefused", "Violation",
+           "check_course", "check_drift", "predict", "preflight", "wrist_axis_distance"]
+
+INNER_RADIUS_M = DH_D_M[3]
+"""The reach's inner limit: the UR10e's wrist point (the flange less d6 along the flange's
+axis, where joints 5 and 6 meet) is never nearer than the shoulder offset d4 = 0.174 m to
+the base joint's axis: the base joint's angle has no solution inside that cylinder, and on
+its wall it is singular (the arm's shoulder singularity; the UR manuals ask to keep the
+tool out of the cylinder above and below the base)."""
 
 MAX_TCP_SPEED_MPS = 1.0
 """The UR10e's TCP speed limit (data sheet: 1 m/s)."""
 MAX_TCP_RATE_RADPS = 3.0
 """Just under the wrist joints' 3.14 rad/s (data sheet): a faster spin cannot be followed."""
-MIN_WRIST_RADIUS_M = DH_D_M[3] + 0.02
-"""The least distance of the wrist (joint 5's origin) from joint 1's axis: d4 (0.174 m,
-where the UR's shoulder is singular and its wrist can come no closer) and 20 mm, within
-which joint 1 turns at v / sqrt(r² − d4²) (1 rad/s for 0.08 m/s at 20 mm)."""
+MIN_WRIST_RADIUS_M = INNER_RADIUS_M + 0.02
+"""The least distance of the wrist from the base joint's axis a course may take it to:
+d4 (:data:`INNER_RADIUS_M`) and 20 mm, within which joint 1 turns at
+v / sqrt(r² − d4²) (1 rad/s for 0.08 m/s at 20 mm)."""
 DRIFT_SIGMAS = 3.0
 """How many standard deviations of the forecast's post-contact velocity the drift check
 allows for (a hil run's satellites leave a contact at a velocity the noise scatters)."""
@@ -133,34 +141,6 @@ def check_course(config: EmulatorConfig, rows: np.ndarray, index: dict,
     return sorted(found, key=lambda v: v.t_s)
 
 
-def wrist_radius_m(robot, s: int, rows: np.ndarray, index: dict,
-                   T_W_R: np.ndarray) -> np.ndarray:
-    """Per row, the distance of robot's wrist (joint 5's origin: the flange less d6 along
-    its axis) from joint 1's axis, with the mockup of satellite s (1-based) at its
-    predicted pose (T_W_R · T_R_C) and the flange at T_W_C · T_F_C⁻¹."""
-    T_B_R = np.linalg.inv(T_W_B_from_config(robot)) @ T_W_R
-    T_C_F = np.linalg.inv(T_F_C_from_config(robot))
-    p_R = rows[:, [index[f"sat{s}_{a}_m"] for a in "xyz"]]
-    R_R_C = _quat_matrices(rows[:, [index[f"sat{s}_q{a}"] for a in "wxyz"]])
-    R_B_C = np.einsum("ij,njk->nik", T_B_R[:3, :3], R_R_C)
-    p_B_C = p_R @ T_B_R[:3, :3].T + T_B_R[:3, 3]
-    p_B_F = p_B_C + R_B_C @ T_C_F[:3, 3]
-    z_B_F = R_B_C @ T_C_F[:3, 2]
-    wrist = p_B_F - DH_D_M[5] * z_B_F
-    return np.hypot(wrist[:, 0], wrist[:, 1])
-
-
-def _quat_matrices(q: np.ndarray) -> np.ndarray:
-    """(n, 4) unit quaternions (w, x, y, z) → (n, 3, 3) rotation matrices."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=1)
-
-
 def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
                       T_W_R: np.ndarray, drift: tuple[np.ndarray, float]) -> list[Violation]:
     """Robot k's (0-based) first violation of each limit, carrying satellite s (1-based),
@@ -174,6 +154,9 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
     reach, whose = _reach(p_W, shoulder_W, robot.rail), "its shoulder"
     if robot.rail is not None:
         whose = "its shoulder's line along the rail"
+    quat = rows[:, [index[f"sat{s}_q{a}"] for a in "wxyz"]]
+    wrist = wrist_axis_distance(robot, T_W_R, p_W, quat)
+    inside = (wrist - off_m < MIN_WRIST_RADIUS_M) & (reach <= HOLD_RADIUS_M)
     lo, hi = np.asarray(robot.safety_box_min_m), np.asarray(robot.safety_box_max_m)
     pm = (lambda j: f" ± {off_m[j]:.3f}") if off_m.any() else (lambda j: "")
     checks = [
@@ -183,6 +166,11 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
         (reach + off_m > HOLD_RADIUS_M,
          lambda j: f"leaves the arm's reach ({reach[j]:.3f}{pm(j)} m from {whose}; limit "
                    f"{HOLD_RADIUS_M:g} m)"),
+        (inside,
+         lambda j: f"leaves the arm's reach (its wrist {wrist[j]:.3f}{pm(j)} m from its "
+                   f"base axis{' wherever the carriage stands' if robot.rail else ''}; "
+                   f"inner limit {MIN_WRIST_RADIUS_M:.3f} m, the shoulder singular at "
+                   f"{INNER_RADIUS_M:.3f} m)"),
         (speed + off_mps > MAX_TCP_SPEED_MPS,
          lambda j: f"moves faster than the arm's TCP ({speed[j] + off_mps:.3g} m/s; limit "
                    f"{MAX_TCP_SPEED_MPS:g} m/s)"),
@@ -190,12 +178,6 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
          lambda j: f"turns faster than the arm's wrist ({rate[j]:.3g} rad/s; limit "
                    f"{MAX_TCP_RATE_RADPS:g} rad/s)"),
     ]
-    if robot.rail is None:  # (on a rail, the carriage moves the axis along)
-        wrist = wrist_radius_m(robot, s, rows, index, T_W_R)
-        checks.append((wrist - off_m < MIN_WRIST_RADIUS_M,
-                       lambda j: f"takes the arm's wrist to {wrist[j]:.3f}{pm(j)} m from its "
-                                 f"base axis (limit {MIN_WRIST_RADIUS_M:.3f} m: the shoulder "
-                                 f"is singular at {DH_D_M[3]:g} m)"))
     found = []
     for bad, describe in checks:
         if bad.any():
@@ -213,6 +195,38 @@ def _reach(p_W: np.ndarray, shoulder_W: np.ndarray, rail) -> np.ndarray:
     axis = np.asarray(rail.axis_W)
     s = np.clip((p_W - shoulder_W) @ axis, *rail.travel_m)
     return np.linalg.norm(p_W - shoulder_W - s[:, None] * axis, axis=1)
+
+
+def wrist_axis_distance(robot, T_W_R: np.ndarray, p_W: np.ndarray,
+                        quat_wxyz: np.ndarray) -> np.ndarray:
+    """Each pose's distance of the arm's wrist point from its base joint's axis when its
+    mockup (the satellite's body frame) is at ``p_W`` (n, 3) with attitude ``quat_wxyz``
+    (n, 4, in R): the flange is ``T_W_C · T_F_C⁻¹``, the wrist point the flange less d6
+    along its axis (:data:`INNER_RADIUS_M`). On a rail, the largest such distance over
+    the carriage positions within the travel that keep the TCP within the reach (the
+    distance is convex in s: the largest is at an end of that interval)."""
+    T_W_B = T_W_B_from_config(robot)
+    R_B_W = T_W_B[:3, :3].T
+    T_F_C = T_F_C_from_config(robot)
+    R_C_F = T_F_C[:3, :3].T
+    p_C_F = -R_C_F @ T_F_C[:3, 3]
+    q = np.asarray(quat_wxyz, dtype=float)
+    R_W_C = np.einsum("ab,nbc->nac", T_W_R[:3, :3], quat_to_matrix(q))
+    z_F_W = R_W_C @ R_C_F[:, 2]
+    wrist_W = p_W + R_W_C @ p_C_F - DH_D_M[5] * z_F_W
+    u = (wrist_W - T_W_B[:3, 3]) @ R_B_W.T  # in B0 (the carriage at 0)
+    rail = robot.rail
+    if rail is None:
+        return np.hypot(u[:, 0], u[:, 1])
+    axis_W = np.asarray(rail.axis_W)
+    b = R_B_W @ axis_W
+    shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
+    rel = p_W - shoulder_W
+    c = rel @ axis_W
+    w = np.sqrt(np.maximum(HOLD_RADIUS_M**2 - (np.einsum("na,na->n", rel, rel) - c * c), 0.0))
+    lo = np.clip(c - w, *rail.travel_m)
+    hi = np.clip(c + w, *rail.travel_m)
+    return np.maximum(*(np.hypot(u[:, 0] - s * b[0], u[:, 1] - s * b[1]) for s in (lo, hi)))
 
 
 def _fmt(v) -> str:

@@ -211,8 +211,8 @@ def sd_standard_error(values) -> float | None:
 def _rng(config: EmulatorConfig, stream: int) -> np.random.Generator:
     """The replicates' generator: a run's from its seed, apart from the sensors' streams
     (equal runs give equal intervals); the forecast's (``stream`` 2) the same for every
-    seed (it is the configuration's, computed before any run: a sweep computes it once
-    for all the seeds of a setting)."""
+    seed (it is the configuration's, computed before any run: kept once per setting for
+    all its seeds, app/runs/forecast_cache.py)."""
     seed = config.loop.seed if stream != 2 else 0
     return np.random.default_rng([seed, 28, stream])
 

@@ -23,7 +23,11 @@ prediction misses by about ``(1/6)(dF/dt / m) lead³``: that, and the sensor's n
 limits the fidelity it reaches (benchmarks/contact_fidelity.py).
 
 The lags come from the loop's own model, as a lab would identify them once: the position
-lag by driving copies of the arm's VFDM and servo model along a ramp; the force lag in
+lag by driving copies of the arm's VFDM and servo model along a ramp (for a robot on a
+rail, of the 7-joint chain's VFDM, the carriage's servo and the arm's, along the rail,
+the motion the carriage carries: its servo's response and delay are then in the lead;
+in steady state the mockup trails the chain's set-points by the carriage's lag, its delay
+plus ``2ζ/ω`` without velocity feedforward); the force lag in
 closed form from the sensor's delay and the discretisation of the filter a contact's
 force passes (``[wrench] contact_lowpass_hz`` while the contact gate is open). Since the
 miss grows as lead³, a contact path without the 30 Hz low-pass (lead 8.6 ms instead of
@@ -37,13 +41,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.config import EmulatorConfig
+from app.config import EmulatorConfig, RobotConfig
 from app.sim.feedforward import servo_feedforward
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.orbital import OrbitalSimulator
+from app.sim.rail import chain_tcp_pose
+from app.sim.rail_servo import RailServo
+from app.sim.rail_vfdm import RailVfdm
 from app.sim.sensor_models import hold_lag_cycles
 from app.sim.servo import UR10eServo
-from app.sim.ur10e import tcp_pose_B
+from app.sim.ur10e import T_W_B_from_config, tcp_pose_B
 from app.sim.vfdm import JointLimits, Vfdm
 
 __all__ = ["LagModel", "LagModelError", "contact_cutoff_hz", "force_lag_s",
@@ -78,8 +85,13 @@ class LagModel:
 
 
 def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
-                            q0_rad: np.ndarray, tick=None) -> float:
+                            q0_rad: np.ndarray, tick=None, robot: RobotConfig | None = None,
+                            s0_m: float | None = None) -> float:
     """How far behind a steady ramp target the mockup follows, in seconds.
+
+    ``robot`` with a rail (its carriage at ``s0_m``, default the rail's start): the ramp
+    runs along the rail, through copies of the chain's VFDM, the carriage's servo and the
+    arm's, as app/sim/rail_rig.py RailRig.command drives them (:func:`_rail_ramp_lags_s`).
 
     Copies of the arm's VFDM, servo feedforward (if on) and servo model (not the arm
     itself) start at rest at
@@ -92,8 +104,14 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
     """
     dt_s = 1.0 / config.loop.rate_hz
     ramp_s = RAMP_S
+    tick = tick or (lambda: None)
     while True:
-        lags_s = _ramp_lags_s(config, T_F_C, q0_rad, dt_s, ramp_s, tick or (lambda: None))
+        if robot is not None and robot.rail is not None:
+            lags_s = _rail_ramp_lags_s(config, robot, T_F_C, q0_rad,
+                                       robot.rail.start_m if s0_m is None else s0_m,
+                                       dt_s, ramp_s, tick)
+        else:
+            lags_s = _ramp_lags_s(config, T_F_C, q0_rad, dt_s, ramp_s, tick)
         drift_s = abs(lags_s[-1] - lags_s[0])
         if drift_s <= CONVERGED_S:
             break
@@ -134,6 +152,45 @@ def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
     return np.array(lags)
 
 
+def _rail_ramp_lags_s(config: EmulatorConfig, robot: RobotConfig, T_F_C: np.ndarray,
+                      q0_rad: np.ndarray, s0_m: float, dt_s: float, ramp_s: float,
+                      tick) -> np.ndarray:
+    """:func:`_ramp_lags_s` for a robot on a rail: the TCP target moves along the rail's
+    axis; the chain's VFDM (its posture: the rail's posture_rad, else q0) sends the
+    carriage's set-point to a copy of its servo and the arm's to the arm's (through the
+    servo feedforward, if on); the mockup is the chain's TCP at the carriage's and the
+    arm's actual positions."""
+    rail = robot.rail
+    limits = JointLimits.of_servo(config.servo, dt_s)
+    q0 = np.concatenate([[s0_m], q0_rad])
+    posture = np.asarray(q0_rad if rail.posture_rad is None else rail.posture_rad, float)
+    vfdm = RailVfdm(config.vfdm, rail, T_W_B_from_config(robot), T_F_C, q0, posture, limits)
+    carriage = RailServo(rail, dt_s, s0_m)
+    servo = UR10eServo(config.servo, dt_s, q0_rad)
+    feedforward = servo_feedforward(config, q0_rad)
+    axis = vfdm.arm.axis
+    T0 = vfdm.tcp_pose()
+    T = T0.copy()
+    cycles = max(4, int(round(ramp_s / dt_s)))
+    check = {(3 * cycles) // 4, cycles}
+    lags = []
+    for k in range(1, cycles + 1):
+        T[:3, 3] = T0[:3, 3] + RAMP_SPEED_MPS * k * dt_s * axis
+        if config.vfdm.sync_to_measured:  # as RailRig.command does
+            vfdm.q[0] = carriage.state.s_m
+            vfdm.q[1:] = servo.state.q_rad
+        q = vfdm.solve(T)
+        carriage.step(q[0])
+        servo.step(q[1:] if feedforward is None else feedforward.setpoint(q[1:]))
+        if k % 50 == 0:
+            tick()
+        if k in check:
+            mockup = chain_tcp_pose(vfdm.arm, np.concatenate([[carriage.state.s_m],
+                                                               servo.state.q_rad]))
+            lags.append(float((T[:3, 3] - mockup[:3, 3]) @ axis) / RAMP_SPEED_MPS)
+    return np.array(lags)
+
+
 def contact_cutoff_hz(config: EmulatorConfig) -> float:
     """The low-pass's cut-off a contact's force passes: ``contact_lowpass_hz`` while the
     contact gate is open, else ``lowpass_hz``."""
@@ -164,12 +221,15 @@ def force_lag_s(config: EmulatorConfig, hold: bool = True) -> float:
 
 
 def lag_model(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
-              tick=None) -> LagModel:
-    """The lags of the arm with mockup offset T_F_C, identified around posture q0_rad.
+              tick=None, robot: RobotConfig | None = None,
+              s0_m: float | None = None) -> LagModel:
+    """The lags of the arm with mockup offset T_F_C, identified around posture q0_rad (on
+    ``robot``'s rail, if it has one, with the carriage at ``s0_m``).
     Raises LagModelError if their sum is not positive (no lag a lead could make up), or
     beyond MAX_LEAD_S (the largest lead the configuration accepts: a prediction that far
     ahead is no longer a small correction)."""
-    model = LagModel(identify_position_lag_s(config, T_F_C, q0_rad, tick), force_lag_s(config))
+    model = LagModel(identify_position_lag_s(config, T_F_C, q0_rad, tick, robot, s0_m),
+                     force_lag_s(config))
     if not model.lead_s > 0.0:
         raise LagModelError(f"the ODS's input does not trail the satellites (lag "
                             f"{1e3 * model.lead_s:.2f} ms): set compensation.lead_s by hand, "

@@ -70,6 +70,12 @@ class StartPoseError(ValueError):
     """A satellite's start pose is out of its arm's reach (a configuration mistake)."""
 
 
+def _carriage_at(arm: ArmRig) -> float | None:
+    """Where a robot's carriage stands (None: a fixed robot)."""
+    servo = getattr(arm, "rail_servo", None)
+    return None if servo is None else servo.state.s_m
+
+
 def _beside(value: float, limit: float) -> str:
     """value with one decimal, or up to three where fewer would read as its limit."""
     for digits in (1, 2, 3):
@@ -585,7 +591,9 @@ class Emulator:
             q = self._start_posture(arm, self.ods.y, steps, tick)
             if self.config.compensation.enabled:  # the lag where the run begins
                 lead = self.config.compensation.lead_s
-                arm.lead_s = (lag_model(self.config, arm.T_F_C, q, tick).lead_s
+                arm.lead_s = (lag_model(self.config, arm.T_F_C, q, tick,
+                                        self.config.robots[arm.index],
+                                        _carriage_at(arm)).lead_s
                               if lead is None else lead)
             if run_up is not None:  # the run-up begins v0·run_up_s/2 before it
                 q = self._start_posture(arm, run_up(-self.config.loop.run_up_s), steps,

@@ -4,7 +4,9 @@ The same cycle as app/sim/vfdm.py's, on the chain ``q = [s, q1 … q6]`` in the 
 B0 (the carriage at s = 0):
 
 1. forward kinematics of the virtual chain (:func:`app.sim.rail.chain_frames`);
-2. Eq. 13 on the clamped pose error, plus the target-velocity feedforward;
+2. Eq. 13 on the clamped pose error, plus the target-velocity feedforward; its D term
+   (``kd_lin``, ``kd_rot``) on the change of the error over an internal step, ``K_D (e −
+   e_prev) / h``, as app/sim/vfdm.py has it (0 in Table 1);
 3. Eq. 9: ``τ = Jᵀ f`` with the 6x7 Jacobian (the rail's column ``[a; 0]`` first);
 4. Eq. 10: ``q̈ = H⁻¹ τ`` on the chain's H (the carriage's conditioned mass and Table 1's
    arm), plus the posture spring's acceleration in J's null space, which moves carriage
@@ -52,13 +54,14 @@ __all__ = ["RailVfdm", "chain_limit_step", "rail_vfdm_steps"]
 
 
 @njit(cache=True, fastmath=False)
-def rail_vfdm_steps(q, qd, last_e, Rt, pt, iterations, axis, pR, pp, mass, lever, Icom,
-                    tR, tp, armature, rail_mass, posture, stiffness, kp, ff, keep, h,
-                    q_lo, q_hi, max_lin, max_rot, dq_lo, dq_hi):
-    """Run ``iterations`` internal VFDM steps on the chain in place on q, qd (7,), last_e
-    (6,) (module doc, steps 1-5). q_lo, q_hi (7,): the travel (metres) and the arm's joint
-    limits; dq_lo, dq_hi (7,): the range of each virtual joint's move in one internal step
-    (:meth:`RailVfdm.step_window`)."""
+def rail_vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations, axis, pR, pp, mass,
+                    lever, Icom, tR, tp, armature, rail_mass, posture, stiffness, kp, kdh,
+                    use_kd, ff, keep, h, q_lo, q_hi, max_lin, max_rot, dq_lo, dq_hi):
+    """Run ``iterations`` internal VFDM steps on the chain in place on q, qd (7,), e_prev,
+    last_e (6,) (module doc, steps 1-5). kdh (6,): the D gains over h, acting when use_kd
+    and state[0] is 1.0 (e_prev holds the last step's error; a reset clears it). q_lo, q_hi
+    (7,): the travel (metres) and the arm's joint limits; dq_lo, dq_hi (7,): the range of
+    each virtual joint's move in one internal step (:meth:`RailVfdm.step_window`)."""
     n = N_CHAIN
     R = np.empty((6, 3, 3))
     p = np.empty((6, 3))
@@ -66,6 +69,7 @@ def rail_vfdm_steps(q, qd, last_e, Rt, pt, iterations, axis, pR, pp, mass, lever
     J = np.empty((6, n))
     H = np.zeros((n, n))
     e = np.empty(6)
+    f = np.empty(6)
     tau = np.empty(n)
     qdd = np.empty(n)
     Rerr, work, L, y = np.empty((3, 3)), np.empty((14, 3)), np.zeros((n, n)), np.empty(n)
@@ -74,12 +78,19 @@ def rail_vfdm_steps(q, qd, last_e, Rt, pt, iterations, axis, pR, pp, mass, lever
         chain_frames(q, axis, pR, pp, tR, tp, R, p, T_B_C)
         clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr)
         for a in range(6):
+            f[a] = kp[a] * e[a] + ff[a]
+        if use_kd and state[0] > 0.5:
+            for a in range(6):
+                f[a] += kdh[a] * (e[a] - e_prev[a])
+        for a in range(6):
+            e_prev[a] = e[a]
             last_e[a] = e[a]
+        state[0] = 1.0
         chain_jacobian_at(R, p, T_B_C[:3, 3], axis, J)
         for i in range(n):
             t = 0.0
             for a in range(6):
-                t += J[a, i] * (kp[a] * e[a] + ff[a])
+                t += J[a, i] * f[a]
             tau[i] = t
         chain_inertia(R, p, axis, mass, lever, Icom, armature, rail_mass, H, work)
         cholesky_solve(H, tau, qdd, L, y)
@@ -158,9 +169,6 @@ class RailVfdm:
     def __init__(self, cfg: VfdmConfig, rail: RailConfig, T_W_B0: np.ndarray,
                  T_F_C: np.ndarray, q0: np.ndarray, posture: np.ndarray | None = None,
                  limits: JointLimits = UR10E_LIMITS_500HZ) -> None:
-        if cfg.kd_lin or cfg.kd_rot:
-            raise ValueError("the rail's VFDM has no D term (Table 1's D = 0): set "
-                             "vfdm.kd_lin = vfdm.kd_rot = 0")
         self.cfg, self.rail = cfg, rail
         self.T_F_C = np.array(T_F_C, dtype=float)
         self.arm: RailArm = rail_arm(cfg, self.T_F_C, rail_axis_B(rail, T_W_B0),
@@ -180,6 +188,9 @@ class RailVfdm:
         self._q_hi = np.array([rail.travel_m[1]] + [POSITION_LIMIT_RAD] * 6)
         s = cfg.error_scale
         self._kp = s * np.array([cfg.kp_lin] * 3 + [cfg.kp_rot] * 3)
+        self._kd_over_h = s * np.array([cfg.kd_lin] * 3 + [cfg.kd_rot] * 3) / h
+        self._use_kd = bool(np.any(self._kd_over_h))
+        self._e_prev = np.zeros(6)
         self._keep = 1.0 - cfg.damping if cfg.velocity_mode == "damped" else 1.0
         lam = np.array([cfg.end_mass_kg] * 3 + [cfg.end_inertia_kgm2] * 3)
         drag = (1.0 - self._keep) / (self._keep * h) if cfg.velocity_feedforward else 0.0
@@ -187,7 +198,7 @@ class RailVfdm:
         self._ff_gain = lam * drag / (N * h)
         self._ff = np.zeros(6)
         self._R_prev, self._p_prev = np.eye(3), np.zeros(3)
-        self._has_prev = np.zeros(2)
+        self._has_prev = np.zeros(2)  # [an e_prev (D term), a last target (feedforward)]
         self._step_prev = np.zeros(N_CHAIN)
         self.last_scale = 1.0
         self.last_error = np.zeros(6)
@@ -236,11 +247,13 @@ class RailVfdm:
         self.step_window()
         q0 = self.q.copy()
         last_e = np.empty(6)
-        rail_vfdm_steps(self.q, self.qd, last_e, Rt, pt, cfg.iterations, a.axis, a.pR, a.pp,
-                        a.mass, a.lever, a.Icom, a.tR, a.tp, a.armature, a.rail_mass,
-                        self.posture, self.rail.posture_stiffness_Nm_per_rad, self._kp,
-                        self._ff, self._keep, cfg.internal_dt_s, self._q_lo, self._q_hi,
-                        cfg.max_error_lin_m, cfg.max_error_rot_rad, self._dq_lo, self._dq_hi)
+        rail_vfdm_steps(self.q, self.qd, self._e_prev, self._has_prev, last_e, Rt, pt,
+                        cfg.iterations, a.axis, a.pR, a.pp, a.mass, a.lever, a.Icom, a.tR,
+                        a.tp, a.armature, a.rail_mass, self.posture,
+                        self.rail.posture_stiffness_Nm_per_rad, self._kp, self._kd_over_h,
+                        self._use_kd, self._ff, self._keep, cfg.internal_dt_s, self._q_lo,
+                        self._q_hi, cfg.max_error_lin_m, cfg.max_error_rot_rad, self._dq_lo,
+                        self._dq_hi)
         self.last_scale = chain_limit_step(self.q, self.qd, q0, self._step_prev,
                                            self._max_step, self._max_change, self._q_lo,
                                            self._q_hi)

@@ -5,6 +5,7 @@ each mockup where the telemetry has it."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -391,3 +392,145 @@ def test_the_rail_s_robot_description_has_the_prismatic_joint_under_base_link(ra
     # a robot without a rail keeps the plain arm (robot 2 of free-flying-rails has none)
     if "/robot2/robot_description" in messages:
         assert "rail_joint" not in messages["/robot2/robot_description"][0][1].data
+
+
+# --- the tutorial (docs/tutorials/bag.md), as Foxglove and PlotJuggler read a bag ------------
+
+TUTORIAL = Path(__file__).resolve().parents[2] / "docs" / "tutorials" / "bag.md"
+
+
+def _tutorial_command(out: Path) -> list[str]:
+    """The tutorial's `orbit-emulator run` line, run to 3.4 s (past the contact at 3.1 s,
+    not the scenario's 8 s) without the restitution's replicates (the bag does not hold
+    them), into out."""
+    import shlex
+
+    line = next(s for s in TUTORIAL.read_text().splitlines()
+                if s.startswith(".venv/bin/orbit-emulator run "))
+    args = shlex.split(line)[1:]
+    args[args.index("--out") + 1] = str(out)
+    return [EXE, *args, "--duration", "3.4", "--set", "uncertainty.enabled=false", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def tutorial_bag(tmp_path_factory) -> tuple[dict, dict, dict]:
+    """The tutorial's bag read as Foxglove and PlotJuggler read an MCAP file: its summary's
+    channels and schemas, each message decoded from the ROS 2 message definition the file
+    itself carries (mcap-ros2-support; no ROS type store): (topic -> (schema encoding,
+    schema name, message encoding)), (topic -> [(log time ns, message)]), the run's
+    telemetry rows."""
+    pytest.importorskip("mcap_ros2")
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    out = tmp_path_factory.mktemp("tutorial") / "collision-bag"
+    result = subprocess.run(_tutorial_command(out), capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in (out / "bag").iterdir()) == ["bag.mcap", "metadata.yaml"]
+    with (out / "bag" / "bag.mcap").open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        channels = {c.topic: (summary.schemas[c.schema_id].encoding,
+                              summary.schemas[c.schema_id].name, c.message_encoding)
+                    for c in summary.channels.values()}
+        messages: dict[str, list] = {t: [] for t in channels}
+        for _, channel, message, decoded in reader.iter_decoded_messages():
+            messages[channel.topic].append((message.log_time, decoded))
+    rows, _ = _telemetry(out)
+    return channels, messages, rows
+
+
+def _tutorial_paths() -> list[str]:
+    """Every topic or field path the tutorial names (in backquotes, starting with /)."""
+    return sorted(set(re.findall(r"`(/[A-Za-z0-9_./]+)`", TUTORIAL.read_text())))
+
+
+def _resolve(path: str, topics) -> tuple[str, list[str]]:
+    """A path as the tools write it: a topic, Foxglove's ``/topic.field.field`` or
+    PlotJuggler's ``/topic/field/field``: (the topic, its fields)."""
+    topic = max((t for t in topics if path == t or path.startswith(t + ".")
+                 or path.startswith(t + "/")), key=len, default=None)
+    assert topic is not None, f"the tutorial names {path}, which is on no topic of the bag"
+    return topic, [f for f in re.split(r"[./]", path[len(topic):]) if f]
+
+
+def test_the_tutorial_s_topics_and_fields_are_in_its_bag_with_their_types(tutorial_bag):
+    """Every channel is CDR with a ros2msg schema named by its standard type (what
+    Foxglove's and PlotJuggler's MCAP loaders need to decode it without ROS); every topic
+    and field path the tutorial names is there and gives a number (or the message) on every
+    message; the 3D panel's sources have the types it draws; the display frames the
+    tutorial offers are in the tf tree; and --bag-rate 100 gave 100 messages a second."""
+    channels, messages, rows = tutorial_bag
+    for topic, (schema_encoding, schema, encoding) in channels.items():
+        assert (schema_encoding, encoding) == ("ros2msg", "cdr"), topic
+        assert re.fullmatch(r"[a-z0-9_]+/msg/[A-Za-z0-9]+", schema), (topic, schema)
+    paths = _tutorial_paths()
+    assert len(paths) >= 8, paths
+    for path in paths:
+        topic, fields = _resolve(path, channels)
+        assert messages[topic], topic
+        for _, message in messages[topic]:
+            value = message
+            for field in fields:
+                value = getattr(value, field)
+            assert not fields or np.isfinite(value), (path, value)
+    types = {topic: schema for topic, (_, schema, _) in channels.items()}
+    for topic in ("/tf", "/tf_static"):
+        assert types[topic] == "tf2_msgs/msg/TFMessage"
+    assert types["/markers"] == "visualization_msgs/msg/MarkerArray"
+    for k in (1, 2):
+        assert types[f"/robot{k}/robot_description"] == "std_msgs/msg/String"
+        assert messages[f"/robot{k}/robot_description"][0][1].data.startswith("<?xml")
+    frames = {name for _, m in messages["/tf_static"] + messages["/tf"]
+              for tf in m.transforms for name in (tf.header.frame_id, tf.child_frame_id)}
+    offered = re.search(r"display frame to `(\w+)`[^`]*`(\w+)`", TUTORIAL.read_text())
+    assert offered and {offered[1], offered[2]} <= frames, (offered, frames)
+    # 3.4 s at 100 Hz, both ends: one message a 10 ms, on the telemetry's own times
+    assert len(rows) == 1701 and len(messages["/robot1/ft_raw"]) == 341
+    stamps = np.array([t for t, _ in messages["/robot1/ft_raw"]])
+    np.testing.assert_array_equal(np.diff(stamps), 10_000_000)
+    assert stamps[0] == 0 and stamps[-1] == 3_400_000_000  # scenario time, as the plot's
+
+
+def test_the_tutorial_s_tf_and_joint_states_decode(tutorial_bag):
+    """/tf: every message moves each arm's links and both mockups, with unit quaternions,
+    every frame chained to world through /tf_static; /robot<k>/joint_states: the six
+    joints under the arm's prefix, at the header's time, positions and velocities
+    finite."""
+    _, messages, _ = tutorial_bag
+    static = {tf.child_frame_id: tf.header.frame_id
+              for tf in messages["/tf_static"][0][1].transforms}
+    for t_ns, message in messages["/tf"]:
+        parents = dict(static)
+        for tf in message.transforms:
+            q = tf.transform.rotation
+            assert abs(np.linalg.norm([q.w, q.x, q.y, q.z]) - 1.0) < 1e-9
+            assert tf.header.stamp.sec * 10**9 + tf.header.stamp.nanosec == t_ns
+            parents[tf.child_frame_id] = tf.header.frame_id
+        for frame in ("robot1/tool0", "robot2/tool0", "sat1_mockup", "sat2_mockup"):
+            chain = [frame]
+            while chain[-1] != "world":
+                assert chain[-1] in parents and len(chain) < 20, (frame, chain)
+                chain.append(parents[chain[-1]])
+    for k in (1, 2):
+        for t_ns, js in messages[f"/robot{k}/joint_states"]:
+            assert list(js.name) == [f"robot{k}/{name}" for name in JOINT_NAMES]
+            assert js.header.stamp.sec * 10**9 + js.header.stamp.nanosec == t_ns
+            assert np.all(np.isfinite(js.position)) and np.all(np.isfinite(js.velocity))
+
+
+def test_the_tutorial_s_plot_shows_the_contact_s_equal_and_opposite_pushes(tutorial_bag):
+    """The Plot panel of step 2: /sat1/ods_input.wrench.force.x and /sat2/… are zero
+    before the contact, then equal and opposite (sat1, coming from -x, pushed back
+    towards -x), a push of several newtons; /sat1/true_wrench.wrench.force.x, what the
+    mockups exchanged, pushes the same way at the same time."""
+    _, messages, _ = tutorial_bag
+    t_s = np.array([t for t, _ in messages["/sat1/ods_input"]]) * 1e-9
+    f1, f2, true1 = (np.array([m.wrench.force.x for _, m in messages[topic]])
+                     for topic in ("/sat1/ods_input", "/sat2/ods_input", "/sat1/true_wrench"))
+    assert np.all(f1[t_s < 2.9] == 0.0) and np.all(f2[t_s < 2.9] == 0.0)
+    peak = np.argmax(np.abs(f1))
+    assert 3.0 < t_s[peak] < 3.3 and f1[peak] < -1.0, (t_s[peak], f1[peak])
+    np.testing.assert_allclose(f2, -f1, atol=1e-9 + 0.02 * abs(f1[peak]))
+    assert true1.min() < -1.0 and 3.0 < t_s[np.argmin(true1)] < 3.3

@@ -11,18 +11,25 @@ from app.runs.headless import collision_of, headless_config
 from app.runs.preflight import (
     DRIFT_SIGMAS,
     HOLD_RADIUS_M,
+    INNER_RADIUS_M,
     MIN_WRIST_RADIUS_M,
     PreflightRefused,
     check_drift,
     predict,
     preflight,
-    wrist_radius_m,
+    wrist_axis_distance,
 )
 from app.runs.uncertainty import forecast
 from app.scenarios import load_scenario, scenario_names
 from app.sim.loop import Emulator
-from app.sim.rotations import make_transform, quat_to_matrix
-from app.sim.ur10e import DH_D_M, SHOULDER_B_M, T_W_B_from_config, flange_pose_B
+from app.sim.rotations import make_transform, matrix_to_quat, quat_to_matrix
+from app.sim.ur10e import (
+    DH_D_M,
+    SHOULDER_B_M,
+    T_F_C_from_config,
+    T_W_B_from_config,
+    flange_pose_B,
+)
 
 
 @pytest.mark.parametrize("name", scenario_names())
@@ -56,6 +63,44 @@ def test_a_satellite_drifting_out_of_reach_is_refused_with_the_robot_time_and_li
     assert "leaves the safety volume (at (-0.303, 1.500, 1.000) m in W" in text  # 30 s
     assert text.endswith("The arms have not moved; change the scenario (or run it "
                          "--mode ideal)")
+
+
+def test_the_wrist_s_distance_from_the_base_axis_is_the_arm_s_own_and_never_inside():
+    """For random postures of collision's ceiling arm, the distance the pre-flight derives
+    from the mockup's pose (position and attitude in R) is the one of the wrist point (the
+    flange less d6 along its axis) that the forward kinematics puts there, and it is never
+    under the inner limit d4 (which is why a course inside it is refused). On a rail along
+    x the carriage can take the base away from a point under the shoulder."""
+    cfg = load_scenario("collision")
+    robot = cfg.robots[0]
+    T_W_R = make_transform(quat_to_matrix(cfg.lab.r_attitude_wxyz), cfg.lab.r_origin_m)
+    T_W_B, T_F_C = T_W_B_from_config(robot), T_F_C_from_config(robot)
+    qs = np.random.default_rng(7).uniform(-math.pi, math.pi, (200, 6))
+    T_B_F = np.stack([flange_pose_B(q) for q in qs])
+    wrist_B = T_B_F[:, :3, 3] - DH_D_M[5] * T_B_F[:, :3, 2]
+    T_R_C = np.linalg.inv(T_W_R) @ T_W_B @ T_B_F @ T_F_C
+    p_W = (T_W_R @ T_R_C)[:, :3, 3]
+    quats = np.stack([matrix_to_quat(T[:3, :3]) for T in T_R_C])
+    got = wrist_axis_distance(robot, T_W_R, p_W, quats)
+    np.testing.assert_allclose(got, np.hypot(wrist_B[:, 0], wrist_B[:, 1]), atol=1e-9)
+    assert got.min() >= INNER_RADIUS_M - 1e-9
+    # a mockup right under the shoulder, flange down: fixed, the wrist is on the axis; on a
+    # rail along x (travel ±1 m) the carriage can stand as far off as the reach allows,
+    # sqrt(1.2² − h²) with h the shoulder's height over the mockup
+    below = np.array([[robot.base_position_m[0], 0.0, 1.0]])
+    down = matrix_to_quat(np.linalg.inv(T_W_R[:3, :3]) @ T_W_B[:3, :3]
+                          @ T_F_C[:3, :3])[None]
+    assert wrist_axis_distance(robot, T_W_R, below, down)[0] == pytest.approx(0.0, abs=1e-9)
+    on_rail = robot.model_copy(update={"rail": _rail_x()})
+    h = robot.base_position_m[2] - DH_D_M[0] - 1.0
+    assert wrist_axis_distance(on_rail, T_W_R, below, down)[0] == pytest.approx(
+        math.sqrt(HOLD_RADIUS_M**2 - h * h))
+
+
+def _rail_x():
+    from app.config import RailConfig
+
+    return RailConfig(axis_W=(1.0, 0.0, 0.0), travel_m=(-1.0, 1.0))
 
 
 def test_a_satellite_faster_than_the_arm_is_refused_at_once():
@@ -173,7 +218,10 @@ def test_the_wrist_radius_from_the_course_is_the_arms_own():
     T_W_R = make_transform(quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m)
     for k, robot in enumerate(config.robots):
         s = config.satellite_index(robot.satellite) + 1
-        predicted = wrist_radius_m(robot, s, rows[-1:], index, T_W_R)[0]
+        p_W = rows[-1:, [index[f"sat{s}_{a}_m"] for a in "xyz"]] @ T_W_R[:3, :3].T \
+            + T_W_R[:3, 3]
+        quat = rows[-1:, [index[f"sat{s}_q{a}"] for a in "wxyz"]]
+        predicted = wrist_axis_distance(robot, T_W_R, p_W, quat)[0]
         q = rows[-1, [index[f"rob{k + 1}_q{j}_rad"] for j in range(1, 7)]]
         T_B_F = flange_pose_B(q)
         wrist = T_B_F[:3, 3] - DH_D_M[5] * T_B_F[:3, 2]
@@ -197,9 +245,9 @@ def test_the_noise_drift_after_a_contact_is_refused_with_a_duration_that_fits():
     assert text.startswith(f"pre-flight: after the contact (t = 3.15 s) the sensor's noise "
                            f"scatters the satellites' velocities (the forecast: 3 sd = "
                            f"{rate:.3g} m/s); with that drift, robot 1 (ceiling): satellite "
-                           f"'cubesat' takes the arm's wrist to ")
-    assert (f"m from its base axis (limit {MIN_WRIST_RADIUS_M:.3f} m: the shoulder is "
-            f"singular at 0.17415 m) at t = ") in text
+                           f"'cubesat' leaves the arm's reach (its wrist ")
+    assert (f"m from its base axis; inner limit {MIN_WRIST_RADIUS_M:.3f} m, the shoulder "
+            f"singular at {INNER_RADIUS_M:.3f} m) at t = ") in text
     said = float(text.split("loop.duration_s = ")[1].split(" ")[0])
     assert 3.2 < said < 10.0
     assert text.endswith(f"The arms have not moved; shorten the run (loop.duration_s = "

@@ -1,0 +1,71 @@
+"""The forecasts kept on disk (app/runs/forecast_cache.py): one per setting, whatever the
+seed; found again only for the same configuration, ideal run and code."""
+
+from __future__ import annotations
+
+from app.config import assignment_override, merge_overrides
+from app.runs import forecast_cache
+from app.runs.forecast_cache import cached_forecast, forecast_key
+from app.runs.headless import checked_reference
+from app.runs.uncertainty import forecast
+from tests.runs.test_uncertainty import short_collision
+
+
+def _counted(calls: list):
+    def compute(config, ideal):
+        calls.append(config.loop.seed)
+        return forecast(config, ideal)
+    return compute
+
+
+def test_a_forecast_does_not_depend_on_the_seed_so_one_serves_every_seed(monkeypatch):
+    """The key sets the seed aside: that is only right if the forecast itself is the same
+    for every seed, computed anew for each."""
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", "off")
+    answers = []
+    for seed in (11, 4711):
+        config = short_collision("uncertainty.forecast_replicates=4", f"loop.seed={seed}")
+        reference = checked_reference(config, config.loop.duration_s)
+        assert reference["forecast"]["restitution_sd"] is not None
+        answers.append((reference["forecast"], forecast_key(config, reference)))
+    assert answers[0] == answers[1]
+
+
+def test_a_kept_forecast_is_found_for_the_same_setting_and_only_for_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision("uncertainty.forecast_replicates=4")
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", "off")
+    ideal = {k: v for k, v in checked_reference(config, config.loop.duration_s).items()
+             if k != "forecast"}
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    calls = []
+    first = cached_forecast(config, ideal, _counted(calls))
+    again = cached_forecast(merge_overrides(config, assignment_override("loop.seed=99")),
+                            ideal, _counted(calls))
+    assert calls == [config.loop.seed] and again == first  # computed once, read back whole
+    assert len(list((tmp_path / "forecasts").glob("*.json"))) == 1
+    noisier = merge_overrides(config, assignment_override("sensor.noise_force_N=2.0"))
+    other = cached_forecast(noisier, ideal, _counted(calls))
+    assert len(calls) == 2 and other["noise_force_N"] == 2.0
+    moved = cached_forecast(config, {**ideal, "restitution": ideal["restitution"] + 0.01},
+                            _counted(calls))
+    assert len(calls) == 3 and moved["restitution_error_mean"] != first[
+        "restitution_error_mean"]
+
+
+def test_a_new_code_or_a_broken_file_computes_it_anew(tmp_path, monkeypatch):
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision("uncertainty.forecast_replicates=4")
+    ideal = {"pair": ["sat0", "sat1"], "window_s": [0.7, 0.8], "contact_duration_s": 0.1,
+             "restitution": 0.3, "peak_force_N": 3.0}
+    calls = []
+    key = forecast_key(config, ideal)
+    path = tmp_path / "forecasts" / f"{key}.json"
+    path.parent.mkdir(parents=True)
+    path.write_text('{"forecast": ')  # a file cut short: computed and written whole
+    cached_forecast(config, ideal, lambda c, i: calls.append(1) or {"restitution_sd": 0.1})
+    assert calls == [1] and path.read_text() == '{"forecast": {"restitution_sd": 0.1}}'
+    monkeypatch.setattr(forecast_cache, "code_fingerprint", lambda: "another code")
+    assert forecast_key(config, ideal) != key
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", "OFF")
+    assert forecast_cache.cache_dir() is None
