@@ -214,15 +214,14 @@ def test_health_turns_degraded_when_the_loop_misses_its_deadlines(live):
 
 
 def test_stop_interrupts_a_start_that_would_take_long(live):
-    """The wedge of old: a start pose the arm cannot take (the mockup inside its own
-    shoulder: within reach, so the pre-flight passes it) with the longest approach allowed
-    (120 s of virtual time, over a second of search here). A stop sent meanwhile ends the
-    start-up within 0.5 s; the loop then takes the next start as usual."""
+    """A start-up that takes long (the longest calibration allowed, 60 s of virtual time:
+    most of a second here; a start pose the arm could not take once searched for longer,
+    but the pre-flight now refuses such a pose). A stop sent meanwhile ends the start-up
+    within 0.5 s; the loop then takes the next start as usual."""
     import threading
 
     live.client.post("/api/stop")
-    body = {"satellites": {"0": {"position_m": [-0.5, 0.0, 0.82]}},  # the shoulder, in R
-            "loop": {"approach_timeout_s": 120.0}}
+    body = {"mode": "hil", "wrench": {"calibration_s": 60.0}}
     answer = {}
     starter = threading.Thread(target=lambda: answer.update(
         r=live.client.post("/api/scenarios/free-floating/start", json=body)))
