@@ -312,6 +312,8 @@ def test_a_robot_has_no_rail_unless_one_is_configured():
 def test_the_rail_axis_is_normalised():
     rail = parse_config(_robot_with_rail(axis_W=[0.0, 3.0, 4.0])).robots[0].rail
     np.testing.assert_allclose(rail.axis_W, [0.0, 0.6, 0.8], rtol=0, atol=1e-15)
+    huge = parse_config(_robot_with_rail(axis_W=[1e200, 1e200, 0.0])).robots[0].rail
+    np.testing.assert_allclose(huge.axis_W, [0.5**0.5, 0.5**0.5, 0.0], rtol=1e-15)
 
 
 @pytest.mark.parametrize("rail, message", [
@@ -319,6 +321,9 @@ def test_the_rail_axis_is_normalised():
     ({"travel_m": [1.0, 1.0]}, "robots.0.rail: travel_m must be [min, max] with min < max"),
     ({"travel_m": [2.0, -2.0]}, "travel_m must be [min, max] with min < max, got [2, -2]"),
     ({"start_m": 2.5}, "start_m = 2.5 is outside travel_m = [-2, 2]"),
+    ({"travel_m": [-1e9, 1e9]}, "robots.0.rail: travel_m must lie within ±50 m of the base's "
+                                "position (a lab's track), got [-1e+09, 1e+09]"),
+    ({"axis_W": [1e-200, 0.0, 0.0]}, "robots.0.rail: axis_W must be a non-zero"),
     ({"speed_limit_mps": 0.0}, "robots.0.rail.speed_limit_mps: Input should be greater than 0"),
     ({"accel_limit_mps2": -1.0}, "robots.0.rail.accel_limit_mps2: Input should be greater"),
     ({"bandwidth_hz": math.inf}, "robots.0.rail.bandwidth_hz: must be a finite number"),

@@ -321,6 +321,11 @@ class LabConfig(_Model):
     """The lab's gravity in W (what the F/T sensors feel from the mockups' weight)."""
 
 
+MAX_RAIL_TRAVEL_M = 50.0
+"""The farthest a rail's travel may reach from the base's position: longer than any lab's
+robot track (the longest tracks sold are some tens of metres)."""
+
+
 class RailConfig(_Model):
     """A linear axis (the robot's "7th axis") under a robot's base (app/sim/rail.py).
 
@@ -397,14 +402,18 @@ class RailConfig(_Model):
 
     @model_validator(mode="after")
     def _rail(self) -> RailConfig:
-        n = math.sqrt(sum(c * c for c in self.axis_W))
-        if n < 1e-9:
+        big = max(abs(c) for c in self.axis_W)  # (scaled first: 1e200 squared overflows)
+        n = big * math.sqrt(sum((c / big) ** 2 for c in self.axis_W)) if big > 0 else 0.0
+        if not 1e-9 <= n < math.inf:
             raise ValueError("axis_W must be a non-zero direction in the lab frame W")
         if n != 1.0:
             object.__setattr__(self, "axis_W", tuple(c / n for c in self.axis_W))
         lo, hi = self.travel_m
         if not lo < hi:
             raise ValueError(f"travel_m must be [min, max] with min < max, got [{lo:g}, {hi:g}]")
+        if max(abs(lo), abs(hi)) > MAX_RAIL_TRAVEL_M:
+            raise ValueError(f"travel_m must lie within ±{MAX_RAIL_TRAVEL_M:g} m of the base's "
+                             f"position (a lab's track), got [{lo:g}, {hi:g}]")
         if not lo <= self.start_m <= hi:
             raise ValueError(f"start_m = {self.start_m:g} is outside travel_m = "
                              f"[{lo:g}, {hi:g}]")

@@ -14,8 +14,10 @@ one. A forecast is found again under a key made of
 
 The folder is ``$ORBIT_EMULATOR_CACHE/forecasts`` (default: ``$XDG_CACHE_HOME`` or
 ``~/.cache``, then ``orbit-emulator``); ``ORBIT_EMULATOR_CACHE=off`` computes every
-forecast anew. A file that cannot be read or written is computed and not kept: the cache
-never stops a run.
+forecast anew. A file that cannot be read, or is not a forecast's (not a regular file, too
+large, not JSON, not of a forecast's shape), is computed anew and written over; one that
+cannot be written is not kept: the cache never stops a run. It is trusted as the
+installation is: a forecast of the right shape with other numbers is read as it is.
 """
 
 from __future__ import annotations
@@ -23,13 +25,17 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import os
+import stat
 import tempfile
 from pathlib import Path
 
 from app.config import EmulatorConfig
 
 CACHE_ENV = "ORBIT_EMULATOR_CACHE"
+MAX_FILE_BYTES = 1 << 20
+"""A kept forecast is a few hundred bytes; a larger file is not one."""
 IDEAL_KEYS = ("pair", "window_s", "contact_duration_s", "restitution", "peak_force_N")
 """The ideal run's figures a forecast reads."""
 
@@ -73,13 +79,53 @@ def cached_forecast(config: EmulatorConfig, ideal: dict | None, compute) -> dict
     if folder is None or not ideal:
         return compute(config, ideal)
     path = folder / f"{forecast_key(config, ideal)}.json"
-    try:
-        return json.loads(path.read_text())["forecast"]
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
+    kept = _read(path)
+    if kept is not None:
+        return kept
     result = compute(config, ideal)
     _keep(path, result)
     return result
+
+
+def _read(path: Path) -> dict | None:
+    """The forecast kept at ``path``, or None when there is none or it is not one this
+    code writes (not a regular file, over :data:`MAX_FILE_BYTES`, not JSON, or not of a
+    forecast's shape): then it is computed anew and written over."""
+    try:
+        info = os.stat(path, follow_symlinks=False)
+        if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_FILE_BYTES:
+            return None
+        with open(path, "rb") as f:
+            kept = json.loads(f.read(MAX_FILE_BYTES + 1))["forecast"]
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return None
+    return kept if _is_forecast(kept) else None
+
+
+def _is_forecast(kept) -> bool:
+    """Whether ``kept`` has a forecast's shape (app/runs/uncertainty.py :func:`forecast`):
+    a dict whose numbers are finite and whose spreads are not negative, its velocity
+    spread per satellite three of them."""
+    if not isinstance(kept, dict) or "restitution_sd" not in kept:
+        return False
+    for key, value in kept.items():
+        if key == "velocity_sd_mps":
+            if not isinstance(value, dict) or not all(
+                    isinstance(v, list) and len(v) == 3 and all(_number(x, 0.0) for x in v)
+                    for v in value.values()):
+                return False
+        elif key == "note":
+            if not isinstance(value, str):
+                return False
+        elif value is not None and not _number(value, 0.0 if key.endswith(("_sd", "_se"))
+                                               else None):
+            return False
+    return True
+
+
+def _number(x, least: float | None) -> bool:
+    return (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            and (least is None or x >= least))
 
 
 def _keep(path: Path, result: dict | None) -> None:

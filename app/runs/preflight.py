@@ -127,49 +127,63 @@ def _on_grid(t_s: float, rate_hz: float) -> bool:
 
 
 def check_course(config: EmulatorConfig, rows: np.ndarray, index: dict,
-                 drift: dict[int, tuple[np.ndarray, float]] | None = None) -> list[Violation]:
+                 drift: dict[int, tuple] | None = None) -> list[Violation]:
     """Each robot's first violation of each limit along the predicted telemetry ``rows``
     (an ideal run's; columns ``index``), earliest first. ``drift``: per satellite
     (1-based), how far (m, per row) and how much faster (m/s) it may be from its
-    predicted course (:func:`check_drift`); each limit is then checked at its worst."""
+    predicted course, and its velocity's spread per axis of R with the time since the
+    contact per row (:func:`check_drift`); each limit is then checked at its worst (on a
+    rail, the carriage carries the drift along the rail within its travel)."""
     T_W_R = make_transform(quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m)
     found = []
     for k, robot in enumerate(config.robots):
         s = config.satellite_index(robot.satellite) + 1
         found += _robot_violations(k, robot, s, rows, index, T_W_R,
-                                   (drift or {}).get(s, (np.zeros(len(rows)), 0.0)))
+                                   (drift or {}).get(s, (np.zeros(len(rows)), 0.0, None,
+                                                          None)))
     return sorted(found, key=lambda v: v.t_s)
 
 
 def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
-                      T_W_R: np.ndarray, drift: tuple[np.ndarray, float]) -> list[Violation]:
+                      T_W_R: np.ndarray, drift: tuple) -> list[Violation]:
     """Robot k's (0-based) first violation of each limit, carrying satellite s (1-based),
     its course widened by ``drift`` (m per row, m/s)."""
-    off_m, off_mps = drift
+    off_m, off_mps, sd_R, since_s = drift
     p_W = rows[:, [index[f"sat{s}_{a}_m"] for a in "xyz"]] @ T_W_R[:3, :3].T + T_W_R[:3, 3]
     speed = np.linalg.norm(rows[:, [index[f"sat{s}_v{a}_mps"] for a in "xyz"]], axis=1)
     rate = np.linalg.norm(rows[:, [index[f"sat{s}_w{a}_radps"] for a in "xyz"]], axis=1)
     T_W_B = T_W_B_from_config(robot)
     shoulder_W = T_W_B[:3, :3] @ np.asarray(SHOULDER_B_M) + T_W_B[:3, 3]
     reach, whose = _reach(p_W, shoulder_W, robot.rail), "its shoulder"
+    across_m = off_m  # how far the drift takes it from where the arm holds it
     if robot.rail is not None:
         whose = "its shoulder's line along the rail"
+        if sd_R is not None:  # along the rail the carriage follows, within its travel
+            axis_W = np.asarray(robot.rail.axis_W)
+            sd = np.asarray(sd_R, dtype=float)
+            along_sd = float(np.linalg.norm((T_W_R[:3, :3].T @ axis_W) * sd))
+            across_sd = float(np.sqrt(max(float(sd @ sd) - along_sd**2, 0.0)))
+            along_m = DRIFT_SIGMAS * along_sd * since_s
+            across_m = DRIFT_SIGMAS * across_sd * since_s
+            reach = np.maximum(*(_reach(p_W + sign * along_m[:, None] * axis_W, shoulder_W,
+                                        robot.rail) for sign in (1.0, -1.0)))
     quat = rows[:, [index[f"sat{s}_q{a}"] for a in "wxyz"]]
     wrist = wrist_axis_distance(robot, T_W_R, p_W, quat)
-    inside = (wrist - off_m < MIN_WRIST_RADIUS_M) & (reach <= HOLD_RADIUS_M)
+    inside = (wrist - across_m < MIN_WRIST_RADIUS_M) & (reach <= HOLD_RADIUS_M)
     lo, hi = np.asarray(robot.safety_box_min_m), np.asarray(robot.safety_box_max_m)
     pm = (lambda j: f" ± {off_m[j]:.3f}") if off_m.any() else (lambda j: "")
+    pm_across = (lambda j: f" ± {across_m[j]:.3f}") if across_m.any() else (lambda j: "")
     checks = [
         (np.any((p_W - off_m[:, None] < lo) | (p_W + off_m[:, None] > hi), axis=1),
          lambda j: f"leaves the safety volume (at {_fmt(p_W[j])}{pm(j)} m in W; box "
                    f"{_fmt(lo)} to {_fmt(hi)})"),
-        (reach + off_m > HOLD_RADIUS_M,
-         lambda j: f"leaves the arm's reach ({reach[j]:.3f}{pm(j)} m from {whose}; limit "
+        (reach + across_m > HOLD_RADIUS_M,
+         lambda j: f"leaves the arm's reach ({reach[j]:.3f}{pm_across(j)} m from {whose}; limit "
                    f"{HOLD_RADIUS_M:g} m)"),
         (inside,
-         lambda j: f"leaves the arm's reach (its wrist {wrist[j]:.3f}{pm(j)} m from its "
+         lambda j: f"leaves the arm's reach (its wrist {wrist[j]:.4f}{pm_across(j)} m from its "
                    f"base axis{' wherever the carriage stands' if robot.rail else ''}; "
-                   f"inner limit {MIN_WRIST_RADIUS_M:.3f} m, the shoulder singular at "
+                   f"inner limit {MIN_WRIST_RADIUS_M:.4f} m, the shoulder singular at "
                    f"{INNER_RADIUS_M:.3f} m)"),
         (speed + off_mps > MAX_TCP_SPEED_MPS,
          lambda j: f"moves faster than the arm's TCP ({speed[j] + off_mps:.3g} m/s; limit "
@@ -270,7 +284,7 @@ def check_drift(config: EmulatorConfig, prediction: Emulator, reference: dict) -
     drift, rates = {}, []
     for name, sd in spread.items():
         rate = DRIFT_SIGMAS * float(np.linalg.norm(sd))
-        drift[int(name[3:])] = (rate * since_s, rate)
+        drift[int(name[3:])] = (rate * since_s, rate, np.asarray(sd, dtype=float), since_s)
         rates.append(rate)
     found = check_course(config, rows, index, drift)
     if found:

@@ -120,6 +120,8 @@ def test_the_metric_fields_a_spec_is_checked_against_are_those_of_metrics_json(s
     assert tuple(metrics["robots"][0]) == METRIC_FIELDS["robots"]
     assert tuple(metrics["collision"]) == METRIC_FIELDS["collision"]
     assert tuple(metrics["cycle_time_us"]) == METRIC_FIELDS["cycle_time_us"]
+    if metrics["collision_forecast"] is not None:
+        assert set(metrics["collision_forecast"]) <= set(METRIC_FIELDS["collision_forecast"])
 
 
 def test_resume_of_a_whole_table_runs_nothing(swept, tmp_path):

@@ -3,6 +3,11 @@ seed; found again only for the same configuration, ideal run and code."""
 
 from __future__ import annotations
 
+import json
+import os
+
+import pytest
+
 from app.config import assignment_override, merge_overrides
 from app.runs import forecast_cache
 from app.runs.forecast_cache import cached_forecast, forecast_key
@@ -69,3 +74,39 @@ def test_a_new_code_or_a_broken_file_computes_it_anew(tmp_path, monkeypatch):
     assert forecast_key(config, ideal) != key
     monkeypatch.setenv("ORBIT_EMULATOR_CACHE", "OFF")
     assert forecast_cache.cache_dir() is None
+
+
+@pytest.mark.parametrize("content", [
+    '{"forecast": "abc"}', '{"forecast": null}', '{"forecast": [1, 2]}',
+    '{"forecast": {"restitution_sd": -0.1}}', '{"forecast": {"restitution_sd": NaN}}',
+    '{"forecast": {"restitution_sd": 0.1, "velocity_sd_mps": [0.1, 0.1]}}',
+    '{"forecast": {"restitution_sd": 0.1, "velocity_sd_mps": {"sat1": [0.1, "x", 0]}}}',
+    '{"forecast": {"restitution_sd": true}}', "[" * 100_000 + "]" * 100_000,
+    "fifo", "symlink", "huge"])
+def test_a_file_that_is_not_a_forecast_is_computed_anew_and_written_over(content, tmp_path,
+                                                                           monkeypatch):
+    """A kept file of the wrong type, shape or kind (a FIFO would hang a reader, a symlink
+    would be written through, deep nesting raised RecursionError) is never read as a
+    forecast: the run computes its own and keeps that."""
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision("uncertainty.forecast_replicates=4")
+    ideal = {"pair": ["sat0", "sat1"], "restitution": 0.3}
+    path = tmp_path / "forecasts" / f"{forecast_key(config, ideal)}.json"
+    path.parent.mkdir(parents=True)
+    target = tmp_path / "elsewhere.json"
+    target.write_text('{"forecast": {"restitution_sd": 9.0}}')
+    if content == "fifo":
+        os.mkfifo(path)
+    elif content == "symlink":
+        path.symlink_to(target)
+    elif content == "huge":
+        path.write_text('{"forecast": {"restitution_sd": 9.0, "note": "'
+                        + "x" * (2 << 20) + '"}}')
+    else:
+        path.write_text(content)
+    got = cached_forecast(config, ideal, lambda c, i: {"restitution_sd": 0.1,
+                                                       "velocity_sd_mps": {"sat1": [0, 0, 0]}})
+    assert got == {"restitution_sd": 0.1, "velocity_sd_mps": {"sat1": [0, 0, 0]}}
+    assert path.is_file() and not path.is_symlink()
+    assert json.loads(path.read_text())["forecast"] == got
+    assert target.read_text() == '{"forecast": {"restitution_sd": 9.0}}'  # untouched
