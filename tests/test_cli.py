@@ -41,11 +41,13 @@ MISTAKES = {
     "shoulder singularity": (["run", "collision", "--set", "loop.duration_s=12", "--set",
                               'satellites.1.material="rigid"', "--set", "loop.seed=9001"],
                              "pre-flight: the ideal run predicts that robot 1 (ceiling): "
-                             "satellite 'cubesat' leaves the arm's reach (its wrist 0.1940 m "
-                             "from its base axis; inner limit 0.1942 m, the shoulder singular "
+                             "satellite 'cubesat' leaves the arm's reach (its wrist would come "
+                             "within 0.078 m of its base axis; inner limit 0.194 m, the "
+                             "shoulder singular "
                              "at 0.174 m) at t = 10.47 s; robot 2 (floor): satellite 'sponge' "
-                             "leaves the arm's reach (its wrist 0.1940 m from its base axis; "
-                             "inner limit 0.1942 m, the shoulder singular at 0.174 m) at "
+                             "leaves the arm's reach (its wrist would come within 0.078 m of its "
+                             "base axis; inner limit 0.194 m, the shoulder singular at "
+                             "0.174 m) at "
                              "t = 10.47 s; and before "
                              "any of that, at t = 3.12 s, the mockups of 'cubesat' and "
                              "'sponge' touch (up to 11 N). The arms have not moved"),

@@ -84,13 +84,14 @@ WITHOUT_RAILS = {
     # the chaser passes under the fixed ceiling arm's shoulder (its 6 s are enough)
     "docking-rails": (["robots.0.rail=null", "robots.1.rail=null"], "6",
                       r"robot 1 \(ceiling\): satellite 'chaser' leaves the arm's reach \(its "
-                      r"wrist 0\.19\d\d m from its base axis; inner limit 0\.1942 m, the "
-                      r"shoulder singular at 0\.174 m\) at t = 3\.\d\d s"),
+                      r"wrist would come within 0\.050 m of its base axis; inner limit "
+                      r"0\.194 m, the shoulder singular at 0\.174 m\) at t = 3\.\d\d s"),
     # after the contact both satellites drift back under their fixed arms' shoulders
     "collision-rails": (["robots.0.rail=null", "robots.1.rail=null"], None,
                         r"robot 1 \(ceiling\): satellite 'cubesat' leaves the arm's reach "
-                        r"\(its wrist 0\.19\d\d m from its base axis; inner limit 0\.1942 m, the "
-                        r"shoulder singular at 0\.174 m\) at t = 2\d\.\d\d s; robot 2 \(floor\): "
+                        r"\(its wrist would come within 0\.113 m of its base axis; inner "
+                        r"limit 0\.194 m, the shoulder singular at 0\.174 m\) at t = 2\d\.\d\d s; "
+                        r"robot 2 \(floor\): "
                         r"satellite 'sponge' leaves the arm's reach"),
 }
 

@@ -181,9 +181,10 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
          lambda j: f"leaves the arm's reach ({reach[j]:.3f}{pm_across(j)} m from {whose}; limit "
                    f"{HOLD_RADIUS_M:g} m)"),
         (inside,
-         lambda j: f"leaves the arm's reach (its wrist {wrist[j]:.4f}{pm_across(j)} m from its "
-                   f"base axis{' wherever the carriage stands' if robot.rail else ''}; "
-                   f"inner limit {MIN_WRIST_RADIUS_M:.4f} m, the shoulder singular at "
+         lambda j: f"leaves the arm's reach (its wrist would come within "
+                   f"{float(np.min((wrist - across_m)[inside])):.3f} m of its base axis"
+                   f"{' wherever the carriage stands' if robot.rail else ''}; inner limit "
+                   f"{MIN_WRIST_RADIUS_M:.3f} m, the shoulder singular at "
                    f"{INNER_RADIUS_M:.3f} m)"),
         (speed + off_mps > MAX_TCP_SPEED_MPS,
          lambda j: f"moves faster than the arm's TCP ({speed[j] + off_mps:.3g} m/s; limit "

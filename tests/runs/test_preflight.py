@@ -245,8 +245,8 @@ def test_the_noise_drift_after_a_contact_is_refused_with_a_duration_that_fits():
     assert text.startswith(f"pre-flight: after the contact (t = 3.15 s) the sensor's noise "
                            f"scatters the satellites' velocities (the forecast: 3 sd = "
                            f"{rate:.3g} m/s); with that drift, robot 1 (ceiling): satellite "
-                           f"'cubesat' leaves the arm's reach (its wrist ")
-    assert (f"m from its base axis; inner limit {MIN_WRIST_RADIUS_M:.4f} m, the shoulder "
+                           f"'cubesat' leaves the arm's reach (its wrist would come within ")
+    assert (f"m of its base axis; inner limit {MIN_WRIST_RADIUS_M:.3f} m, the shoulder "
             f"singular at {INNER_RADIUS_M:.3f} m) at t = ") in text
     said = float(text.split("loop.duration_s = ")[1].split(" ")[0])
     assert 3.2 < said < 10.0
