@@ -47,6 +47,7 @@ from app.sim.vfdm import (
     JointLimits,
     cholesky_solve,
     clamped_pose_error,
+    pd_wrench,
     target_feedforward,
 )
 
@@ -77,15 +78,7 @@ def rail_vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations, axis, pR, 
     for _ in range(iterations):
         chain_frames(q, axis, pR, pp, tR, tp, R, p, T_B_C)
         clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr)
-        for a in range(6):
-            f[a] = kp[a] * e[a] + ff[a]
-        if use_kd and state[0] > 0.5:
-            for a in range(6):
-                f[a] += kdh[a] * (e[a] - e_prev[a])
-        for a in range(6):
-            e_prev[a] = e[a]
-            last_e[a] = e[a]
-        state[0] = 1.0
+        pd_wrench(e, kp, ff, kdh, use_kd, state, e_prev, last_e, f)
         chain_jacobian_at(R, p, T_B_C[:3, 3], axis, J)
         for i in range(n):
             t = 0.0

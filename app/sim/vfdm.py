@@ -197,6 +197,22 @@ def clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr):
 
 
 @njit(cache=True, fastmath=False, inline="always")
+def pd_wrench(e, kp, ff, kdh, use_kd, state, e_prev, last_e, f):
+    """f (6,) := kp e + ff, plus kdh (e − e_prev) once e_prev holds the last step's error
+    (use_kd and state[0] is 1.0): Eq. 13 with the target feedforward ff; then e_prev and
+    last_e take e and state[0] is 1.0."""
+    for a in range(6):
+        f[a] = kp[a] * e[a] + ff[a]
+    if use_kd and state[0] > 0.5:
+        for a in range(6):
+            f[a] += kdh[a] * (e[a] - e_prev[a])
+    for a in range(6):
+        e_prev[a] = e[a]
+        last_e[a] = e[a]
+    state[0] = 1.0
+
+
+@njit(cache=True, fastmath=False, inline="always")
 def joint_space_inertia(R, p, mass, lever, Icom, H, work):
     """H (6, 6) := the joint-space inertia (composite-rigid-body algorithm, world frame).
 
@@ -377,15 +393,7 @@ def vfdm_steps(q, qd, e_prev, state, last_e, Rt, pt, iterations,
         end_frame(R, p, tR, tp, T_B_C)
         # 2. Eq. 13 on the clamped pose error; the D term on (e - e_prev) / h
         clamped_pose_error(Rt, pt, T_B_C, max_lin, max_rot, e, Rerr)
-        for a in range(6):
-            f[a] = kp[a] * e[a] + ff[a]
-        if use_kd and state[0] > 0.5:
-            for a in range(6):
-                f[a] += kdh[a] * (e[a] - e_prev[a])
-        for a in range(6):
-            e_prev[a] = e[a]
-            last_e[a] = e[a]
-        state[0] = 1.0
+        pd_wrench(e, kp, ff, kdh, use_kd, state, e_prev, last_e, f)
         # 3. Eq. 9: tau = J^T f
         jacobian_at(R, p, T_B_C[:3, 3], J)
         for i in range(n):
