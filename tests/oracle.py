@@ -276,8 +276,10 @@ class RefVfdm:
             self.step(T_target)
         return self.q.copy()
 
-    def step(self, T_target: np.ndarray) -> None:
-        cfg, model, data, h = self.cfg, self.arm.model, self.arm.data, self.cfg.internal_dt_s
+    def wrench(self, model, data, T_target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the TCP's Jacobian (LOCAL_WORLD_ALIGNED), Eq. 13's f on the clamped pose error,
+        with the D term once a previous error is held) at self.q; keeps the error."""
+        cfg, h = self.cfg, self.cfg.internal_dt_s
         pin.computeJointJacobians(model, data, self.q)
         oMc = pin.updateFramePlacement(model, data, self.tcp_id)
         J = pin.getFrameJacobian(model, data, self.tcp_id, _LWA)
@@ -288,6 +290,11 @@ class RefVfdm:
         if self.e_prev is not None:
             f += self.kd * (e - self.e_prev) / h
         self.e_prev, self.last_error = e, e.copy()
+        return J, f
+
+    def step(self, T_target: np.ndarray) -> None:
+        h = self.cfg.internal_dt_s
+        J, f = self.wrench(self.arm.model, self.arm.data, T_target)
         qdd = self.arm.aba_qdd(self.q, J.T @ f)
         self.qd = (self.qd + h * qdd) * self.keep
         self.q = self.q + h * self.qd
@@ -325,17 +332,8 @@ class RefRailVfdm(RefVfdm):
         self.qd = np.zeros(7)
 
     def step(self, T_target: np.ndarray) -> None:
-        cfg, model, data, h = self.cfg, self.model, self.data, self.cfg.internal_dt_s
-        pin.computeJointJacobians(model, data, self.q)
-        oMc = pin.updateFramePlacement(model, data, self.tcp_id)
-        J = pin.getFrameJacobian(model, data, self.tcp_id, _LWA)
-        e = np.empty(6)
-        e[:3] = clamp_norm(T_target[:3, 3] - oMc.translation, cfg.max_error_lin_m)
-        e[3:] = clamp_norm(pin.log3(T_target[:3, :3] @ oMc.rotation.T), cfg.max_error_rot_rad)
-        f = self.kp * e + self.ff
-        if self.e_prev is not None:
-            f += self.kd * (e - self.e_prev) / h
-        self.e_prev, self.last_error = e, e.copy()
+        model, data, h = self.model, self.data, self.cfg.internal_dt_s
+        J, f = self.wrench(model, data, T_target)
         zero = np.zeros(7)
         qdd = pin.aba(model, data, self.q, zero, J.T @ f).copy()
         k = self.rail.posture_stiffness_Nm_per_rad
