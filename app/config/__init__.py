@@ -743,6 +743,14 @@ class CompensationConfig(_Model):
     so that the arm follows the VFDM's set-points ``q_d`` instead of lagging and ringing
     behind them; the lead is left the transport delay. None: on with ``[servo] model =
     "servoj"``, off with "second-order". Only with ``enabled``."""
+    servo_correction_hz: Annotated[float, AfterValidator(_finite), Field(ge=0.0, le=50.0)] = 16.0
+    """With the servo feedforward: the bandwidth (critically damped) at which the lab
+    corrects the arm's tracking error from the joints it reports (Eq. FC,
+    app/sim/feedforward.py); 0 sends the inverse of the law alone (Eq. FF), as does a
+    servo whose own loop is faster (the default second-order servo's 50 Hz). 16 Hz keeps the
+    phase the transport delay and the cycle cost the correction at 4 ms × 2π · 16 Hz = 23°;
+    at 32 Hz the rigid collision on servoj ended in protective stops (tuning seeds
+    1000-1001)."""
 
     @model_validator(mode="after")
     def _lead_needs_enabled(self) -> CompensationConfig:

@@ -143,7 +143,9 @@ def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
         if config.vfdm.sync_to_measured:  # as ArmRig.command does
             vfdm.q_rad[:] = servo.state.q_rad
         q_d = vfdm.solve(T)
-        servo.step(q_d if feedforward is None else feedforward.setpoint(q_d))
+        st = servo.state
+        servo.step(q_d if feedforward is None
+                   else feedforward.setpoint(q_d, st.q_rad, st.qd_radps))
         if k % 50 == 0:
             tick()
         if k in check:
@@ -181,7 +183,9 @@ def _rail_ramp_lags_s(config: EmulatorConfig, robot: RobotConfig, T_F_C: np.ndar
             vfdm.q[1:] = servo.state.q_rad
         q = vfdm.solve(T)
         carriage.step(q[0])
-        servo.step(q[1:] if feedforward is None else feedforward.setpoint(q[1:]))
+        st = servo.state
+        servo.step(q[1:] if feedforward is None
+                   else feedforward.setpoint(q[1:], st.q_rad, st.qd_radps))
         if k % 50 == 0:
             tick()
         if k in check:

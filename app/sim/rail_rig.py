@@ -80,7 +80,9 @@ class RailRig(ArmRig):
         if arm.safety is not None:
             self.base_at(rs._prev[0], arm.safety.chain.T_W_B)
         q_arm = q[1:]
-        arm.step(q_arm if self.feedforward is None else self.feedforward.setpoint(q_arm))
+        st = arm.state
+        arm.step(q_arm if self.feedforward is None
+                 else self.feedforward.setpoint(q_arm, st.q_rad, st.qd_radps))
         if rs.stopped and not arm.stopped:
             arm.state.stopped, arm.state.reason = True, rs.state.reason
         elif arm.stopped and not rs.stopped:

@@ -163,7 +163,9 @@ class ArmRig:
         if self.vfdm.cfg.sync_to_measured:
             self.vfdm.q_rad[:] = self.servo.state.q_rad
         q_d = self.vfdm.solve(T_B_C_target)
-        self.servo.step(q_d if self.feedforward is None else self.feedforward.setpoint(q_d))
+        st = self.servo.state
+        self.servo.step(q_d if self.feedforward is None
+                        else self.feedforward.setpoint(q_d, st.q_rad, st.qd_radps))
 
     # --- start-up -------------------------------------------------------------------------
 
