@@ -270,6 +270,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="chunks of 100 cycles per tree in --against's one-process comparison")
     ap.add_argument("--steps-only", action="store_true",
                     help="--against: the one-process Emulator.step comparison only")
+    ap.add_argument("--scenarios", nargs="+", default=None,
+                    help="--against: these scenarios (default collision, "
+                         "free-floating-scripted)")
     ap.add_argument("--duration", type=float, default=None, help="simulated s of RTF runs")
     ap.add_argument("--rtf-json", nargs="+", metavar="SCENARIO", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -281,7 +284,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.against is not None:
         other = args.against.resolve()
         scenarios = ["collision"]  # the scripted free-floating run, where both trees have it
-        if (other / "app" / "scenarios" / "free-floating-scripted.toml").is_file():
+        if args.scenarios:
+            scenarios = args.scenarios
+        elif (other / "app" / "scenarios" / "free-floating-scripted.toml").is_file():
             scenarios.append("free-floating-scripted")
         else:
             print("(the other tree has no free-floating-scripted; its free-floating is the "

@@ -264,6 +264,11 @@ class BoxContactModel:
             return None
         return ContactGeometry(depth, np.array(c.normal, dtype=float), np.array(c.pos))
 
+    def overlapping(self, T_W_C: Sequence[np.ndarray]) -> bool:
+        """Whether any pair that may touch overlaps at the COM poses T_W_C: whether
+        :meth:`compute` there would report a contact (the same geometry, no velocities)."""
+        return any(self.geometry(a, b, T_W_C[a], T_W_C[b]) is not None for a, b in self.pairs)
+
     def clearances(self, T_W_C: Sequence[np.ndarray],
                    within_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """((N,) clearance, (N,) nearest, (N,) crowd): per body, the signed distance (m,

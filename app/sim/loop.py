@@ -42,7 +42,7 @@ from app.sim.contact_gate import (
 )
 from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.coupling import OdsCoupling
-from app.sim.frames import satellite_pose, tracking_errors
+from app.sim.frames import ods_states_W, satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.gnc import GncParams, GncState, gnc_step, navigation
 from app.sim.hand import Command, OperatorHand
@@ -537,8 +537,9 @@ class Emulator:
 
     def _overlap(self, y: np.ndarray) -> bool:
         """Whether any two bodies overlap in the ODS state y."""
-        bodies = ods_bodies(self.T_W_R, OrbitalSimulator(self.ods.params, y))
-        return bool(self.interaction.contact.compute(*bodies).contacts)
+        T_W_C, v_unused = np.empty((self.n_sat, 4, 4)), np.empty((self.n_sat, 3))
+        ods_states_W(self.T_W_R, y, T_W_C, v_unused)  # the poses ods_bodies would give
+        return self.interaction.contact.overlapping(T_W_C)
 
     def _record(self) -> None:
         """Append the telemetry row of the current state."""
