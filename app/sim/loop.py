@@ -309,7 +309,9 @@ class Emulator:
         torque_B = np.zeros((self.n_sat, 3))
         for i in self._uncarried:
             torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
-        near, nearest = self._gate_open(bodies)
+        # the gate lifts the arms' deadbands and names the contacts their estimate takes:
+        # without an arm (an ideal run) it has nothing to act on
+        near, nearest = self._gate_open(bodies) if self.arms else (None, None)
         first_cycle = self.cycles == 0 and not self._sensed_before
         any_near = False
         for arm in self.arms:
@@ -320,7 +322,7 @@ class Emulator:
                                  self.dt_s, first_cycle=first_cycle, gate_open=gate_open)
             force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
         self.consistent_pairs = []
-        if any_near or (self._uncarried and near.any()):
+        if any_near or (self.arms and self._uncarried and near.any()):
             self._contact_estimate(force_R, torque_B, near, nearest, bodies)
         return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
 
