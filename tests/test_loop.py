@@ -418,3 +418,14 @@ def test_a_force_reading_at_the_sensor_range_stops_the_run(axis, sign):
     assert em.safety_stop["reason"] == (
         f"F/T force reading at the sensor's {limit:g} N range: the contact pushes harder "
         f"than it can measure")
+
+
+def test_an_ideal_run_asks_no_contact_gate(collision_runs):
+    """The gate lifts the arms' deadbands: an ideal run (no arm) never queries it, through
+    its contact too, and the ODS still gets the external wrench (the cycle's ideal test)."""
+    em = collision_runs["ideal"].emulator
+    assert em.gate is not None and em.config.wrench.contact_gate
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    assert np.abs(rows[:, col["sat1_fx_N"]]).max() > 1.0  # the contact happened
+    np.testing.assert_array_equal(em.gate.partner, -1)
+    assert em.lab_geometry.frames == {} and em.consistent_pairs == []
