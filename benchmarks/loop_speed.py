@@ -3,6 +3,7 @@
     .venv/bin/python -m benchmarks.loop_speed                      # full
     .venv/bin/python -m benchmarks.loop_speed --quick              # small sizes (smoke test)
     .venv/bin/python -m benchmarks.loop_speed --against /tmp/old   # RTF of this tree vs another
+    .venv/bin/python -m benchmarks.loop_speed --against /tmp/old --steps-only  # cycle only
 
 Stages are timed by wrapping the very objects ``Emulator.step`` calls (instance attributes
 shadow the methods, so the loop runs unchanged); "rest (glue)" is everything else in the
@@ -109,8 +110,10 @@ def _import_other_app(tree: Path, tmp: Path):
             importlib.import_module("other_app.scenarios").load_scenario)
 
 
-def compare_steps(other: Path, scenarios: list[str], chunks: int) -> None:
-    """µs per Emulator.step of both trees in one process, stepped in turn."""
+def compare_steps(other: Path, scenarios: list[str], chunks: int,
+                  modes: tuple[str, ...] = ("hil",)) -> None:
+    """µs per Emulator.step of both trees in one process, stepped in turn (each chunk's
+    mean, and the p50 / p99 of the single cycles' compute times the emulators record)."""
     from app.scenarios import load_scenario
     from app.sim.loop import Emulator
 
@@ -118,11 +121,13 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int) -> None:
         OtherEmulator, other_load = _import_other_app(other, Path(tmp))  # noqa: N806
         print(f"\n## Emulator.step, this tree vs {other}, one process, {chunks} chunks of "
               "100 cycles each in turn\n")
-        print("| scenario | this tree µs (min / median) | other µs (min / median) "
-              "| ratio of minima | median of chunk ratios |")
-        print("|---|---:|---:|---:|---:|")
-        def fresh(scenario):  # both emulators, prepared and past their first cycles
-            ems = [Emulator(load_scenario(scenario)), OtherEmulator(other_load(scenario))]
+        print("| scenario | mode | this tree µs (min / median) | other µs (min / median) "
+              "| ratio of minima | median of chunk ratios | cycle p50 this / other (ratio) "
+              "| cycle p99 this / other (ratio) |")
+        print("|---|---|---:|---:|---:|---:|---:|---:|")
+        def fresh(scenario, mode):  # both emulators, prepared and past their first cycles
+            ems = [Emulator(load_scenario(scenario), mode=mode),
+                   OtherEmulator(other_load(scenario), mode=mode)]
             for em in ems:
                 em.prepare()
                 for _ in range(300):
@@ -130,19 +135,28 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int) -> None:
             return ems
 
         for scenario in scenarios:
-            ems = fresh(scenario)
-            us = [[], []]
-            for _ in range(chunks):
-                if any(em.status != "running" for em in ems):  # a run ended: both anew
-                    ems = fresh(scenario)
-                for k, em in enumerate(ems):
-                    t0 = time.perf_counter_ns()
-                    for _ in range(100):
-                        em.step()
-                    us[k].append((time.perf_counter_ns() - t0) / 100 / 1e3)
-            a, b = np.array(us[0]), np.array(us[1])
-            print(f"| {scenario} | {a.min():.1f} / {np.median(a):.1f} | {b.min():.1f} / "
-                  f"{np.median(b):.1f} | {a.min() / b.min():.3f} | {np.median(a / b):.3f} |")
+            for mode in modes:
+                ems = fresh(scenario, mode)
+                us, cycle_us = [[], []], [[], []]
+                for _ in range(chunks):
+                    if any(em.status != "running" for em in ems):  # a run ended: both anew
+                        ems = fresh(scenario, mode)
+                    for k, em in enumerate(ems):
+                        n0 = em.cycles
+                        t0 = time.perf_counter_ns()
+                        for _ in range(100):
+                            em.step()
+                        us[k].append((time.perf_counter_ns() - t0) / 100 / 1e3)
+                        # each cycle's own compute time, as the emulator records it
+                        cycle_us[k].append(em.cycle_time_ns[n0:em.cycles] / 1e3)
+                a, b = np.array(us[0]), np.array(us[1])
+                ca, cb = np.concatenate(cycle_us[0]), np.concatenate(cycle_us[1])
+                pa, pb = np.percentile(ca, [50, 99]), np.percentile(cb, [50, 99])
+                print(f"| {scenario} | {mode} | {a.min():.1f} / {np.median(a):.1f} "
+                      f"| {b.min():.1f} / {np.median(b):.1f} | {a.min() / b.min():.3f} "
+                      f"| {np.median(a / b):.3f} | {pa[0]:.1f} / {pb[0]:.1f} "
+                      f"({pa[0] / pb[0]:.3f}) | {pa[1]:.1f} / {pb[1]:.1f} "
+                      f"({pa[1] / pb[1]:.3f}) |", flush=True)
 
 
 # --- per-stage breakdown --------------------------------------------------------------------
@@ -252,6 +266,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--against", type=Path, default=None,
                     help="another checkout: compare real-time factors, this tree vs that")
     ap.add_argument("--rounds", type=int, default=5, help="rounds of --against")
+    ap.add_argument("--chunks", type=int, default=200,
+                    help="chunks of 100 cycles per tree in --against's one-process comparison")
+    ap.add_argument("--steps-only", action="store_true",
+                    help="--against: the one-process Emulator.step comparison only")
+    ap.add_argument("--scenarios", nargs="+", default=None,
+                    help="--against: these scenarios (default collision, "
+                         "free-floating-scripted)")
     ap.add_argument("--duration", type=float, default=None, help="simulated s of RTF runs")
     ap.add_argument("--rtf-json", nargs="+", metavar="SCENARIO", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -263,13 +284,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.against is not None:
         other = args.against.resolve()
         scenarios = ["collision"]  # the scripted free-floating run, where both trees have it
-        if (other / "app" / "scenarios" / "free-floating-scripted.toml").is_file():
+        if args.scenarios:
+            scenarios = args.scenarios
+        elif (other / "app" / "scenarios" / "free-floating-scripted.toml").is_file():
             scenarios.append("free-floating-scripted")
         else:
             print("(the other tree has no free-floating-scripted; its free-floating is the "
                   "scripted one, this tree's is hand-driven: compared on collision only)")
-        compare_steps(other, scenarios, 200)
-        compare_trees(other, scenarios, args.rounds, args.duration)
+        compare_steps(other, scenarios, args.chunks, ("hil", "ideal"))
+        if not args.steps_only:
+            compare_trees(other, scenarios, args.rounds, args.duration)
         return 0
 
     cycles = args.cycles or (300 if args.quick else 3000)

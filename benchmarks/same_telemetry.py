@@ -38,7 +38,15 @@ CASES = {
 }
 
 
-def record(out_dir: Path) -> None:
+def shipped_cases(duration_s: float = 4.0) -> dict:
+    """``--all-scenarios``: every shipped scenario (app/scenarios/*.toml), hil and ideal,
+    the first ``duration_s`` of each, besides CASES."""
+    names = sorted(p.stem for p in (ROOT / "app" / "scenarios").glob("*.toml"))
+    return {f"{name} {mode}, {duration_s:g} s": (name, mode, {}, duration_s)
+            for name in names for mode in ("hil", "ideal")}
+
+
+def record(out_dir: Path, cases: dict) -> None:
     """Run every case in this process; write rows (.npy) and metrics (.json) per case."""
     import app
     from app.config import merge_overrides
@@ -47,7 +55,7 @@ def record(out_dir: Path) -> None:
 
     print(f"recording with {Path(app.__file__).parent}", flush=True)
 
-    for k, (scenario, mode, overrides, duration) in enumerate(CASES.values()):
+    for k, (scenario, mode, overrides, duration) in enumerate(cases.values()):
         config = merge_overrides(load_scenario(scenario), overrides)
         r = run_scenario(config, mode=mode, duration_s=duration)
         np.save(out_dir / f"{k}.npy", r.emulator.telemetry.rows())
@@ -56,19 +64,22 @@ def record(out_dir: Path) -> None:
         (out_dir / f"{k}.json").write_text(json.dumps(metrics, sort_keys=True))
 
 
-def _record_in(tree: Path, out_dir: Path) -> None:
+def _record_in(tree: Path, out_dir: Path, every: bool) -> None:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    subprocess.run([sys.executable, str(HERE), "--record", str(out_dir)], env=env, cwd=tree,
-                   check=True)
+    subprocess.run([sys.executable, str(HERE), "--record", str(out_dir),
+                    *(["--all-scenarios"] if every else [])], env=env, cwd=tree, check=True)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--against", type=Path, help="the other checkout")
+    ap.add_argument("--all-scenarios", action="store_true",
+                    help="also every shipped scenario, hil and ideal, 4 s each")
     ap.add_argument("--record", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    cases = {**CASES, **shipped_cases()} if args.all_scenarios else CASES
     if args.record:
-        record(args.record)
+        record(args.record, cases)
         return 0
     if args.against is None:
         ap.error("--against TREE is needed")
@@ -76,12 +87,12 @@ def main(argv: list[str] | None = None) -> int:
         this, that = Path(tmp, "this"), Path(tmp, "that")
         this.mkdir()
         that.mkdir()
-        _record_in(ROOT, this)
-        _record_in(args.against.resolve(), that)
+        _record_in(ROOT, this, args.all_scenarios)
+        _record_in(args.against.resolve(), that, args.all_scenarios)
         print("| case | rows | telemetry | metrics |")
         print("|---|---:|---|---|")
         same_all = True
-        for k, name in enumerate(CASES):
+        for k, name in enumerate(cases):
             a, b = np.load(this / f"{k}.npy"), np.load(that / f"{k}.npy")
             same_rows = a.shape == b.shape and a.tobytes() == b.tobytes()
             same_metrics = (this / f"{k}.json").read_text() == (that / f"{k}.json").read_text()

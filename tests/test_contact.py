@@ -42,6 +42,26 @@ def test_boxes_apart_exert_nothing():
         assert not res.wrench_W.any() and res.contacts == ()
 
 
+def test_overlapping_is_whether_compute_reports_a_contact():
+    """overlapping (the ideal run's check after each step) answers as compute would:
+    apart beyond the spheres, apart within them (coal asked), overlapping turned, and a
+    pair no longer in the model."""
+    model = BoxContactModel([SIZE, SIZE, SIZE], [RIGID, SPONGE, RIGID])
+    cases = [
+        [_pose([0, 0, 0]), _pose([0.5, 0, 0]), _pose([0, 0.5, 0])],
+        [_pose([0, 0, 0]), _pose([0.205, 0.01, 0]), _pose([0, 0.5, 0])],
+        [_pose([0, 0, 0]), _pose([0.19, 0.02, 0.01], (0.1, 0.0, 0.2)), _pose([0, 0.5, 0])],
+        [_pose([0, 0, 0]), _pose([0.5, 0, 0]), _pose([0.01, 0.0, 0.095], (0.0, 0.3, 0.0))],
+    ]
+    answers = []
+    for poses in cases:
+        answers.append(model.overlapping(poses))
+        assert answers[-1] == bool(model.compute(poses).contacts)
+    assert answers == [False, False, True, True]
+    model.exclude(0, 2)
+    assert not model.overlapping(cases[3]) and not model.compute(cases[3]).contacts
+
+
 def test_axis_aligned_overlap_depth_normal_point_and_force():
     model = _pair()
     poses = [_pose([0.0, 0.0, 0.0]), _pose([0.19, 0.05, 0.02])]

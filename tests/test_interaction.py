@@ -114,6 +114,31 @@ def test_the_hand_adds_to_the_contact():
     np.testing.assert_allclose(w[0, :3], T_W_R[:3, :3] @ [0.0, 0.0, 7.0], atol=1e-12)
 
 
+def test_which_bodies_touch_and_which_the_hand_pushes_follow_each_call():
+    """touching and hand_acting, with the hand idle (its wrench skipped: the contact's
+    own, bit for bit) and pushing one body."""
+    cfg = _config()
+    inter = _interaction(cfg)
+    bodies = _overlapping_bodies()
+    w = inter.wrenches_W(bodies, 0.0)
+    assert inter.touching == frozenset({frozenset({0, 1})})
+    np.testing.assert_array_equal(inter.hand_acting, [False, False])
+    contact = inter.contact.compute(bodies.T_W_C, bodies.v_W, bodies.w_W).wrench_W
+    assert w.tobytes() == contact.tobytes()
+    inter.hand.post(Push(satellite=1, force_R_N=(0.0, 3.0, 0.0), duration_s=0.1))
+    inter.hand.update(0.0)
+    apart = _overlapping_bodies()
+    apart.T_W_C[1, 0, 3] += 0.3
+    w = inter.wrenches_W(apart, 0.0)
+    assert inter.touching == frozenset() and not inter.contact_active
+    np.testing.assert_array_equal(inter.hand_acting, [False, True])
+    np.testing.assert_allclose(w[1, :3], T_W_R[:3, :3] @ [0.0, 3.0, 0.0], atol=1e-12)
+    inter.hand.update(0.2)  # the push is over: nothing acts
+    w = inter.wrenches_W(apart, 0.2)
+    np.testing.assert_array_equal(inter.hand_acting, [False, False])
+    np.testing.assert_array_equal(w, 0.0)
+
+
 # --- where the bodies are --------------------------------------------------------------------
 
 

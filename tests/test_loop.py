@@ -394,3 +394,38 @@ def test_at_rest_nothing_moves_for_two_minutes():
     w = rows[:, [col[f"sat1_w{a}_radps"] for a in "xyz"]]
     assert np.linalg.norm(v, axis=1).max() < 1e-5
     assert np.linalg.norm(w, axis=1).max() < 1e-5
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_force_reading_at_the_sensor_range_stops_the_run(axis, sign):
+    """``[loop] stop_at_sensor_range``: a raw force component at the range, either sign,
+    stops the run naming the robot and the range; just under it, the run goes on."""
+    em = Emulator(load_scenario("collision"))
+    em.prepare()
+    em.step()
+    limit = em.config.sensor.range_force_N
+    raw = np.zeros(6)
+    raw[3:] = 2.0 * limit  # a torque beyond the force range is no force reading
+    raw[axis] = sign * np.nextafter(limit, 0.0)
+    em.arms[1].last_raw_S = raw.copy()
+    assert em._within_sensor_range() and em.status == "running"
+    raw[axis] = sign * limit
+    em.arms[1].last_raw_S = raw
+    assert not em._within_sensor_range()
+    assert em.status == "safety_stop"
+    assert em.safety_stop["robot"] == 2
+    assert em.safety_stop["reason"] == (
+        f"F/T force reading at the sensor's {limit:g} N range: the contact pushes harder "
+        f"than it can measure")
+
+
+def test_an_ideal_run_asks_no_contact_gate(collision_runs):
+    """The gate lifts the arms' deadbands: an ideal run (no arm) never queries it, through
+    its contact too, and the ODS still gets the external wrench (the cycle's ideal test)."""
+    em = collision_runs["ideal"].emulator
+    assert em.gate is not None and em.config.wrench.contact_gate
+    rows, col = em.telemetry.rows(), em.telemetry.index
+    assert np.abs(rows[:, col["sat1_fx_N"]]).max() > 1.0  # the contact happened
+    np.testing.assert_array_equal(em.gate.partner, -1)
+    assert em.lab_geometry.frames == {} and em.consistent_pairs == []

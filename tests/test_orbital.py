@@ -253,3 +253,25 @@ def test_cw_course_is_the_state_transition_at_every_time():
     for k, t_s in enumerate(t):
         np.testing.assert_allclose(course[k], (cw_state_transition(W800, t_s)
                                                @ np.concatenate([p0, v0]))[:3], atol=1e-9)
+
+
+def test_a_replaced_or_copied_params_steps_with_its_own_values():
+    """The kernels' arguments are kept on an OdsParams once made: a params made by
+    dataclasses.replace (another mass) steps with its own mass, a deep copy as the
+    original; equality still compares the fields only."""
+    import copy
+    import dataclasses
+
+    p = OdsParams(0.0011, np.array([10.0, 20.0]), np.array([[1.0, 2.0, 3.0]] * 2))
+    y = np.zeros((2, 13))
+    y[:, 6] = 1.0
+    force = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    torque = np.array([[0.0, 0.0, 0.1], [0.1, 0.0, 0.0]])
+    first = rk4_step(p, y, force, torque, 0.002)
+    heavier = dataclasses.replace(p, mass_kg=np.array([40.0, 20.0]))
+    moved = rk4_step(heavier, y, force, torque, 0.002)
+    np.testing.assert_allclose(moved[0, 3], first[0, 3] / 4.0, rtol=1e-12)
+    assert moved[1].tobytes() == first[1].tobytes()
+    assert rk4_step(copy.deepcopy(p), y, force, torque, 0.002).tobytes() == first.tobytes()
+    assert rk4_step(p, y, force, torque, 0.002).tobytes() == first.tobytes()
+    assert p == OdsParams(0.0011, p.mass_kg, p.inertia_kgm2)  # fields only, as before

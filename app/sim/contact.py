@@ -264,6 +264,11 @@ class BoxContactModel:
             return None
         return ContactGeometry(depth, np.array(c.normal, dtype=float), np.array(c.pos))
 
+    def overlapping(self, T_W_C: Sequence[np.ndarray]) -> bool:
+        """Whether any pair that may touch overlaps at the COM poses T_W_C: whether
+        :meth:`compute` there would report a contact (the same geometry, no velocities)."""
+        return any(self.geometry(a, b, T_W_C[a], T_W_C[b]) is not None for a, b in self.pairs)
+
     def clearances(self, T_W_C: Sequence[np.ndarray],
                    within_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """((N,) clearance, (N,) nearest, (N,) crowd): per body, the signed distance (m,
@@ -272,12 +277,12 @@ class BoxContactModel:
         than ``within_m`` (bounding spheres further apart than that are not measured).
         Each pair within ``within_m`` also has its contact frame in :attr:`frames`
         (:meth:`_frame`)."""
-        out = np.full(self.n, math.inf)
-        nearest = np.full(self.n, -1, dtype=np.int64)
-        crowd = np.zeros(self.n, dtype=np.int64)
+        n = self.n
+        out, nearest, crowd = [math.inf] * n, [-1] * n, [0] * n  # lists: a few bodies
+        radii = self._radii
         for a, b in self.pairs:
             d_ab = T_W_C[b][:3, 3] - T_W_C[a][:3, 3]
-            reach = self._radii[a] + self._radii[b] + within_m
+            reach = radii[a] + radii[b] + within_m
             if float(d_ab @ d_ab) > reach * reach:
                 continue
             self._set_pose(a, T_W_C[a])
@@ -294,7 +299,8 @@ class BoxContactModel:
                     out[a], nearest[a] = d, b
                 if d < out[b]:
                     out[b], nearest[b] = d, a
-        return out, nearest, crowd
+        return (np.array(out), np.array(nearest, dtype=np.int64),
+                np.array(crowd, dtype=np.int64))
 
     def _frame(self, a: int, b: int, T_W_C: Sequence[np.ndarray], distance_m: float,
                res) -> tuple[np.ndarray, np.ndarray]:

@@ -65,8 +65,8 @@ class ContactGate:
             raise ValueError(f"margin_m must be >= 0, got {margin_m}")
         self.margin_m = float(margin_m)
         self.hold_cycles = int(hold_cycles)
-        self._previous = np.full(n_bodies, math.inf)
-        self._hold = np.zeros(n_bodies, dtype=np.int64)
+        self._previous = [math.inf] * n_bodies  # lists: read and written one body at a time
+        self._hold = [0] * n_bodies
         self.partner = np.full(n_bodies, -1, dtype=np.int64)
         """Per body, the body that last opened its gate (-1: none yet)."""
         self.alone = np.ones(n_bodies, dtype=bool)

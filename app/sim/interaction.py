@@ -68,8 +68,14 @@ class PhysicalInteraction:
         """(N, 6) external wrench on each body at t_s: force in W, moment about its COM."""
         T_W_C = bodies.T_W_C
         contact = self.contact.compute(T_W_C, bodies.v_W, bodies.w_W)
-        self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
-        self.touching = frozenset(frozenset((c.a, c.b)) for c in contact.contacts)
+        if contact.contacts:
+            self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
+            self.touching = frozenset(frozenset((c.a, c.b)) for c in contact.contacts)
+        else:
+            self.contact_active, self.touching = False, frozenset()
+        if self.hand.idle(t_s):  # the hand's wrenches are all zero: nothing to add
+            self.hand_acting = np.zeros(self.contact.n, dtype=bool)
+            return contact.wrench_W
         hand_W = self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3], bodies.v_W,
                                       bodies.w_W)
         self.hand_acting = np.any(hand_W != 0.0, axis=1)

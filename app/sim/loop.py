@@ -42,7 +42,7 @@ from app.sim.contact_gate import (
 )
 from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.coupling import OdsCoupling
-from app.sim.frames import satellite_pose, tracking_errors
+from app.sim.frames import ods_states_W, satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.gnc import GncParams, GncState, gnc_step, navigation
 from app.sim.hand import Command, OperatorHand
@@ -57,7 +57,13 @@ from app.sim.orbital import OdsParams, OrbitalSimulator, rk4_step
 from app.sim.rail_rig import build_cell
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig
-from app.sim.rotations import invert_transform, make_transform, matrix_to_quat, quat_to_matrix
+from app.sim.rotations import (
+    cross3,
+    invert_transform,
+    make_transform,
+    matrix_to_quat,
+    quat_to_matrix,
+)
 from app.sim.run_up import relative_rates, run_up_state, runs_up
 from app.sim.scaling import scaling_of
 from app.sim.sensor_models import sample_every_cycles
@@ -229,7 +235,8 @@ class Emulator:
             return
         external_W = self.interaction.wrenches_W(bodies, t_s)  # contact + operator's hand
         self.true_force_R = external_W[:, :3] @ self.R_W_R
-        force_R, torque_B = self.ods_input(bodies, external_W)  # F/T chains + coupling
+        force_R, torque_B = self.ods_input(bodies, external_W,  # F/T chains + coupling
+                                           self.true_force_R)
         if not self._within_sensor_range():
             return
         own = self.own_actuation()  # the satellites' GNC: thrusters, wheels (not sensed)
@@ -285,30 +292,37 @@ class Emulator:
             return True
         limit = self.config.sensor.range_force_N
         for arm in self.arms:
-            peak = float(np.max(np.abs(arm.last_raw_S[:3])))
-            if peak >= limit:
+            raw = arm.last_raw_S  # three scalar tests: an array call costs more here
+            if abs(raw[0]) >= limit or abs(raw[1]) >= limit or abs(raw[2]) >= limit:
                 self._safety_stop(arm, f"F/T force reading at the sensor's {limit:g} N range: "
                                        f"the contact pushes harder than it can measure")
                 return False
         return True
 
-    def ods_input(self, bodies: Bodies, external_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def ods_input(self, bodies: Bodies, external_W: np.ndarray,
+                  true_force_R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
-        measured, the others the external wrench exactly; then the coupling (passivity)."""
-        force_R = external_W[:, :3] @ self.R_W_R
+        measured, the others the external wrench exactly; then the coupling (passivity).
+        ``true_force_R``: the external force in R if already at hand (not written)."""
+        force_R = (external_W[:, :3] @ self.R_W_R if true_force_R is None
+                   else true_force_R.copy())
         torque_B = np.zeros((self.n_sat, 3))
         for i in self._uncarried:
             torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
-        near, nearest = self._gate_open(bodies)
+        # the gate lifts the arms' deadbands and names the contacts their estimate takes:
+        # without an arm (an ideal run) it has nothing to act on
+        near, nearest = self._gate_open(bodies) if self.arms else (None, None)
+        first_cycle = self.cycles == 0 and not self._sensed_before
+        any_near = False
         for arm in self.arms:
             s = arm.satellite
+            gate_open = bool(near[s])
+            any_near |= gate_open
             measured = arm.sense(external_W[s], bodies.T_W_C[s], bodies.v_W[s], self.R_W_R,
-                                 self.dt_s,
-                                 first_cycle=self.cycles == 0 and not self._sensed_before,
-                                 gate_open=bool(near[s]))
+                                 self.dt_s, first_cycle=first_cycle, gate_open=gate_open)
             force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
         self.consistent_pairs = []
-        if near.any():
+        if any_near or (self.arms and self._uncarried and near.any()):
             self._contact_estimate(force_R, torque_B, near, nearest, bodies)
         return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
 
@@ -392,8 +406,8 @@ class Emulator:
             if b <= a or clearance[a] >= 0.0 or (a, b) not in frames:
                 continue
             n, p = frames[(a, b)]
-            v_a = bodies.v_W[a] + np.cross(bodies.w_W[a], p - bodies.T_W_C[a][:3, 3])
-            v_b = bodies.v_W[b] + np.cross(bodies.w_W[b], p - bodies.T_W_C[b][:3, 3])
+            v_a = bodies.v_W[a] + cross3(bodies.w_W[a], p - bodies.T_W_C[a][:3, 3])
+            v_b = bodies.v_W[b] + cross3(bodies.w_W[b], p - bodies.T_W_C[b][:3, 3])
             now[(a, b)] = (-float(clearance[a]), float((v_a - v_b) @ n))
         history = self._contact_kinematics
         history.append(now)
@@ -525,8 +539,9 @@ class Emulator:
 
     def _overlap(self, y: np.ndarray) -> bool:
         """Whether any two bodies overlap in the ODS state y."""
-        bodies = ods_bodies(self.T_W_R, OrbitalSimulator(self.ods.params, y))
-        return bool(self.interaction.contact.compute(*bodies).contacts)
+        T_W_C, v_unused = np.empty((self.n_sat, 4, 4)), np.empty((self.n_sat, 3))
+        ods_states_W(self.T_W_R, y, T_W_C, v_unused)  # the poses ods_bodies would give
+        return self.interaction.contact.overlapping(T_W_C)
 
     def _record(self) -> None:
         """Append the telemetry row of the current state."""

@@ -134,14 +134,20 @@ def _rk4(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt):
 
 
 def _kernel_args(params: OdsParams) -> tuple:
-    return (
-        params.orbit_rate_radps,
-        params.mass_kg,
-        params.inertia_kgm2,
-        params.gravity_gradient,
-        params.force_scale,
-        params.torque_scale,
-    )
+    """The kernels' parameter arguments, kept on the (frozen) params once made: the cycle
+    steps the ODS three times."""
+    args = params.__dict__.get("_kernel_args")
+    if args is None:
+        args = (
+            params.orbit_rate_radps,
+            params.mass_kg,
+            params.inertia_kgm2,
+            params.gravity_gradient,
+            params.force_scale,
+            params.torque_scale,
+        )
+        object.__setattr__(params, "_kernel_args", args)
+    return args
 
 
 def derivative(

@@ -186,7 +186,8 @@ class TankPassivity:
         without an arm, its own; kept, not copied). A satellite with zero force is not part
         of the port."""
         v_p = self._aligned(v_physical)
-        acted = [not is_zero(f) for f in force]
+        acted = [f[0] != 0.0 or f[1] != 0.0 or f[2] != 0.0  # not is_zero, on plain floats
+                 for f in force.tolist()]
         if not any(acted):
             self._idle_cycles += 1
             if self._idle_cycles >= self.idle_reset_cycles:

@@ -14,6 +14,14 @@ from __future__ import annotations
 import numpy as np
 
 
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b of two 3-vectors: the same products and differences as ``np.cross`` (so the
+    same bits), without its overhead on tiny arrays (~10 µs against ~1 µs)."""
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix: ``skew(a) @ b == np.cross(a, b)``."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
