@@ -15,7 +15,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _python(*args: str, **kwargs) -> subprocess.CompletedProcess:
+    """``python ARGS`` in this tree; a warm-up without the collision's forecast (seconds:
+    the runs below compute their own, in the session's cache)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
+    if args[:2] == ("-m", "app.runs.warm"):
+        env["ORBIT_EMULATOR_CACHE"] = "off"
     return subprocess.run([sys.executable, *args], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=600, **kwargs)
 
