@@ -72,11 +72,13 @@ USER emulator
 ENV ORBIT_EMULATOR_STATIC=/app/static \
     ORBIT_EMULATOR_MANUAL=/app/site
 # compile the numba kernels now, into the image, for a generic x86-64 CPU (numba's cache
-# is keyed to the CPU it compiled for): a first run on any host then loads them instead
-# of compiling for 20 s; the cache folder and the ones numba made in it are open to any
-# uid (--user: numba loads a cache only from a folder it could write to)
-RUN orbit-emulator run collision --duration 0.1 --out /tmp/warm-up --quiet > /dev/null \
-    && rm -rf /tmp/warm-up && find /opt/numba-cache -mindepth 1 -exec chmod a+rwX {} +
+# is keyed to the CPU it compiled for): every shipped scenario stepped ideal and hil
+# (app/runs/warm.py), so that a first run or `serve` on any host loads them instead of
+# compiling for 20 s or more; run from / so that it warms the installed package (the one
+# `orbit-emulator` imports), not /app/app; the cache folder and the ones numba made in it
+# are open to any uid (--user: numba loads a cache only from a folder it could write to)
+RUN cd / && python -m app.runs.warm \
+    && find /opt/numba-cache -mindepth 1 -exec chmod a+rwX {} +
 
 EXPOSE 8000
 

@@ -88,7 +88,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         result = run_scenario(config, mode=config.loop.mode, duration_s=duration,
                               out_dir=out_dir, progress=progress, bag=args.bag,
-                              bag_rate_hz=args.bag_rate, ideal=ideal, preflight_done=True)
+                              bag_rate_hz=args.bag_rate, ideal=ideal, preflight_done=True,
+                              plots_apart=len(os.sched_getaffinity(0)) > 1)  # a core free
         bar.update(bar.total - bar.n)
     except RunFailed as failed:
         result = failed.result

@@ -372,3 +372,37 @@ def test_a_file_cut_short_by_a_full_disk_is_not_left_behind(tmp_path):
     assert json.loads((out / "metrics.json").read_text())["status"] == "finished"
     for png in out.glob("*.png"):  # the plots that fitted, whole
         assert png.read_bytes().endswith(b"IEND\xaeB`\x82")
+
+
+TIMINGS = ("realtime_factor", "cycle_time_us")
+"""metrics.json's fields that time the run (they differ between two runs of a setting)."""
+
+
+def test_a_run_writes_the_same_files_with_its_setting_kept_or_computed(tmp_path):
+    """A first run of a setting computes its pre-flight reference and forecast and keeps
+    them; a second reads them back: the same telemetry.csv bytes, the same metrics but
+    the timings, the same figures, each on disk when `run` returns (the plots are drawn
+    in a process of their own)."""
+    env = dict(os.environ, ORBIT_EMULATOR_CACHE=str(tmp_path / "cache"))
+    argv = ["run", "collision", "--quiet", "--duration", "4", "--set",
+            "uncertainty.replicates=4", "--set", "uncertainty.forecast_replicates=8"]
+    for n in (1, 2):
+        proc = subprocess.run([EXE, *argv, "--out", str(tmp_path / f"run{n}")], env=env,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        figures = json.loads((tmp_path / f"run{n}" / "figures.json").read_text())
+        assert [f["name"] for f in figures] == ["forces", "contact_closeup", "velocity",
+                                                "position", "tracking_error"]
+        for f in figures:
+            assert (tmp_path / f"run{n}" / f["file"]).read_bytes().endswith(b"IEND\xaeB`\x82")
+        if n == 1:
+            kept = list((tmp_path / "cache" / "references").glob("*.json"))
+            assert len(kept) == 1 and json.loads(kept[0].read_text())["reference"]
+    first, second = tmp_path / "run1", tmp_path / "run2"
+    assert (first / "telemetry.csv").read_bytes() == (second / "telemetry.csv").read_bytes()
+    metrics = [{k: v for k, v in json.loads((d / "metrics.json").read_text()).items()
+                if k not in TIMINGS} for d in (first, second)]
+    assert metrics[0] == metrics[1]
+    assert metrics[0]["collision"]["restitution_interval_95"] is not None
+    for f in figures:
+        assert (first / f["file"]).read_bytes() == (second / f["file"]).read_bytes()

@@ -133,9 +133,9 @@ def compare_png(folder_a: str, folder_b: str, name: str,
                 max_rows: int = MAX_OVERLAY_ROWS) -> bytes | None:
     """The PNG of figure ``name`` of the runs in ``folder_a`` and ``folder_b`` overlaid;
     None if neither run has that figure."""
-    import matplotlib.pyplot as plt
+    from app.runs.plots import draw, pyplot
 
-    from app.runs.plots import draw
+    plt = pyplot()
 
     check_figure(name)
     (fig_a, step_a), (fig_b, step_b) = (_planned(Path(f), name, max_rows)

@@ -18,6 +18,13 @@ forecast anew. A file that cannot be read, or is not a forecast's (not a regular
 large, not JSON, not of a forecast's shape), is computed anew and written over; one that
 cannot be written is not kept: the cache never stops a run. It is trusted as the
 installation is: a forecast of the right shape with other numbers is read as it is.
+
+Beside the forecasts (``.../references``), the pre-flight's outcome is kept the same way
+(:func:`cached_reference`): the ideal run's collision reference with its forecast, for a
+setting whose pre-flight passed, under a key of the configuration less its seed and
+telemetry capacity, the run's duration and the code's fingerprint. The pre-flight's ideal
+run has no sensor, so no seed (a test checks it); a refused setting is not kept (it is
+checked anew, and refused with its message, every time).
 """
 
 from __future__ import annotations
@@ -36,12 +43,15 @@ from app.config import EmulatorConfig
 CACHE_ENV = "ORBIT_EMULATOR_CACHE"
 MAX_FILE_BYTES = 1 << 20
 """A kept forecast is a few hundred bytes; a larger file is not one."""
+NOT_KEPT = object()
+"""What a look-up returns when nothing usable is kept for its key."""
 IDEAL_KEYS = ("pair", "window_s", "contact_duration_s", "restitution", "peak_force_N")
 """The ideal run's figures a forecast reads."""
 
 
-def cache_dir() -> Path | None:
-    """Where forecasts are kept; None when ``ORBIT_EMULATOR_CACHE=off``."""
+def cache_dir(kind: str = "forecasts") -> Path | None:
+    """Where forecasts (``kind`` "references": pre-flight references) are kept; None when
+    ``ORBIT_EMULATOR_CACHE=off``."""
     root = os.environ.get(CACHE_ENV, "")
     if root.lower() == "off":
         return None
@@ -49,7 +59,7 @@ def cache_dir() -> Path | None:
         root = os.path.join(os.environ.get("XDG_CACHE_HOME")
                             or os.path.join(os.path.expanduser("~"), ".cache"),
                             "orbit-emulator")
-    return Path(root) / "forecasts"
+    return Path(root) / kind
 
 
 @functools.lru_cache(maxsize=1)
@@ -80,26 +90,83 @@ def cached_forecast(config: EmulatorConfig, ideal: dict | None, compute) -> dict
         return compute(config, ideal)
     path = folder / f"{forecast_key(config, ideal)}.json"
     kept = _read(path)
-    if kept is not None:
+    if kept is not NOT_KEPT:
         return kept
     result = compute(config, ideal)
     _keep(path, result)
     return result
 
 
-def _read(path: Path) -> dict | None:
-    """The forecast kept at ``path``, or None when there is none or it is not one this
-    code writes (not a regular file, over :data:`MAX_FILE_BYTES`, not JSON, or not of a
-    forecast's shape): then it is computed anew and written over."""
+def reference_key(config: EmulatorConfig, duration_s: float) -> str:
+    """The key of the pre-flight reference of ``config`` over ``duration_s``."""
+    loop = config.loop.model_copy(update={"seed": 0, "telemetry_capacity": 0})
+    setting = config.model_copy(update={"loop": loop}).model_dump(mode="json")
+    text = json.dumps({"config": setting, "duration_s": float(duration_s),
+                       "code": code_fingerprint()}, sort_keys=True, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def cached_reference(config: EmulatorConfig, duration_s: float):
+    """The pre-flight reference kept for this setting and duration (a dict, or None: a run
+    that needs none), or :data:`NOT_KEPT`. Kept by :func:`keep_reference` only once its
+    pre-flight passed; like a forecast, it does not depend on the seed (a test checks it),
+    and the same hardening applies to its file."""
+    folder = cache_dir("references")
+    if folder is None:
+        return NOT_KEPT
+    return _read(folder / f"{reference_key(config, duration_s)}.json", "reference",
+                 _is_reference)
+
+
+def keep_reference(config: EmulatorConfig, duration_s: float, reference: dict | None) -> None:
+    """Keep ``reference``, the pre-flight's of a setting that passed it
+    (:func:`cached_reference`)."""
+    folder = cache_dir("references")
+    if folder is not None:
+        _keep(folder / f"{reference_key(config, duration_s)}.json", reference, "reference")
+
+
+def _is_reference(kept) -> bool:
+    """Whether ``kept`` has the shape of a pre-flight reference (an ideal run's collision
+    metrics, app/runs/metrics.py, with its forecast) or is None (none needed)."""
+    if kept is None:
+        return True
+    if not isinstance(kept, dict) or not _plain(kept, 0):
+        return False
+    pair, window = kept.get("pair"), kept.get("window_s")
+    return (isinstance(pair, list) and len(pair) == 2 and all(isinstance(p, str) for p in pair)
+            and isinstance(window, list) and len(window) == 2
+            and all(_number(t, None) for t in window)
+            and all(kept.get(k) is None or _number(kept[k], 0.0)
+                    for k in ("restitution", "peak_force_N", "contact_duration_s"))
+            and isinstance(kept.get("warnings"), list)
+            and (kept.get("forecast") is None or _is_forecast(kept["forecast"])))
+
+
+def _plain(value, depth: int) -> bool:
+    """JSON's own values, numbers finite, nested at most four deep."""
+    if isinstance(value, dict):
+        return depth < 4 and all(isinstance(k, str) and _plain(v, depth + 1)
+                                 for k, v in value.items())
+    if isinstance(value, list):
+        return depth < 4 and all(_plain(v, depth + 1) for v in value)
+    return value is None or isinstance(value, (str, bool)) or _number(value, None)
+
+
+def _read(path: Path, field: str = "forecast", valid=None):
+    """The forecast kept at ``path`` (``field``, ``valid``: another kind of file), or
+    :data:`NOT_KEPT` when there is none or it is not one this code writes (not a regular
+    file, over :data:`MAX_FILE_BYTES`, not JSON, or not of its shape): then it is
+    computed anew and written over."""
     try:
         info = os.stat(path, follow_symlinks=False)
         if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_FILE_BYTES:
-            return None
+            return NOT_KEPT
         with open(path, "rb") as f:
-            kept = json.loads(f.read(MAX_FILE_BYTES + 1))["forecast"]
+            kept = json.loads(f.read(MAX_FILE_BYTES + 1))[field]
     except (OSError, ValueError, KeyError, TypeError, RecursionError):
-        return None
-    return kept if _is_forecast(kept) else None
+        return NOT_KEPT
+    return kept if (valid or _is_forecast)(kept) else NOT_KEPT
 
 
 def _is_forecast(kept) -> bool:
@@ -128,13 +195,13 @@ def _number(x, least: float | None) -> bool:
             and (least is None or x >= least))
 
 
-def _keep(path: Path, result: dict | None) -> None:
+def _keep(path: Path, result: dict | None, field: str = "forecast") -> None:
     """Write ``result`` to ``path`` whole (a reader sees the old file or the new one)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp",
                                          delete=False) as tmp:
-            json.dump({"forecast": result}, tmp, allow_nan=True)
+            json.dump({field: result}, tmp, allow_nan=True)
         os.replace(tmp.name, path)
     except OSError:
         try:

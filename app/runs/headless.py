@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from app.config import EmulatorConfig, merge_overrides
+from app.runs import plot_process
 from app.runs.bag import check_bag_dir, replace_bag_dir, write_bag
-from app.runs.forecast_cache import cached_forecast
+from app.runs.forecast_cache import NOT_KEPT, cached_forecast, cached_reference, keep_reference
 from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
 from app.runs.preflight import check_drift, preflight
@@ -62,9 +63,26 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
     """Before a hil run: its pre-flight (app/runs/preflight.py; raises PreflightRefused naming
     the robot, the time and the limit), and from the same ideal run the collision
     reference a run with two or more satellites is compared with (None when it needs
-    none). Nothing of the run itself has started."""
+    none). Nothing of the run itself has started.
+
+    Once a setting has passed (the same configuration but its seed, duration and code),
+    its reference is read back (app/runs/forecast_cache.py :func:`cached_reference`): the
+    pre-flight, its ideal run and the forecast do not depend on the seed."""
+    if not with_ideal:
+        preflight(config, duration_s)
+        return None
+    kept = cached_reference(config, duration_s)
+    if kept is not NOT_KEPT:
+        return kept
+    reference = _checked_reference(config, duration_s)
+    keep_reference(config, duration_s, reference)
+    return reference
+
+
+def _checked_reference(config: EmulatorConfig, duration_s: float) -> dict | None:
+    """:func:`checked_reference` computed (with the ideal reference)."""
     prediction = preflight(config, duration_s)
-    if not with_ideal or len(config.satellites) < 2:
+    if len(config.satellites) < 2:
         return None
     if prediction is None:  # no robots: no pre-flight, but a reference still
         return ideal_collision(config, duration_s)
@@ -87,6 +105,7 @@ def run_scenario(
     bag_rate_hz: float | None = None,
     ideal: dict | None = None,
     preflight_done: bool = False,
+    plots_apart: bool = False,
 ) -> RunResult:
     """Run a scenario headless; with out_dir, write its telemetry, metrics and plots (and
     with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.runs.bag.write_bag`).
@@ -99,7 +118,8 @@ def run_scenario(
     when its pre-flight fails (PreflightRefused), unless ``preflight_done`` (the caller
     ran :func:`checked_reference`). A run that raises once started ends there: RunFailed,
     after its files are written (status "error"); one its start-up refuses (e.g. a start
-    pose not found) raises as it is.
+    pose not found) raises as it is. ``plots_apart``: the plots are drawn in a process of
+    their own while this one finishes the run (app/runs/plot_process.py; the same files).
     """
     duration_s = duration_s or config.loop.duration_s
     config = headless_config(config, duration_s)
@@ -123,15 +143,24 @@ def run_scenario(
             ideal = None
         error = None if failure is None else f"{type(failure).__name__}: {failure}"
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
-        if failure is None:
-            _add_uncertainty(em, metrics)
-        files, unwritten = [], None
-        if out_dir is not None:
-            try:
-                files = write_run_files(em, metrics, out_dir, bag=bag,
-                                        bag_rate_hz=bag_rate_hz)
-            except RunFilesNotWritten as err:
-                files, unwritten = err.files, err
+        plotter = None
+        if out_dir is not None and plots_apart:  # drawing while the replicates run
+            plotter = plot_process.start(em.telemetry.rows(), em.telemetry.index, out_dir,
+                                         em.config, metrics, note=metrics["scaling"]["text"],
+                                         guard=_whole_or_none)
+        try:
+            if failure is None:
+                _add_uncertainty(em, metrics)
+            files, unwritten = [], None
+            if out_dir is not None:
+                try:
+                    files = write_run_files(em, metrics, out_dir, bag=bag,
+                                            bag_rate_hz=bag_rate_hz, plotter=plotter)
+                except RunFilesNotWritten as err:
+                    files, unwritten = err.files, err
+        finally:
+            if plotter is not None:
+                plotter.close()
     if failure is not None:
         raise RunFailed(error, RunResult(em, metrics, files, unwritten)) from failure
     return RunResult(em, metrics, files, unwritten)
@@ -222,9 +251,11 @@ def check_run_files(out_dir: str | Path, bag: bool = False) -> None:
 
 def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry: bool = True,
                     plots: bool = True, bag: bool = False,
-                    bag_rate_hz: float | None = None) -> list[Path]:
+                    bag_rate_hz: float | None = None,
+                    plotter: plot_process.PlotProcess | None = None) -> list[Path]:
     """Write what a headless run leaves in ``out_dir``: metrics.json, and as asked
-    telemetry.csv, the plots and the ROS 2 bag; the paths written.
+    telemetry.csv, the plots and the ROS 2 bag; the paths written. ``plotter``: the
+    process drawing the plots into ``out_dir`` (app/runs/plot_process.py), joined here.
 
     Each is written on its own: one that fails does not keep the others from being
     written, and is written into a fresh folder of the system's temporary directory
@@ -235,9 +266,16 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
     if telemetry:
         writers.append(("telemetry.csv", lambda d: [
             _write_csv(d / "telemetry.csv", em.columns, rows)]))
+    def draw(d: Path) -> list[Path]:
+        if plotter is not None and d == out:
+            drawn = plotter.finish(metrics)
+            if drawn is not None:
+                return drawn
+        return plot_run(rows, em.telemetry.index, d, em.config, metrics,
+                        note=metrics["scaling"]["text"])
+
     if plots:
-        writers.append(("plots", lambda d: plot_run(
-            rows, em.telemetry.index, d, em.config, metrics, note=metrics["scaling"]["text"])))
+        writers.append(("plots", draw))
     if bag:
         writers.append(("bag", lambda d: [write_bag(
             replace_bag_dir(d / "bag"), em.config, rows, em.telemetry.index, bag_rate_hz)]))

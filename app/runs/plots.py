@@ -15,22 +15,20 @@ name.
 
 from __future__ import annotations
 
+import functools
+import io
 import json
 import math
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from app.runs.report import interval_text  # noqa: E402
+from app.runs.report import interval_text
 
 __all__ = ["FIGURES", "FIGURES_FILE", "Figure", "Line", "Panel", "draw", "figures_of",
-           "plan_figures", "plot_run"]
+           "plan_figures", "plot_run", "pyplot", "render", "signature"]
 
 AXES = ("x", "y", "z")
 
@@ -129,6 +127,18 @@ class Figure:
 
 # --- drawing ----------------------------------------------------------------------------
 
+
+@functools.cache
+def pyplot():
+    """matplotlib's pyplot on the Agg backend, imported when a figure is first drawn (half a
+    second: a run that draws elsewhere, app/runs/plot_process.py, never pays it)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
 PANEL_HEIGHT_IN = 2.4
 TEXT_COLUMNS = 120
 """Characters per line of a figure's text panel (about 10 in wide at 7.5 pt)."""
@@ -140,7 +150,7 @@ def draw(figure: Figure, note: str = ""):
     (the scaling in force) on top."""
     n = len(figure.panels)
     text_in = 0.0 if not figure.text else 0.16 * (figure.text.count("\n") + 1) + 0.3
-    fig = plt.figure(figsize=(11, PANEL_HEIGHT_IN * n + text_in + 0.6), layout="constrained")
+    fig = pyplot().figure(figsize=(11, PANEL_HEIGHT_IN * n + text_in + 0.6), layout="constrained")
     ratios = [PANEL_HEIGHT_IN] * n + ([text_in] if text_in else [])
     grid = fig.add_gridspec(len(ratios), 1, height_ratios=ratios)
     axes = [fig.add_subplot(grid[0])]
@@ -212,21 +222,34 @@ LOG_DECADES_MAX = 1e5
 """A log axis shows at most five decades below its highest value."""
 
 
+def render(figure: Figure, note: str = "") -> bytes:
+    """The PNG of ``figure`` (:func:`draw`, 100 dpi)."""
+    fig = draw(figure, note)
+    try:
+        png = io.BytesIO()
+        fig.savefig(png, dpi=100)
+        return png.getvalue()
+    finally:
+        pyplot().close(fig)
+
+
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,
-             note: str = "") -> list[Path]:
+             note: str = "", rendered: dict[str, tuple[object, bytes]] | None = None
+             ) -> list[Path]:
     """Draw the run's figures (:func:`plan_figures`) into ``out_dir``, and the list of them
     into ``out_dir / figures.json`` (:func:`figures_of`); the paths written. A figure an
     earlier run left there that this run does not draw is removed: the folder shows one
-    run."""
+    run. ``rendered``: figures already drawn, name -> (:func:`signature`, PNG), each taken
+    as it is where the plan's figure of that name has the same signature."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     figures = plan_figures(rows, index, config, metrics or {}) if len(rows) else []
     paths = []
     for figure in figures:
-        fig = draw(figure, note)
+        kept = (rendered or {}).get(figure.name)
+        png = kept[1] if kept and kept[0] == signature(figure, note) else render(figure, note)
         paths.append(out_dir / figure.file)
-        fig.savefig(paths[-1], dpi=100)
-        plt.close(fig)
+        paths[-1].write_bytes(png)
     drawn = {f.name for f in figures}
     for name in FIGURES:  # an earlier run's figure this run has not replaced goes
         stale = out_dir / f"{name}.png"
@@ -235,6 +258,18 @@ def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict
     listing = out_dir / FIGURES_FILE
     listing.write_text(json.dumps([f.entry() for f in figures], indent=2) + "\n")
     return [*paths, listing]
+
+
+def signature(figure: Figure, note: str = "") -> tuple:
+    """Everything :func:`draw` reads from ``figure`` and ``note``, as a value that compares:
+    two figures of equal signature are drawn alike."""
+    def line(x: Line) -> tuple:
+        return (x.label, x.style, x.color, x.width, x.t.tobytes(), x.y.tobytes())
+
+    return (figure.name, figure.title, figure.xlabel, figure.text, note,
+            tuple((p.ylabel, p.min_span, tuple(p.limits), p.log, p.shade, p.shade_label,
+                   tuple(p.marks), p.title, p.magnitude, tuple(map(line, p.lines)))
+                  for p in figure.panels))
 
 
 def figures_of(run_dir: str | Path) -> list[dict]:

@@ -10,8 +10,9 @@ import pytest
 
 from app.config import assignment_override, merge_overrides
 from app.runs import forecast_cache
-from app.runs.forecast_cache import cached_forecast, forecast_key
+from app.runs.forecast_cache import cached_forecast, forecast_key, reference_key
 from app.runs.headless import checked_reference
+from app.runs.preflight import PreflightRefused
 from app.runs.uncertainty import forecast
 from tests.runs.test_uncertainty import short_collision
 
@@ -110,3 +111,70 @@ def test_a_file_that_is_not_a_forecast_is_computed_anew_and_written_over(content
     assert path.is_file() and not path.is_symlink()
     assert json.loads(path.read_text())["forecast"] == got
     assert target.read_text() == '{"forecast": {"restitution_sd": 9.0}}'  # untouched
+
+
+def test_the_preflight_reference_does_not_depend_on_the_seed_so_one_serves_every_seed(
+        monkeypatch):
+    """The pre-flight's outcome (its ideal run's collision reference, the forecast) is
+    kept per setting with the seed set aside: right only if it is the same for every
+    seed, computed anew for each."""
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", "off")
+    answers = []
+    for seed in (11, 4711):
+        config = short_collision("uncertainty.forecast_replicates=4", f"loop.seed={seed}")
+        reference = checked_reference(config, config.loop.duration_s)
+        assert reference["restitution"] is not None
+        answers.append((reference, reference_key(config, config.loop.duration_s)))
+    assert answers[0] == answers[1]
+
+
+def test_a_setting_that_passed_is_read_back_and_one_refused_is_never_kept(tmp_path,
+                                                                          monkeypatch):
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision("uncertainty.forecast_replicates=4")
+    duration = config.loop.duration_s
+    computed = checked_reference(config, duration)
+    path = tmp_path / "references" / f"{reference_key(config, duration)}.json"
+    assert json.loads(path.read_text())["reference"] == computed
+    kept = json.loads(path.read_text())  # the kept one is what a next run reads:
+    kept["reference"]["restitution"] = 0.5  # trusted as the installation is
+    path.write_text(json.dumps(kept))
+    other_seed = merge_overrides(config, assignment_override("loop.seed=99"))
+    assert checked_reference(other_seed, duration)["restitution"] == 0.5
+    assert reference_key(config, duration + 0.2) != reference_key(config, duration)
+    far = merge_overrides(config, assignment_override("satellites.0.position_m=[3,0,0]"))
+    with pytest.raises(PreflightRefused, match="leaves the safety volume"):
+        checked_reference(far, duration)
+    with pytest.raises(PreflightRefused, match="leaves the safety volume"):  # again
+        checked_reference(far, duration)
+    assert not (tmp_path / "references" / f"{reference_key(far, duration)}.json").exists()
+
+
+@pytest.mark.parametrize("content", [
+    '{"reference": "abc"}', '{"reference": [1]}', '{"reference": {"pair": ["sat1"]}}',
+    '{"reference": {"pair": ["sat1", "sat2"], "window_s": [0, NaN], "warnings": []}}',
+    '{"reference": {"pair": ["sat1", "sat2"], "window_s": [0, 1], "warnings": [], '
+    '"restitution": -1}}',
+    '{"reference": {"pair": ["sat1", "sat2"], "window_s": [0, 1], "warnings": [], '
+    '"forecast": {"restitution_sd": -1}}}',
+    "[" * 100_000 + "]" * 100_000, "symlink", "huge"])
+def test_a_file_that_is_not_a_reference_is_computed_anew_and_written_over(content, tmp_path,
+                                                                           monkeypatch):
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision("uncertainty.forecast_replicates=4")
+    duration = config.loop.duration_s
+    path = tmp_path / "references" / f"{reference_key(config, duration)}.json"
+    path.parent.mkdir(parents=True)
+    target = tmp_path / "elsewhere.json"
+    target.write_text('{"reference": null}')
+    if content == "symlink":
+        path.symlink_to(target)
+    elif content == "huge":
+        path.write_text('{"reference": null, "x": "' + "x" * (2 << 20) + '"}')
+    else:
+        path.write_text(content)
+    got = checked_reference(config, duration)
+    assert got["restitution"] is not None and got["forecast"]["restitution_sd"] is not None
+    assert path.is_file() and not path.is_symlink()
+    assert json.loads(path.read_text())["reference"] == got
+    assert target.read_text() == '{"reference": null}'  # untouched

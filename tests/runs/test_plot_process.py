@@ -1,0 +1,60 @@
+"""A run's figures drawn in a process of their own (app/runs/plot_process.py): the same
+files as drawn in the run's process, with the run's final metrics; a failure to write is
+reported as the run's own would be, and a process that died leaves the run to draw."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from app.runs import plot_process
+from app.runs.headless import run_scenario
+from tests.runs.test_uncertainty import short_collision
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    """The same short collision written with its plots drawn here and apart."""
+    config = short_collision("uncertainty.replicates=4", "uncertainty.forecast_replicates=4")
+    out = {}
+    for apart in (False, True):
+        folder = tmp_path_factory.mktemp(f"apart-{apart}")
+        out[apart] = (folder, run_scenario(config, out_dir=folder, plots_apart=apart))
+    return out
+
+
+def test_the_figures_drawn_apart_are_the_bytes_drawn_in_the_runs_process(both):
+    (here, run_here), (apart, run_apart) = both[False], both[True]
+    names = sorted(p.name for p in here.iterdir())
+    assert sorted(p.name for p in apart.iterdir()) == names
+    assert {"forces.png", "contact_closeup.png", "velocity.png", "figures.json"} <= set(names)
+    assert sorted(p.name for p in run_apart.files) == sorted(p.name for p in run_here.files)
+    for name in names:
+        if name != "metrics.json":  # (its timings differ)
+            assert (apart / name).read_bytes() == (here / name).read_bytes(), name
+    # the figures carrying the collision's text were drawn with the final metrics: the
+    # interval the replicates added after the process had started
+    assert run_apart.metrics["collision"]["restitution_interval_95"] is not None
+
+
+def test_a_folder_it_cannot_write_is_an_oserror_with_nothing_left(both, tmp_path):
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    blocked = tmp_path / "a file"
+    blocked.write_text("")
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, blocked,
+                                 em.config, metrics)
+    with pytest.raises(OSError):
+        process.finish(metrics)
+    assert blocked.read_text() == ""
+
+
+def test_a_process_that_died_leaves_the_drawing_to_the_run(both, tmp_path):
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path,
+                                 em.config, metrics)
+    os.kill(process._process.pid, signal.SIGKILL)
+    process._process.join()
+    assert process.finish(metrics) is None
+    assert not any(tmp_path.iterdir())

@@ -1,0 +1,67 @@
+"""The kernels compiled ahead of a first run (app/runs/warm.py): after `python -m app.runs.warm`
+a first run compiles nothing, and a warm cache is recognised without compiling anew."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from app.runs import warm
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _python(*args: str, **kwargs) -> subprocess.CompletedProcess:
+    """``python ARGS`` in this tree; a warm-up without the collision's forecast (seconds:
+    the runs below compute their own, in the session's cache)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    if args[:2] == ("-m", "app.runs.warm"):
+        env["ORBIT_EMULATOR_CACHE"] = "off"
+    return subprocess.run([sys.executable, *args], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=600, **kwargs)
+
+
+def _cache_files(folder: Path) -> dict[str, tuple[int, int]]:
+    return {p.name: (p.stat().st_mtime_ns, p.stat().st_size)
+            for p in folder.iterdir() if p.suffix in (".nbi", ".nbc")}
+
+
+def test_after_the_warm_up_a_first_run_on_rails_and_on_fixed_arms_compiles_nothing(tmp_path):
+    assert _python("-m", "app.runs.warm").returncode == 0
+    assert _python("-m", "app.runs.warm", "--check").returncode == 0
+    folder = warm.cache_folder()
+    before = _cache_files(folder)
+    assert before
+    for scenario in ("collision-rails", "collision"):  # a rail, then fixed arms
+        run = _python("-m", "app.cli", "run", scenario, "--duration", "0.3", "--quiet",
+                      "--out", str(tmp_path / scenario))
+        assert run.returncode == 0, run.stderr
+    assert _cache_files(folder) == before  # numba wrote no kernel: none was compiled
+
+
+def test_a_stamp_of_another_numba_or_source_or_a_missing_index_is_not_warm(tmp_path):
+    stamp = warm.stamp()
+    assert set(stamp["sources"]) >= {"vfdm.py", "rail_vfdm.py", "ur10e.py", "orbital.py"}
+    (tmp_path / warm.STAMP_NAME).write_text(json.dumps(stamp))
+    for source in warm.kernel_sources():
+        (tmp_path / f"{source.stem}.kernel-1.py311.nbi").write_bytes(b"")
+    assert warm.is_warm(tmp_path)
+    (tmp_path / "rail_vfdm.kernel-1.py311.nbi").unlink()  # one module's index gone
+    assert not warm.is_warm(tmp_path)
+    (tmp_path / "rail_vfdm.kernel-1.py311.nbi").write_bytes(b"")
+    for key, value in (("numba", "0.1"), ("sources", {**stamp["sources"], "vfdm.py": "0"})):
+        (tmp_path / warm.STAMP_NAME).write_text(json.dumps({**stamp, key: value}))
+        assert not warm.is_warm(tmp_path), key
+    (tmp_path / warm.STAMP_NAME).write_text("not json")
+    assert not warm.is_warm(tmp_path)
+
+
+def test_a_warm_cache_is_recognised_in_well_under_a_second():
+    assert _python("-m", "app.runs.warm").returncode == 0
+    import time
+    t0 = time.perf_counter()
+    assert _python("-m", "app.runs.warm").returncode == 0
+    assert time.perf_counter() - t0 < 1.0
