@@ -181,8 +181,7 @@ def _robot_violations(k: int, robot, s: int, rows: np.ndarray, index: dict,
          lambda j: f"leaves the arm's reach ({reach[j]:.3f}{pm_across(j)} m from {whose}; limit "
                    f"{HOLD_RADIUS_M:g} m)"),
         (inside,
-         lambda j: f"leaves the arm's reach (its wrist would come within "
-                   f"{float(np.min((wrist - across_m)[inside])):.3f} m of its base axis"
+         lambda j: f"leaves the arm's reach (its wrist {_closest(wrist - across_m, inside)}"
                    f"{' wherever the carriage stands' if robot.rail else ''}; inner limit "
                    f"{MIN_WRIST_RADIUS_M:.3f} m, the shoulder singular at "
                    f"{INNER_RADIUS_M:.3f} m)"),
@@ -246,6 +245,15 @@ def wrist_axis_distance(robot, T_W_R: np.ndarray, p_W: np.ndarray,
 
 def _fmt(v) -> str:
     return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"
+
+
+def _closest(distance_m: np.ndarray, inside: np.ndarray) -> str:
+    """How close the course takes the wrist to the base axis; a drift's widening can take
+    it past the axis (a negative distance), which is said as a crossing."""
+    closest = float(np.min(distance_m[inside]))
+    if closest <= 0.0:
+        return "could cross its base axis"
+    return f"would come within {closest:.3f} m of its base axis"
 
 
 def preflight(config: EmulatorConfig, duration_s: float) -> Emulator | None:

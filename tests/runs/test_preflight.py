@@ -271,3 +271,20 @@ def test_on_rails_the_drift_along_the_rail_is_the_carriage_s_to_carry():
     fixed = merge_overrides(config, {"robots": {"0": {"rail": None}, "1": {"rail": None}}})
     with pytest.raises(PreflightRefused, match="leaves the arm's reach"):
         check_drift(fixed, prediction, reference)
+
+
+def test_a_drift_that_could_take_the_wrist_past_the_base_axis_is_said_so():
+    """A wide drift (the sensor's spread twenty times the forecast's) widens the wrist's
+    distance from the base axis past zero: the refusal says the wrist could cross the
+    axis, never a negative distance."""
+    config = _rigid_collision("loop.duration_s=10", "uncertainty.forecast_replicates=4")
+    prediction = preflight(config, 10.0)
+    reference = collision_of(prediction)
+    reference["forecast"] = forecast(config, reference)
+    sd = reference["forecast"]["velocity_sd_mps"]
+    reference["forecast"]["velocity_sd_mps"] = {k: [20.0 * x for x in v] for k, v in sd.items()}
+    with pytest.raises(PreflightRefused) as err:
+        check_drift(config, prediction, reference)
+    text = str(err.value)
+    assert "its wrist could cross its base axis; inner limit" in text
+    assert "within -" not in text
