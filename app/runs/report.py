@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -246,8 +247,8 @@ def _chain_text(coll: dict) -> str:
                                         "noisy replicates' mean")) if d is not None]
     if not known:
         return ""
-    first = (lambda pair: pair[0])  # (a tie goes to the twin, the first)
-    high, low = max(known, key=first), min(known, key=first)
+    high = max(known, key=itemgetter(0))  # (a tie goes to the twin, the first)
+    low = min(known, key=itemgetter(0))
     used = ([high] if high[0] > 0 else []) + ([low] if low[0] < 0 else [])
     if not used:
         return ", no systematic error from the chain (" + ", ".join(n for _, n in known) + ")"
