@@ -451,9 +451,11 @@ METRIC_MEANINGS = {
     "collision.true_impulse_ratio": "|J_true| / |J_true,ideal| per satellite",
     "collision.restitution_sd": "the restitution's standard deviation from the noise",
     "collision.restitution_interval_95": "the 95 % interval of e (the noise's, widened by "
-    "the systematic error on the ideal's side)",
+    "the larger systematic error, twin's or noisy mean's, on the ideal's side)",
     "collision.restitution_systematic": "the chain's systematic error on this contact, "
     "e_twin − e_ideal (the forecast's noise-free twin)",
+    "collision.restitution_bias_noisy": "the chain's systematic error with the noise in, "
+    "ē − e_ideal (the forecast's noisy replicates' mean)",
     "collision.uncertainty": "how the interval was obtained (replicates, method)",
     "collision_forecast.restitution_sd": "forecast standard deviation of e",
     "collision_forecast.restitution_sd_se": "the forecast sd's own sampling error (its "

@@ -938,15 +938,17 @@ def test_the_forecast_before_start_and_the_interval_after_the_run(live):
     assert lo < i["restitution"] < hi
     # nothing asked /forecast for this configuration before Start: the chain's systematic
     # error is not known yet, and the interval is the noise's alone (and says so)
-    assert i["restitution_systematic"] is None
+    assert i["restitution_systematic"] is None and i["restitution_bias_noisy"] is None
     assert i["uncertainty"]["systematic"] == "not included (no forecast)"
     assert hi - lo == pytest.approx(2 * 1.959964 * i["restitution_sd"])
     assert i["uncertainty"]["replicates"] == 4
     coll = live.client.get("/api/metrics").json()["collision"]
     assert coll["restitution"] == i["restitution"]
     delta = coll["restitution_systematic"]  # once the recorder has the forecast: widened
+    noisy = coll["restitution_bias_noisy"]  # by the further of its two estimates
+    assert (delta is None) == (noisy is None)
     assert coll["restitution_interval_95"] == ([lo, hi] if delta is None else pytest.approx(
-        [lo - max(delta, 0.0), hi + max(-delta, 0.0)]))
+        [lo - max(delta, noisy, 0.0), hi + max(-delta, -noisy, 0.0)]))
 
 
 def test_the_state_warns_of_a_course_that_leaves_the_arm_s_reach(live):

@@ -178,7 +178,7 @@ def _add_uncertainty(em: Emulator, metrics: dict) -> None:
         add_systematic(coll, metrics.get("collision_forecast"))
     except Exception as err:  # noqa: BLE001 - the run's record matters more
         coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
-        coll["restitution_systematic"] = None
+        coll["restitution_systematic"] = coll["restitution_bias_noisy"] = None
         coll["warnings"].append(f"the restitution's interval failed: {type(err).__name__}: "
                                 f"{err}")
 

@@ -460,6 +460,7 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
                 coll, _sensor_noise(config, bool(facts.arm_of)))
             coll["restitution_sd"] = coll["restitution_interval_95"] = None  # hil: filled
             coll["restitution_systematic"] = None
+            coll["restitution_bias_noisy"] = None
             coll["uncertainty"] = None  # by app/runs/uncertainty.py after the run
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
                 coll["warnings"].append(

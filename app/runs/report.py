@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -237,6 +238,26 @@ def sync_limits_text(sync: dict) -> str:
     return f" (limits {', '.join(limits)})" if limits else ""
 
 
+def _chain_text(coll: dict) -> str:
+    """Which estimate of the chain's systematic error widened the interval, and by how
+    much (app.runs.uncertainty.add_systematic: on each side, the one reaching furthest
+    toward the ideal); the other, for comparison. "" with neither."""
+    known = [(d, name) for d, name in ((coll.get("restitution_systematic"), "noise-free twin"),
+                                       (coll.get("restitution_bias_noisy"),
+                                        "noisy replicates' mean")) if d is not None]
+    if not known:
+        return ""
+    high = max(known, key=itemgetter(0))  # (a tie goes to the twin, the first)
+    low = min(known, key=itemgetter(0))
+    used = ([high] if high[0] > 0 else []) + ([low] if low[0] < 0 else [])
+    if not used:
+        return ", no systematic error from the chain (" + ", ".join(n for _, n in known) + ")"
+    rest = [(d, n) for d, n in known if (d, n) not in used]
+    return (", widened by the chain's systematic error" + ("s " if len(used) > 1 else " ")
+            + " and ".join(f"{d:+.3f} ({n})" for d, n in used)
+            + "".join(f"; the {n}'s {d:+.3f}" for d, n in rest))
+
+
 def interval_text(coll: dict) -> str | None:
     """The restitution's 95 % interval as a line (app/runs/uncertainty.py); None without one."""
     interval, sd = coll.get("restitution_interval_95"), coll.get("restitution_sd")
@@ -247,9 +268,7 @@ def interval_text(coll: dict) -> str | None:
     holds = "" if ideal is None else (
         f"; holds the ideal {ideal:.3f}" if interval[0] <= ideal <= interval[1]
         else f"; does NOT hold the ideal {ideal:.3f}")
-    delta = coll.get("restitution_systematic")
-    chain = "" if delta is None else (
-        f", widened by the chain's systematic error {delta:+.3f} (noise-free twin)")
+    chain = _chain_text(coll)
     return (f"restitution 95 % interval [{interval[0]:.3f}, {interval[1]:.3f}] (sd "
             f"{sd:.3f}, {how.get('replicates', '?')} replicates of the contact with the "
             f"noise measured at calibration{chain}{holds})")

@@ -33,7 +33,7 @@ from app.sim.loop import Emulator, StartPoseError
 from app.sim.rotations import skew
 
 __all__ = ["SensorNoise", "add_systematic", "configured_noise", "forecast", "lead_warning",
-           "measured_noise", "replicate", "restitution_spread", "run_interval",
+           "measured_noise", "noisy_bias", "replicate", "restitution_spread", "run_interval",
            "sd_standard_error", "snapshot_time_s", "spread_of_run"]
 
 QUIET_S = 0.05
@@ -334,35 +334,77 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     return out
 
 
+def _ideal_of(forecast_: dict) -> float | None:
+    """The ideal run's restitution e_ideal a forecast was measured against: its twin's e
+    minus the twin's δ, or else its replicates' mean over (1 + their mean error)."""
+    free, delta = forecast_.get("restitution_noise_free"), forecast_.get("restitution_systematic")
+    if free is not None and delta is not None:
+        return free - delta
+    mean, error = forecast_.get("restitution_mean"), forecast_.get("restitution_error_mean")
+    if mean is not None and error is not None and error != -1.0:
+        return mean / (1.0 + error)
+    return None
+
+
+def noisy_bias(forecast_: dict | None) -> float | None:
+    """The chain's systematic error on this contact with the noise in, δ_noisy =
+    ē − e_ideal: the forecast's noisy replicates' mean restitution against the ideal run
+    (None without a forecast, without a mean, or without the ideal's e)."""
+    if not forecast_ or forecast_.get("restitution_mean") is None:
+        return None
+    ideal = _ideal_of(forecast_)
+    return None if ideal is None else float(forecast_["restitution_mean"]) - ideal
+
+
 def add_systematic(coll: dict | None, forecast_: dict | None) -> None:
     """Widen a run's noise interval (in ``coll``, in place) by the chain's systematic error
-    on this contact, the forecast's ``restitution_systematic`` δ = e_twin − e_ideal (its
-    noise-free twin against the ideal run): the interval reaches δ further on the side
-    where the ideal lies,
+    on this contact, estimated two ways from the forecast: δ_twin = e_twin − e_ideal
+    (``restitution_systematic``: its noise-free twin against the ideal run) and
+    δ_noisy = ē − e_ideal (:func:`noisy_bias`: its noisy replicates' mean against the
+    ideal). The interval reaches the larger of the two further on the side where the
+    ideal lies,
 
-        [e − 1.96 sd − max(δ, 0),  e + 1.96 sd + max(−δ, 0)],
+        [e − 1.96 sd − max(δ_twin, δ_noisy, 0),  e + 1.96 sd + max(−δ_twin, −δ_noisy, 0)],
 
-    so that with the noise at zero (sd 0, e = e_twin) it still holds e_ideal. The run's
-    e is not corrected by δ: the twin's δ is measured without the state a noisy approach
-    leaves at the contact's start, and is a small part of the noise's spread with the
-    default sensor. ``coll["restitution_systematic"]``: δ (None without a forecast, which
-    leaves the interval the noise's alone, and ``coll["uncertainty"]`` says so)."""
+    so that with the noise at zero (sd 0, e = e_twin) it still holds e_ideal, and that a
+    bias the noise itself creates (a contact the noise makes stick, which the twin does
+    not see) is in it too. The run's e is not corrected: the twin's δ is measured without
+    the state a noisy approach leaves at the contact's start, and the noisy mean is the
+    forecast's own draws. ``coll["restitution_systematic"]``: δ_twin,
+    ``coll["restitution_bias_noisy"]``: δ_noisy (each None without a forecast or without
+    its estimate; with neither the interval is the noise's alone, and
+    ``coll["uncertainty"]`` says so)."""
     if coll is None:
         return
     delta = None if not forecast_ else forecast_.get("restitution_systematic")
+    noisy = noisy_bias(forecast_)
     coll["restitution_systematic"] = delta
+    coll["restitution_bias_noisy"] = noisy
     interval = coll.get("restitution_interval_95")
     if interval is None:
         return
-    if delta is None:
+    deltas = [d for d in (delta, noisy) if d is not None]
+    if not deltas:
         if coll.get("uncertainty") is not None:
-            coll["uncertainty"]["systematic"] = "not included (no forecast)"
+            coll["uncertainty"]["systematic"] = (
+                "not included (no forecast)" if not forecast_ else
+                "not included (the forecast has neither the noise-free twin's nor the "
+                "noisy replicates' restitution)")
         return
-    coll["restitution_interval_95"] = [interval[0] - max(delta, 0.0),
-                                       interval[1] + max(-delta, 0.0)]
+    coll["restitution_interval_95"] = [interval[0] - max(*deltas, 0.0),
+                                       interval[1] + max(*(-d for d in deltas), 0.0)]
     if coll.get("uncertainty") is not None:
-        coll["uncertainty"]["systematic"] = (
-            "the forecast's noise-free twin against the ideal run, added on the ideal's side")
+        coll["uncertainty"]["systematic"] = systematic_text(delta, noisy)
+
+
+def systematic_text(delta: float | None, noisy: float | None) -> str:
+    """How the systematic part of the interval was found, in words (δ_twin ``delta`` and
+    δ_noisy ``noisy``, either None where the forecast has no such estimate)."""
+    twin, mean = "the forecast's noise-free twin", "the forecast's noisy replicates' mean"
+    if delta is not None and noisy is not None:
+        return (f"{twin} and its noisy replicates' mean against the ideal run, the further "
+                "of the two added on the ideal's side")
+    return f"{twin if noisy is None else mean} against the ideal run, added on the ideal's side"
 
 
 def run_interval(em: Emulator, tick=None) -> dict | None:

@@ -213,10 +213,13 @@ def test_hil_metrics_compare_the_actual_mockups_with_the_ideal_run(hil, ideal):
     # the interval (app/runs/uncertainty.py) replaced the unchecked open-loop bound
     e, sd = coll["restitution"], coll["restitution_sd"]
     assert sd > 0.0
-    delta = hil.metrics["collision_forecast"]["restitution_systematic"]
-    assert coll["restitution_systematic"] == delta  # the chain's, added on the ideal's side
-    assert coll["restitution_interval_95"] == pytest.approx(
-        [e - 1.959964 * sd - max(delta, 0.0), e + 1.959964 * sd + max(-delta, 0.0)])
+    fc = hil.metrics["collision_forecast"]
+    delta = fc["restitution_systematic"]  # the chain's, twice: the noise-free twin's and
+    noisy = fc["restitution_mean"] - ref["restitution"]  # the noisy replicates' mean's
+    assert coll["restitution_systematic"] == delta
+    assert coll["restitution_bias_noisy"] == pytest.approx(noisy, abs=1e-12)
+    assert coll["restitution_interval_95"] == pytest.approx(  # the further on the ideal's side
+        [e - 1.959964 * sd - max(delta, noisy, 0.0), e + 1.959964 * sd + max(-delta, -noisy, 0.0)])
     assert ref["restitution_sd"] is None and ref["restitution_interval_95"] is None  # ideal
     assert hil.metrics["collision_forecast"]["restitution_sd"] > 0.0
 

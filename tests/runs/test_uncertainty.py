@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from app.config import ConfigError, EmulatorConfig, assignment_override, merge_overrides
+from app.runs import report
 from app.runs.headless import checked_reference, headless_config, run_scenario
 from app.runs.uncertainty import (
     Z95,
+    add_systematic,
     forecast,
     measured_noise,
     replicate,
@@ -89,11 +91,13 @@ def test_interval_and_forecast_match_the_spread_over_seeds(reference):
                          preflight_done=True).metrics["collision"] for s in range(6)]
     e = np.array([c["restitution"] for c in runs])
     delta = reference["forecast"]["restitution_systematic"]
+    noisy = reference["forecast"]["restitution_mean"] - ei
     for c in runs:  # the noise's interval, reaching the chain's systematic error further
         assert c["restitution_systematic"] == delta
+        assert c["restitution_bias_noisy"] == pytest.approx(noisy, abs=1e-12)
         assert c["restitution_interval_95"] == pytest.approx(
-            [c["restitution"] - Z95 * c["restitution_sd"] - max(delta, 0.0),
-             c["restitution"] + Z95 * c["restitution_sd"] + max(-delta, 0.0)])
+            [c["restitution"] - Z95 * c["restitution_sd"] - max(delta, noisy, 0.0),
+             c["restitution"] + Z95 * c["restitution_sd"] + max(-delta, -noisy, 0.0)])
         assert c["uncertainty"]["replicates_with_restitution"] == 8
     holds = sum(lo <= ei <= hi for lo, hi in (c["restitution_interval_95"] for c in runs))
     assert holds >= 5
@@ -206,11 +210,88 @@ def test_with_the_noise_at_zero_the_interval_holds_the_ideal(material):
     e, e_ideal, delta = coll["restitution"], ref["restitution"], coll["restitution_systematic"]
     assert coll["restitution_sd"] < 1e-9
     assert delta == pytest.approx(e - e_ideal, abs=1e-9)  # the twin is this very run
+    assert coll["restitution_bias_noisy"] == pytest.approx(delta, abs=1e-9)  # and so are
+    # the forecast's replicates, with no noise to draw
     assert abs(delta) > 1e-4  # a point interval would miss the ideal
     low, high = coll["restitution_interval_95"]
     assert low <= e_ideal <= high and low <= e <= high
     assert high - low == pytest.approx(abs(delta), abs=1e-9)
     assert coll["uncertainty"]["systematic"].startswith("the forecast's noise-free twin")
+
+
+def _forecast_of(e_ideal: float, e_twin: float | None, mean: float | None) -> dict:
+    """A forecast's restitution fields as app.runs.uncertainty.forecast gives them."""
+    return {"restitution_noise_free": e_twin,
+            "restitution_systematic": None if e_twin is None else e_twin - e_ideal,
+            "restitution_mean": mean,
+            "restitution_error_mean": None if mean is None else (mean - e_ideal) / e_ideal}
+
+
+def _noisy_run(e: float, sd: float) -> dict:
+    return {"restitution": e, "restitution_sd": sd,
+            "restitution_interval_95": [e - Z95 * sd, e + Z95 * sd],
+            "uncertainty": {"replicates": 30}}
+
+
+def test_a_bias_the_noise_makes_widens_the_interval_to_the_ideal():
+    """A contact the noise makes stick (the noisy replicates' mean 0.019 against the
+    ideal 0.297) while the noise-free twin parts (0.075): the run's e 0.001 ± 1.96 x
+    0.030 reaches the ideal by the noisy bias -0.278, and would not by the twin's -0.222."""
+    coll, twin_only = _noisy_run(0.001, 0.030), _noisy_run(0.001, 0.030)
+    add_systematic(coll, _forecast_of(0.297, 0.075, 0.019))
+    add_systematic(twin_only, {"restitution_systematic": 0.075 - 0.297})
+    assert coll["restitution_systematic"] == pytest.approx(-0.222)
+    assert coll["restitution_bias_noisy"] == pytest.approx(-0.278)
+    low, high = coll["restitution_interval_95"]
+    assert low == pytest.approx(0.001 - Z95 * 0.030)
+    assert high == pytest.approx(0.001 + Z95 * 0.030 + 0.278)
+    assert low <= 0.297 <= high and twin_only["restitution_interval_95"][1] < 0.297
+    assert coll["uncertainty"]["systematic"] == (
+        "the forecast's noise-free twin and its noisy replicates' mean against the ideal "
+        "run, the further of the two added on the ideal's side")
+    assert report.interval_text(coll) == (
+        f"restitution 95 % interval [{low:.3f}, {high:.3f}] (sd 0.030, 30 replicates of "
+        "the contact with the noise measured at calibration, widened by the chain's "
+        "systematic error -0.278 (noisy replicates' mean); the noise-free twin's -0.222)")
+
+
+def test_where_the_twins_bias_is_the_larger_the_interval_is_the_twins():
+    """The twin's δ +0.030 beyond the noisy mean's +0.010: the interval is widened
+    below by +0.030 alone, as with the twin's alone; a noisy bias of the other sign
+    (-0.010) widens the other side by its own."""
+    alone, both = _noisy_run(0.35, 0.05), _noisy_run(0.35, 0.05)
+    add_systematic(alone, {"restitution_systematic": 0.030})
+    add_systematic(both, _forecast_of(0.30, 0.33, 0.31))
+    assert alone["restitution_bias_noisy"] is None
+    assert both["restitution_bias_noisy"] == pytest.approx(0.010)
+    assert both["restitution_interval_95"] == pytest.approx(alone["restitution_interval_95"])
+    assert alone["restitution_interval_95"] == pytest.approx(
+        [0.35 - Z95 * 0.05 - 0.030, 0.35 + Z95 * 0.05])
+    assert "widened by the chain's systematic error +0.030 (noise-free twin); the noisy " \
+           "replicates' mean's +0.010)" in report.interval_text(both)
+    apart = _noisy_run(0.35, 0.05)
+    add_systematic(apart, _forecast_of(0.30, 0.33, 0.29))
+    assert apart["restitution_interval_95"] == pytest.approx(
+        [0.35 - Z95 * 0.05 - 0.030, 0.35 + Z95 * 0.05 + 0.010])
+    assert "errors +0.030 (noise-free twin) and -0.010 (noisy replicates' mean)" \
+        in report.interval_text(apart)
+
+
+def test_without_a_forecast_or_its_estimates_the_interval_is_the_noises():
+    """No forecast, or one with neither a twin's nor a noisy mean's restitution: the
+    interval is left the noise's, both estimates are None, and the run says why."""
+    for given, why in ((None, "no forecast"), (_forecast_of(0.3, None, None),
+                                               "the forecast has neither")):
+        coll = _noisy_run(0.3, 0.05)
+        add_systematic(coll, given)
+        assert coll["restitution_interval_95"] == _noisy_run(0.3, 0.05)["restitution_interval_95"]
+        assert coll["restitution_systematic"] is None and coll["restitution_bias_noisy"] is None
+        assert coll["uncertainty"]["systematic"].startswith(f"not included ({why}")
+    only_noisy = _noisy_run(0.0, 0.01)  # the twin gave no restitution, the replicates did
+    add_systematic(only_noisy, _forecast_of(0.3, None, 0.02))
+    assert only_noisy["restitution_bias_noisy"] == pytest.approx(-0.28)
+    assert only_noisy["restitution_interval_95"][1] == pytest.approx(Z95 * 0.01 + 0.28)
+    assert only_noisy["uncertainty"]["systematic"].startswith("the forecast's noisy")
 
 
 def test_the_forecasts_twin_gets_the_noise_its_calibration_would_measure():
