@@ -455,7 +455,8 @@ METRIC_MEANINGS = {
     "collision.restitution_systematic": "the chain's systematic error on this contact, "
     "e_twin − e_ideal (the forecast's noise-free twin)",
     "collision.restitution_bias_noisy": "the chain's systematic error with the noise in, "
-    "ē − e_ideal (the forecast's noisy replicates' mean)",
+    "ē − e_ideal (the forecast's noisy replicates' mean); None within two of its standard "
+    "errors of zero",
     "collision.uncertainty": "how the interval was obtained (replicates, method)",
     "collision_forecast.restitution_sd": "forecast standard deviation of e",
     "collision_forecast.restitution_sd_se": "the forecast sd's own sampling error (its "

@@ -9,7 +9,12 @@ import pytest
 
 from app.config import ConfigError, ServoConfig, assignment_override, merge_overrides
 from app.scenarios import load_scenario
-from app.sim.feedforward import ServoFeedforward, servo_feedforward, servo_feedforward_enabled
+from app.sim.feedforward import (
+    ServoFeedforward,
+    send,
+    servo_feedforward,
+    servo_feedforward_enabled,
+)
 from app.sim.servo import UR10eServo, tracking_gains
 
 DT = 0.002
@@ -183,3 +188,35 @@ def test_a_correction_bandwidth_out_of_range_is_refused():
     with pytest.raises(ConfigError, match="compensation.servo_correction_hz: Input should "
                        "be less than or equal to 50"):
         _collision("compensation.servo_correction_hz=51")
+
+
+@pytest.mark.parametrize("delay_cycles", [1, 3])
+def test_the_reported_joints_are_carried_as_the_servo_itself_moves(delay_cycles):
+    """Eq. FC carries the reported joints through the set-points in flight by the servo's
+    law: over a random stream of set-points, near the acceleration limit at times, its
+    carried state after the last step equals the servo's own state ``delay_cycles`` steps
+    later, to rounding (one implementation of the law in the servo, one in the lab's
+    model of it: this keeps them the same)."""
+    cfg = ServoConfig(model="servoj", lookahead_time_s=0.03, gain=1200.0,
+                      delay_cycles=delay_cycles)
+    speed = np.array(cfg.speed_limits_radps)
+    servo = UR10eServo(cfg, DT, Q0)
+    ff = ServoFeedforward(*tracking_gains(cfg), DT, MAX_STEP, Q0, 100.0,
+                          cfg.delay_cycles, cfg.accel_limit_radps2, speed)
+    rng = np.random.default_rng(3)
+    for k in range(200):
+        q_d = Q0 + 0.02 * np.sin(0.05 * k) + 0.0002 * rng.standard_normal(6)
+        send(servo, ff, q_d)
+        assert not servo.stopped
+        if k % 40 == 39:  # where the arm will be once what is in flight has reached it
+            q_hat, qd_hat = ff._carried(servo.state.q_rad, servo.state.qd_radps)
+            probe = UR10eServo(cfg, DT, Q0)
+            probe.state = type(servo.state)(servo.state.q_rad.copy(),
+                                            servo.state.qd_radps.copy(),
+                                            servo.state.qdd_radps2.copy())
+            probe._ring[:] = servo._ring
+            probe._slot, probe._sp_prev = servo._slot, servo._sp_prev.copy()
+            for _ in range(delay_cycles):
+                probe.step(probe._sp_prev)  # anything: what it tracks is already in flight
+            np.testing.assert_allclose(q_hat, probe.state.q_rad, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(qd_hat, probe.state.qd_radps, rtol=0, atol=1e-9)

@@ -9,15 +9,18 @@ one. A forecast is found again under a key made of
 - the configuration with its seed and its telemetry capacity set aside (neither changes
   the forecast; a test checks it for the seed),
 - the ideal run's collision figures it starts from,
-- a fingerprint of the code (every ``.py`` file of ``app/``): a change of the code is a
-  new key, so a forecast is never one an older chain computed.
+- a fingerprint of the code (every ``.py`` file of ``app/``, and the Python, NumPy and
+  numba versions): a change of the code is a new key, so a forecast is never one an older
+  chain computed.
 
 The folder is ``$ORBIT_EMULATOR_CACHE/forecasts`` (default: ``$XDG_CACHE_HOME`` or
 ``~/.cache``, then ``orbit-emulator``); ``ORBIT_EMULATOR_CACHE=off`` computes every
 forecast anew. A file that cannot be read, or is not a forecast's (not a regular file, too
 large, not JSON, not of a forecast's shape), is computed anew and written over; one that
-cannot be written is not kept: the cache never stops a run. It is trusted as the
-installation is: a forecast of the right shape with other numbers is read as it is.
+cannot be written is not kept: the cache never stops a run. Only a file and a folder
+this user owns and no one else may write are read (a kept pre-flight reference lets a run
+skip the pre-flight); within them a forecast of the right shape is trusted as the
+installation is.
 
 Beside the forecasts (``.../references``), the pre-flight's outcome is kept the same way
 (:func:`cached_reference`): the ideal run's collision reference with its forecast, for a
@@ -35,6 +38,7 @@ import json
 import math
 import os
 import stat
+import sys
 import tempfile
 from pathlib import Path
 
@@ -64,19 +68,29 @@ def cache_dir(kind: str = "forecasts") -> Path | None:
 
 @functools.lru_cache(maxsize=1)
 def code_fingerprint() -> str:
-    """SHA-256 of every ``.py`` file of ``app/`` (its path and its bytes), in path order."""
+    """SHA-256 of the Python, NumPy and numba versions and every ``.py`` file of ``app/``
+    (its path and its bytes), in path order."""
+    import numba
+    import numpy
+
     app_dir = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256()
+    digest.update(f"{sys.version}\0{numpy.__version__}\0{numba.__version__}\0".encode())
     for path in sorted(app_dir.rglob("*.py")):
         digest.update(str(path.relative_to(app_dir)).encode() + b"\0")
         digest.update(path.read_bytes() + b"\0")
     return digest.hexdigest()
 
 
+def _setting(config: EmulatorConfig) -> dict:
+    """The configuration as a key sees it: its seed and telemetry capacity set aside."""
+    loop = config.loop.model_copy(update={"seed": 0, "telemetry_capacity": 0})
+    return config.model_copy(update={"loop": loop}).model_dump(mode="json")
+
+
 def forecast_key(config: EmulatorConfig, ideal: dict) -> str:
     """The key of the forecast of ``config`` from the ideal run ``ideal``."""
-    loop = config.loop.model_copy(update={"seed": 0, "telemetry_capacity": 0})
-    setting = config.model_copy(update={"loop": loop}).model_dump(mode="json")
+    setting = _setting(config)
     figures = {k: ideal.get(k) for k in IDEAL_KEYS}
     text = json.dumps({"config": setting, "ideal": figures, "code": code_fingerprint()},
                       sort_keys=True, allow_nan=True)
@@ -99,9 +113,7 @@ def cached_forecast(config: EmulatorConfig, ideal: dict | None, compute) -> dict
 
 def reference_key(config: EmulatorConfig, duration_s: float) -> str:
     """The key of the pre-flight reference of ``config`` over ``duration_s``."""
-    loop = config.loop.model_copy(update={"seed": 0, "telemetry_capacity": 0})
-    setting = config.model_copy(update={"loop": loop}).model_dump(mode="json")
-    text = json.dumps({"config": setting, "duration_s": float(duration_s),
+    text = json.dumps({"config": _setting(config), "duration_s": float(duration_s),
                        "code": code_fingerprint()}, sort_keys=True, allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -129,7 +141,7 @@ def keep_reference(config: EmulatorConfig, duration_s: float, reference: dict | 
 def _is_reference(kept) -> bool:
     """Whether ``kept`` has the shape of a pre-flight reference (an ideal run's collision
     metrics, app/runs/metrics.py, with its forecast) or is None (none needed)."""
-    if kept is None:
+    if kept is None or kept == {}:  # none needed; no contact in the ideal run
         return True
     if not isinstance(kept, dict) or not _plain(kept, 0):
         return False
@@ -159,14 +171,25 @@ def _read(path: Path, field: str = "forecast", valid=None):
     file, over :data:`MAX_FILE_BYTES`, not JSON, or not of its shape): then it is
     computed anew and written over."""
     try:
-        info = os.stat(path, follow_symlinks=False)
-        if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_FILE_BYTES:
+        if not _own(os.stat(path.parent)):
             return NOT_KEPT
-        with open(path, "rb") as f:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
+        with open(fd, "rb") as f:  # a FIFO or link swapped in is never read
+            info = os.fstat(f.fileno())
+            if (not stat.S_ISREG(info.st_mode) or info.st_size > MAX_FILE_BYTES
+                    or not _own(info)):
+                return NOT_KEPT
             kept = json.loads(f.read(MAX_FILE_BYTES + 1))[field]
     except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return NOT_KEPT
     return kept if (valid or _is_forecast)(kept) else NOT_KEPT
+
+
+def _own(info: os.stat_result) -> bool:
+    """A file or folder only this user could have written: this user's, and not writable
+    by its group or by others. A kept pre-flight reference lets a run skip the pre-flight's
+    checks, so a file another user could have placed is never read."""
+    return info.st_uid == os.getuid() and not info.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
 
 
 def _is_forecast(kept) -> bool:
@@ -203,7 +226,7 @@ def _keep(path: Path, result: dict | None, field: str = "forecast") -> None:
                                          delete=False) as tmp:
             json.dump({field: result}, tmp, allow_nan=True)
         os.replace(tmp.name, path)
-    except OSError:
+    except (OSError, TypeError, ValueError):  # not writable, or not JSON: not kept
         try:
             os.unlink(tmp.name)
         except (OSError, NameError):

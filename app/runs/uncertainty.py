@@ -348,12 +348,22 @@ def _ideal_of(forecast_: dict) -> float | None:
 
 def noisy_bias(forecast_: dict | None) -> float | None:
     """The chain's systematic error on this contact with the noise in, δ_noisy =
-    ē − e_ideal: the forecast's noisy replicates' mean restitution against the ideal run
-    (None without a forecast, without a mean, or without the ideal's e)."""
+    ē − e_ideal: the forecast's noisy replicates' mean restitution against the ideal run.
+    None without a forecast, without a mean or without the ideal's e, and None where it is
+    within two standard errors of that mean (sd/√n over its n replicates) of zero: a bias
+    the replicates cannot tell from their own sampling error would only widen every
+    interval by chance."""
     if not forecast_ or forecast_.get("restitution_mean") is None:
         return None
     ideal = _ideal_of(forecast_)
-    return None if ideal is None else float(forecast_["restitution_mean"]) - ideal
+    if ideal is None:
+        return None
+    bias = float(forecast_["restitution_mean"]) - ideal
+    sd = forecast_.get("restitution_sd")
+    n = forecast_.get("replicates_with_restitution") or forecast_.get("replicates")
+    if sd is not None and n and abs(bias) <= 2.0 * float(sd) / math.sqrt(n):
+        return None
+    return bias
 
 
 def add_systematic(coll: dict | None, forecast_: dict | None) -> None:

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
-from app.sim.feedforward import servo_feedforward
+from app.sim.feedforward import send, servo_feedforward
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.orbital import OrbitalSimulator
 from app.sim.rail import chain_tcp_pose
@@ -143,9 +143,7 @@ def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
         if config.vfdm.sync_to_measured:  # as ArmRig.command does
             vfdm.q_rad[:] = servo.state.q_rad
         q_d = vfdm.solve(T)
-        st = servo.state
-        servo.step(q_d if feedforward is None
-                   else feedforward.setpoint(q_d, st.q_rad, st.qd_radps))
+        send(servo, feedforward, q_d)
         if k % 50 == 0:
             tick()
         if k in check:
@@ -183,9 +181,7 @@ def _rail_ramp_lags_s(config: EmulatorConfig, robot: RobotConfig, T_F_C: np.ndar
             vfdm.q[1:] = servo.state.q_rad
         q = vfdm.solve(T)
         carriage.step(q[0])
-        st = servo.state
-        servo.step(q[1:] if feedforward is None
-                   else feedforward.setpoint(q[1:], st.q_rad, st.qd_radps))
+        send(servo, feedforward, q[1:])
         if k % 50 == 0:
             tick()
         if k in check:

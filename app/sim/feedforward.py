@@ -54,7 +54,7 @@ import numpy as np
 from app.config import EmulatorConfig
 from app.sim.servo import tracking_gains
 
-__all__ = ["ServoFeedforward", "servo_feedforward", "servo_feedforward_enabled"]
+__all__ = ["ServoFeedforward", "send", "servo_feedforward", "servo_feedforward_enabled"]
 
 
 class ServoFeedforward:
@@ -126,6 +126,16 @@ class ServoFeedforward:
             v = np.clip(v + dt * a, -lim_v, lim_v)
             q = q + dt * v
         return q, v
+
+
+def send(servo, feedforward: ServoFeedforward | None, q_d_rad: np.ndarray):
+    """One step of ``servo`` (app/sim/servo.py UR10eServo) toward the desired joints
+    ``q_d_rad``: as they are, or through ``feedforward`` on the joints the servo reports
+    before the step. Returns the servo's state."""
+    if feedforward is None:
+        return servo.step(q_d_rad)
+    st = servo.state
+    return servo.step(feedforward.setpoint(q_d_rad, st.q_rad, st.qd_radps))
 
 
 def servo_feedforward_enabled(config: EmulatorConfig) -> bool:

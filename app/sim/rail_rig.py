@@ -26,6 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
+from app.sim.feedforward import send
 from app.sim.rail_servo import RailServo
 from app.sim.rail_vfdm import RailVfdm
 from app.sim.rig import ArmRig, build_rig
@@ -79,10 +80,7 @@ class RailRig(ArmRig):
         rs.step(q[0])
         if arm.safety is not None:
             self.base_at(rs._prev[0], arm.safety.chain.T_W_B)
-        q_arm = q[1:]
-        st = arm.state
-        arm.step(q_arm if self.feedforward is None
-                 else self.feedforward.setpoint(q_arm, st.q_rad, st.qd_radps))
+        send(arm, self.feedforward, q[1:])
         if rs.stopped and not arm.stopped:
             arm.state.stopped, arm.state.reason = True, rs.state.reason
         elif arm.stopped and not rs.stopped:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
-from app.sim.feedforward import ServoFeedforward, servo_feedforward
+from app.sim.feedforward import ServoFeedforward, send, servo_feedforward
 from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
 from app.sim.rotations import invert_transform
@@ -163,9 +163,7 @@ class ArmRig:
         if self.vfdm.cfg.sync_to_measured:
             self.vfdm.q_rad[:] = self.servo.state.q_rad
         q_d = self.vfdm.solve(T_B_C_target)
-        st = self.servo.state
-        self.servo.step(q_d if self.feedforward is None
-                        else self.feedforward.setpoint(q_d, st.q_rad, st.qd_radps))
+        send(self.servo, self.feedforward, q_d)
 
     # --- start-up -------------------------------------------------------------------------
 

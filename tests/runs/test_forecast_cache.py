@@ -178,3 +178,48 @@ def test_a_file_that_is_not_a_reference_is_computed_anew_and_written_over(conten
     assert path.is_file() and not path.is_symlink()
     assert json.loads(path.read_text())["reference"] == got
     assert target.read_text() == '{"reference": null}'  # untouched
+
+
+def _fake(calls: list):
+    def compute(config, ideal):
+        calls.append(1)
+        return {"restitution_sd": 0.01 * len(calls)}
+    return compute
+
+
+IDEAL = {"pair": ["cubesat", "sponge"], "restitution": 0.3}
+
+
+def test_a_file_or_folder_others_could_write_is_never_read(tmp_path, monkeypatch):
+    """A kept reference lets a run skip its pre-flight: a file that another user could have
+    written (group- or world-writable, or in such a folder) is computed anew, not read."""
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision()
+    calls = []
+    first = cached_forecast(config, IDEAL, _fake(calls))
+    assert cached_forecast(config, IDEAL, _fake(calls)) == first and len(calls) == 1
+    (path,) = (tmp_path / "forecasts").glob("*.json")
+    os.chmod(path, 0o664)
+    assert cached_forecast(config, IDEAL, _fake(calls)) != first and len(calls) == 2
+    os.chmod(path, 0o600)
+    os.chmod(path.parent, 0o777)
+    cached_forecast(config, IDEAL, _fake(calls))
+    assert len(calls) == 3
+
+
+def test_a_reference_without_a_contact_is_read_back(tmp_path, monkeypatch):
+    """An ideal run without a contact leaves the reference {}: kept, it is read back."""
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision()
+    assert forecast_cache.cached_reference(config, 1.0) is forecast_cache.NOT_KEPT
+    forecast_cache.keep_reference(config, 1.0, {})
+    assert forecast_cache.cached_reference(config, 1.0) == {}
+
+
+def test_a_result_json_cannot_write_is_not_kept_and_leaves_nothing(tmp_path, monkeypatch):
+    import numpy as np
+
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path))
+    config = short_collision()
+    forecast_cache.keep_reference(config, 1.0, {"pair": np.int64(3)})
+    assert list((tmp_path / "references").iterdir()) == []
