@@ -134,3 +134,13 @@ def test_a_run_gone_without_its_figures_ends_the_process_by_itself(both, tmp_pat
     assert process._process.exitcode == 0  # it saw the pipe's end: no copy kept open
     assert not any(tmp_path.iterdir())
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_where_processes_cannot_be_forked_none_is_started(both, monkeypatch, tmp_path):
+    import multiprocessing
+
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    assert plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path, em.config,
+                              metrics) is None  # (the run draws them: run_scenario's None)
+    assert not any(tmp_path.iterdir())
