@@ -89,13 +89,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
         result = run_scenario(config, mode=config.loop.mode, duration_s=duration,
                               out_dir=out_dir, progress=progress, bag=args.bag,
                               bag_rate_hz=args.bag_rate, ideal=ideal, preflight_done=True,
-                              plots_apart=len(os.sched_getaffinity(0)) > 1)  # a core free
+                              plots_apart=_cores() > 1)  # a core free
         bar.update(bar.total - bar.n)
     except RunFailed as failed:
         result = failed.result
     finally:
         bar.close()
     return _report_run(result)
+
+
+def _cores() -> int:
+    """The cores this process may run on (all of the machine's where the system cannot
+    say: sched_getaffinity is Linux's)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def _report_run(result) -> int:

@@ -145,9 +145,13 @@ def run_scenario(
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
         plotter = None
         if out_dir is not None and plots_apart:  # drawing while the replicates run
-            plotter = plot_process.start(em.telemetry.rows(), em.telemetry.index, out_dir,
-                                         em.config, metrics, note=metrics["scaling"]["text"],
-                                         guard=_whole_or_none)
+            try:
+                plotter = plot_process.start(em.telemetry.rows(), em.telemetry.index,
+                                             out_dir, em.config, metrics,
+                                             note=metrics["scaling"]["text"],
+                                             guard=_whole_or_none)
+            except OSError:  # no process to be had (EAGAIN, ENOMEM): drawn here
+                plotter = None
         try:
             if failure is None:
                 _add_uncertainty(em, metrics)

@@ -14,7 +14,10 @@ The files are the same bytes a drawing in the run's own process writes.
 A failure to write is reported back as it happened (OSError, ValueError: the caller then
 writes the plots elsewhere, as for any file of a run), with nothing half written left in
 the folder; a process that died (None from :meth:`~PlotProcess.finish`) leaves the caller
-to draw them itself.
+to draw them itself, as does one that has not answered within :data:`FINISH_TIMEOUT_S`
+(killed then), or none at all where processes cannot be forked (:func:`start` gives None).
+The process reports its own failures as an answer, never as a traceback on the run's
+terminal.
 """
 
 from __future__ import annotations
@@ -22,11 +25,17 @@ from __future__ import annotations
 import multiprocessing
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PlotProcess", "start"]
+__all__ = ["FINISH_TIMEOUT_S", "PlotProcess", "start"]
+
+FINISH_TIMEOUT_S = 120.0
+"""How long :meth:`PlotProcess.finish` waits for the figures once the final metrics are
+sent (a run's take a few seconds) before it kills the process and leaves them to the run."""
+POLL_S = 0.5
 
 
 class PlotProcess:
@@ -34,69 +43,119 @@ class PlotProcess:
 
     def __init__(self, process, conn) -> None:
         self._process, self._conn = process, conn
+        self._answered = False  # (then it exits by itself)
 
     def finish(self, metrics: dict) -> list[Path] | None:
         """Send the run's final metrics, wait for its figures: the paths written; raises
         the OSError or ValueError that kept them from being written; None if the process
-        died first (the caller then draws them)."""
+        died first, failed, or gave no answer within :data:`FINISH_TIMEOUT_S` (it is then
+        killed; the caller draws them)."""
         try:
             self._conn.send(metrics)
-            answer = self._conn.recv()
+            answer = self._answer(time.monotonic() + FINISH_TIMEOUT_S)
         except (EOFError, OSError):
             answer = None
         finally:
             self.close()
-        if answer is None:
+        if answer is None or answer[0] == "died":
             return None
         if answer[0] == "ok":
             return [Path(p) for p in answer[1]]
         kind, message = answer[1], answer[2]
         raise (OSError if kind == "OSError" else ValueError)(message)
 
+    def _answer(self, deadline: float):
+        """The process's answer; None if it died without one or the deadline passed."""
+        while True:
+            left_s = deadline - time.monotonic()
+            if left_s <= 0.0:
+                return None
+            if self._conn.poll(min(POLL_S, left_s)):
+                answer = self._conn.recv()  # (EOFError if it died: its end closed)
+                self._answered = True
+                return answer
+            if not self._process.is_alive() and not self._conn.poll(0):
+                return None
+
     def close(self) -> None:
-        """End the process (at once if it is still drawing) and free its pipe."""
+        """Free the pipe and end the process: once it has exited after its answer to
+        :meth:`finish`, else at once (finish not reached: the run failed before its
+        figures; or no answer in time)."""
         self._conn.close()
-        self._process.join(timeout=60.0)
+        if self._answered:
+            self._process.join(timeout=5.0)
         if self._process.is_alive():
             self._process.kill()
-            self._process.join()
+        self._process.join()
 
 
 def start(rows: np.ndarray, index: dict, out_dir: str | Path, config, metrics: dict,
-          note: str = "", guard=None) -> PlotProcess:
+          note: str = "", guard=None) -> PlotProcess | None:
     """Fork the process that draws the run's figures into ``out_dir`` (module doc);
     ``metrics``: the run's as they are now. ``guard(write, folder)``: how the files are
-    written (app/runs/headless.py: whole, or nothing left in the folder)."""
+    written (app/runs/headless.py: whole, or nothing left in the folder). None where
+    processes cannot be forked (the caller draws); raises the OSError of a fork that
+    failed (EAGAIN, ENOMEM)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return None
     sys.stdout.flush()  # nothing the run printed is written twice by the child
     sys.stderr.flush()
     context = multiprocessing.get_context("fork")
     ours, theirs = context.Pipe()
     process = context.Process(target=_draw, args=(theirs, rows, index, Path(out_dir), config,
-                                                  metrics, note, guard), daemon=True)
-    process.start()
-    theirs.close()
+                                                  metrics, note, guard, ours), daemon=True)
+    try:
+        process.start()
+    except BaseException:
+        ours.close()
+        raise
+    finally:
+        theirs.close()
     return PlotProcess(process, ours)
 
 
 def _draw(conn, rows, index, out_dir: Path, config, metrics: dict, note: str,
-          guard) -> None:
-    """The process's work (module doc)."""
+          guard, runs_end=None) -> None:
+    """The process's work (module doc). Whatever it raises is answered as ("died",
+    reason) and ends it with exit status 1, quietly (the run then draws the figures).
+    ``runs_end``: the run's end of the pipe, closed here (the fork's copy would keep
+    the run's going away from being seen)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # an interrupt is the run's to handle
+    if runs_end is not None:
+        runs_end.close()
+    try:
+        answer = _drawn(conn, rows, index, out_dir, config, metrics, note, guard)
+    except BaseException as err:  # noqa: BLE001 - the run draws them; no second traceback
+        _send(conn, ("died", f"{type(err).__name__}: {err}"))
+        sys.exit(1)
+    if answer is not None:
+        _send(conn, answer)
+
+
+def _drawn(conn, rows, index, out_dir: Path, config, metrics: dict, note: str, guard):
+    """The figures drawn and written: the answer to send; None if the run ended without
+    them."""
     from app.runs.plots import plan_figures, plot_run, render, signature
 
     guard = guard or (lambda write, folder: write(folder))
-
     early = plan_figures(rows, index, config, metrics) if len(rows) else []
     rendered = {f.name: (signature(f, note), render(f, note)) for f in early if not f.text}
     try:
         final = conn.recv()
-    except EOFError:  # the run ended without its figures
-        return
+    except (EOFError, OSError):  # the run ended without its figures
+        return None
     try:
         paths = guard(lambda d: plot_run(rows, index, d, config, final, note,
-                                                 rendered=rendered), out_dir)
-        conn.send(("ok", [str(p) for p in paths]))
+                                         rendered=rendered), out_dir)
     except (OSError, ValueError) as err:
         message = str(err) if not isinstance(err, OSError) else (err.strerror or str(err))
-        conn.send(("error", "OSError" if isinstance(err, OSError) else "ValueError",
-                   message))
+        return ("error", "OSError" if isinstance(err, OSError) else "ValueError", message)
+    return ("ok", [str(p) for p in paths])
+
+
+def _send(conn, answer) -> None:
+    """Send ``answer`` to the run; nothing if the run is gone."""
+    try:
+        conn.send(answer)
+    except (BrokenPipeError, EOFError, OSError):
+        pass

@@ -33,7 +33,9 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-SIM_DIR = Path(__file__).resolve().parents[1] / "sim"
+SIM_DIR = Path(os.path.abspath(__file__)).parents[1] / "sim"
+"""app/sim as numba names it (os.path.abspath, symbolic links kept: its cache locator's
+rule, so that the folder below is the one numba writes)."""
 STAMP_NAME = "orbit-emulator-warm.json"
 WARM_CYCLES = 20
 """Cycles stepped per scenario and mode: enough for every branch of the cycle's first
@@ -150,13 +152,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f"warm: compiling the loop's numba kernels into {folder} (once; up to a minute)",
           file=sys.stderr, flush=True)
     seconds = warm()
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / STAMP_NAME).write_text(json.dumps(stamp(), indent=1) + "\n")
-    print(f"warm: compiled in {seconds:.1f} s", file=sys.stderr)
-    if not forecasts_kept():
-        print(f"warm: the fidelity forecast of {', '.join(KEPT_SETTINGS)} (seconds)",
-              file=sys.stderr, flush=True)
-        print(f"warm: kept in {keep_forecasts():.1f} s", file=sys.stderr)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / STAMP_NAME).write_text(json.dumps(stamp(), indent=1) + "\n")
+        print(f"warm: compiled in {seconds:.1f} s", file=sys.stderr)
+    except OSError as err:  # (numba then keeps them in its user-wide cache)
+        print(f"warm: compiled in {seconds:.1f} s; the stamp {folder / STAMP_NAME} was not "
+              f"written ({err.strerror or err}): the next install warms up again",
+              file=sys.stderr)
+    try:
+        if not forecasts_kept():
+            print(f"warm: the fidelity forecast of {', '.join(KEPT_SETTINGS)} (seconds)",
+                  file=sys.stderr, flush=True)
+            print(f"warm: kept in {keep_forecasts():.1f} s", file=sys.stderr)
+    except Exception as err:  # noqa: BLE001 - the kernels are warm all the same
+        print(f"warm: warning: the fidelity forecast of {', '.join(KEPT_SETTINGS)} was not "
+              f"kept ({type(err).__name__}: {err}); a first run computes it",
+              file=sys.stderr)
     return 0
 
 

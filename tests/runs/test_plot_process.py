@@ -58,3 +58,89 @@ def test_a_process_that_died_leaves_the_drawing_to_the_run(both, tmp_path):
     process._process.join()
     assert process.finish(metrics) is None
     assert not any(tmp_path.iterdir())
+
+
+def test_a_fork_refused_leaves_every_file_drawn_in_the_runs_process(both, monkeypatch,
+                                                                    tmp_path):
+    def refused():
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(os, "fork", refused)
+    config = short_collision("uncertainty.replicates=4", "uncertainty.forecast_replicates=4")
+    run = run_scenario(config, out_dir=tmp_path, plots_apart=True)
+    here = both[False][0]
+    names = sorted(p.name for p in here.iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == names
+    assert {"metrics.json", "telemetry.csv", "forces.png", "figures.json"} <= set(names)
+    assert run.unwritten is None
+    for name in names:
+        if name.endswith(".png"):
+            assert (tmp_path / name).read_bytes() == (here / name).read_bytes(), name
+
+
+def test_a_process_that_hangs_is_killed_at_the_bound_and_leaves_the_drawing(
+        both, monkeypatch, tmp_path):
+    import time
+
+    from app.runs import plots
+
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    monkeypatch.setattr(plots, "plot_run", lambda *a, **k: time.sleep(30))  # (the child's)
+    monkeypatch.setattr(plot_process, "FINISH_TIMEOUT_S", 1.0)
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path,
+                                 em.config, metrics)
+    t0 = time.monotonic()
+    assert process.finish(metrics) is None
+    assert time.monotonic() - t0 < 3.0
+    assert not process._process.is_alive()
+    assert process._process.exitcode == -signal.SIGKILL
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_process_that_fails_says_so_quietly(both, monkeypatch, tmp_path, capfd):
+    from app.runs import plots
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no figures today")
+
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    monkeypatch.setattr(plots, "plan_figures", broken)  # (the child's: before its answer)
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path,
+                                 em.config, metrics)
+    assert process.finish(metrics) is None  # the run then draws them
+    assert process._process.exitcode == 1
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_closed_before_its_figures_it_is_ended_at_once(both, tmp_path):
+    import time
+
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path,
+                                 em.config, metrics)
+    t0 = time.monotonic()
+    process.close()  # (the run failed before its files: finish not reached)
+    assert time.monotonic() - t0 < 1.0
+    assert process._process.exitcode == -signal.SIGKILL
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_run_gone_without_its_figures_ends_the_process_by_itself(both, tmp_path, capfd):
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path,
+                                 em.config, metrics)
+    process._conn.close()  # as if the run's process had gone
+    process._process.join(timeout=60.0)
+    assert process._process.exitcode == 0  # it saw the pipe's end: no copy kept open
+    assert not any(tmp_path.iterdir())
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_where_processes_cannot_be_forked_none_is_started(both, monkeypatch, tmp_path):
+    import multiprocessing
+
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    assert plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path, em.config,
+                              metrics) is None  # (the run draws them: run_scenario's None)
+    assert not any(tmp_path.iterdir())

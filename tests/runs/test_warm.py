@@ -3,6 +3,7 @@ a first run compiles nothing, and a warm cache is recognised without compiling a
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -65,3 +66,32 @@ def test_a_warm_cache_is_recognised_in_well_under_a_second():
     t0 = time.perf_counter()
     assert _python("-m", "app.runs.warm").returncode == 0
     assert time.perf_counter() - t0 < 1.0
+
+
+def test_a_stamp_it_cannot_write_and_a_forecast_that_fails_still_end_the_warm_up_well(
+        tmp_path, monkeypatch, capsys):
+    blocked = tmp_path / "a file"
+    blocked.write_text("")
+    monkeypatch.setattr(warm, "cache_folder", lambda: blocked / "cache")  # under a file
+    monkeypatch.setattr(warm, "KEPT_SETTINGS", ("no-such-scenario",))
+    monkeypatch.setenv("ORBIT_EMULATOR_CACHE", str(tmp_path / "kept"))
+    assert warm.main([]) == 0  # the kernels are compiled all the same
+    err = capsys.readouterr().err
+    assert f"the stamp {blocked / 'cache' / warm.STAMP_NAME} was not written (" in err
+    assert "the next install warms up again" in err
+    assert "warm: warning: the fidelity forecast of no-such-scenario was not kept (" in err
+    assert blocked.read_text() == ""
+
+
+def test_through_a_symbolic_link_the_cache_folder_is_the_one_numba_writes(tmp_path):
+    link = tmp_path / "tree"
+    link.symlink_to(ROOT)
+    code = ("from app.runs import warm; from app.sim import orbital; "
+            "print(warm.cache_folder()); print(orbital._direction_cosines._cache._cache_path)")
+    env = dict(os.environ, PYTHONPATH=str(link), NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True, env=env, timeout=60)
+    ours, numbas = out.stdout.split()
+    assert ours == numbas, out.stderr
+    linked = str(link / "app" / "sim")  # (the link's path, not the tree's)
+    assert numbas.endswith(hashlib.sha1(linked.encode()).hexdigest())
