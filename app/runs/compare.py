@@ -19,6 +19,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,11 @@ def _restyle(line: Line, tag: str, style: str) -> Line:
     return Line(line.t, line.y, f"{tag} {line.label}", style, colour, line.width)
 
 
+STYLE_NOTE = re.compile(r" \([^()]*\b(?:solid|dashed|dotted)\b[^()]*\)$")
+"""A panel title's note of its line styles ("(received solid, true dotted)"): the overlay
+restyles every line (A solid, B dashed, the kind by colour), so it drops such notes."""
+
+
 def overlay(fig_a: Figure | None, fig_b: Figure | None, id_a: str, id_b: str,
             note: str = "") -> Figure:
     """One figure of two runs' versions of the same figure (module doc); at least one of
@@ -87,7 +93,8 @@ def overlay(fig_a: Figure | None, fig_b: Figure | None, id_a: str, id_b: str,
     panels: dict[tuple[str, str], Panel] = {}
     for fig, tag, style in ((fig_a, "A", "-"), (fig_b, "B", "--")):
         for panel in (fig.panels if fig is not None else []):
-            key = (panel.title, panel.ylabel)
+            title = STYLE_NOTE.sub("", panel.title or "") or panel.title
+            key = (title, panel.ylabel)
             lines = [_restyle(line, tag, style) for line in panel.lines]
             if key not in panels:
                 legend = [Line(np.empty(0), np.empty(0), f"A {id_a}", "-", "k"),
@@ -95,7 +102,7 @@ def overlay(fig_a: Figure | None, fig_b: Figure | None, id_a: str, id_b: str,
                 panels[key] = Panel(panel.ylabel, legend + lines, panel.min_span,
                                     list(panel.limits), panel.log, panel.shade,
                                     f"{panel.shade_label} ({tag})", list(panel.marks),
-                                    panel.title, panel.magnitude)
+                                    title, panel.magnitude)
             else:
                 merged = panels[key]
                 merged.lines += lines

@@ -38,6 +38,20 @@ def test_the_overlay_merges_matching_panels_a_solid_b_dashed():
     assert fig.panels[1].lines[2].label == "B true x"
 
 
+def test_the_overlay_drops_a_panel_s_note_of_its_own_line_styles():
+    """A run's forces panel says "(received solid, true dotted)"; in the overlay every line
+    is restyled (A solid, B dashed, the kind by colour), so the note would mislead: it is
+    dropped, and the panels still match by the rest of the title."""
+    t = np.linspace(0.0, 1.0, 5)
+    lines = [Line(t, t, "received x", "-", "C0"), Line(t, t, "true x", ":", "C0")]
+    forces = Figure("forces", "forces", [Panel("force [N]", lines, 0.1,
+                                               title="cubesat: force in R (received solid, "
+                                                     "true dotted)")])
+    fig = overlay(forces, forces, "run-a", "run-b")
+    assert [p.title for p in fig.panels] == ["cubesat: force in R"]
+    assert len(fig.panels[0].lines) == 2 + 4
+
+
 def test_the_overlay_of_a_figure_only_one_run_has_says_so():
     fig = overlay(None, _figure("velocity", 0.5), "run-a", "run-b")
     assert "A has no such figure" in fig.title
