@@ -126,30 +126,43 @@ def identify_position_lag_s(config: EmulatorConfig, T_F_C: np.ndarray,
     return float(lags_s[-1])
 
 
+def _sample_ramp(dt_s: float, ramp_s: float, tick, advance, lag_s) -> np.ndarray:
+    """Drive a chain along a ramp of ``ramp_s``: ``advance(k)`` runs cycle k (target, VFDM,
+    servos); ``lag_s(k)`` is the mockup's lag behind the target after it, taken at 3/4 of
+    the ramp and at its end; tick() now and then (a supervisor's heartbeat)."""
+    cycles = max(4, int(round(ramp_s / dt_s)))
+    check = {(3 * cycles) // 4, cycles}
+    lags = []
+    for k in range(1, cycles + 1):
+        advance(k)
+        if k % 50 == 0:
+            tick()
+        if k in check:
+            lags.append(lag_s(k))
+    return np.array(lags)
+
+
 def _ramp_lags_s(config: EmulatorConfig, T_F_C: np.ndarray, q0_rad: np.ndarray,
                  dt_s: float, ramp_s: float, tick) -> np.ndarray:
-    """The lag (s) at 3/4 of a ramp of ``ramp_s`` and at its end; tick() now and then
-    (a supervisor's heartbeat)."""
+    """The lag (s) of the fixed arm at 3/4 of a ramp of ``ramp_s`` along the base's x and at
+    its end (:func:`_sample_ramp`)."""
     vfdm = Vfdm(config.vfdm, T_F_C, q0_rad, JointLimits.of_servo(config.servo, dt_s))
     servo = UR10eServo(config.servo, dt_s, q0_rad)
     feedforward = servo_feedforward(config, q0_rad)
     T0 = vfdm.tcp_pose()
     T = T0.copy()
-    cycles = max(4, int(round(ramp_s / dt_s)))
-    check = {(3 * cycles) // 4, cycles}
-    lags = []
-    for k in range(1, cycles + 1):
+
+    def advance(k: int) -> None:
         T[0, 3] = T0[0, 3] + RAMP_SPEED_MPS * k * dt_s
         if config.vfdm.sync_to_measured:  # as ArmRig.command does
             vfdm.q_rad[:] = servo.state.q_rad
-        q_d = vfdm.solve(T)
-        send(servo, feedforward, q_d)
-        if k % 50 == 0:
-            tick()
-        if k in check:
-            mockup = tcp_pose_B(servo.state.q_rad, T_F_C)
-            lags.append((T[0, 3] - mockup[0, 3]) / RAMP_SPEED_MPS)
-    return np.array(lags)
+        send(servo, feedforward, vfdm.solve(T))
+
+    def lag_s(k: int) -> float:
+        mockup = tcp_pose_B(servo.state.q_rad, T_F_C)
+        return (T[0, 3] - mockup[0, 3]) / RAMP_SPEED_MPS
+
+    return _sample_ramp(dt_s, ramp_s, tick, advance, lag_s)
 
 
 def _rail_ramp_lags_s(config: EmulatorConfig, robot: RobotConfig, T_F_C: np.ndarray,
@@ -171,10 +184,8 @@ def _rail_ramp_lags_s(config: EmulatorConfig, robot: RobotConfig, T_F_C: np.ndar
     axis = vfdm.arm.axis
     T0 = vfdm.tcp_pose()
     T = T0.copy()
-    cycles = max(4, int(round(ramp_s / dt_s)))
-    check = {(3 * cycles) // 4, cycles}
-    lags = []
-    for k in range(1, cycles + 1):
+
+    def advance(k: int) -> None:
         T[:3, 3] = T0[:3, 3] + RAMP_SPEED_MPS * k * dt_s * axis
         if config.vfdm.sync_to_measured:  # as RailRig.command does
             vfdm.q[0] = carriage.state.s_m
@@ -182,13 +193,13 @@ def _rail_ramp_lags_s(config: EmulatorConfig, robot: RobotConfig, T_F_C: np.ndar
         q = vfdm.solve(T)
         carriage.step(q[0])
         send(servo, feedforward, q[1:])
-        if k % 50 == 0:
-            tick()
-        if k in check:
-            mockup = chain_tcp_pose(vfdm.arm, np.concatenate([[carriage.state.s_m],
-                                                               servo.state.q_rad]))
-            lags.append(float((T[:3, 3] - mockup[:3, 3]) @ axis) / RAMP_SPEED_MPS)
-    return np.array(lags)
+
+    def lag_s(k: int) -> float:
+        mockup = chain_tcp_pose(vfdm.arm, np.concatenate([[carriage.state.s_m],
+                                                           servo.state.q_rad]))
+        return float((T[:3, 3] - mockup[:3, 3]) @ axis) / RAMP_SPEED_MPS
+
+    return _sample_ramp(dt_s, ramp_s, tick, advance, lag_s)
 
 
 def contact_cutoff_hz(config: EmulatorConfig) -> float:
