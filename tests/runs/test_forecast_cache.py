@@ -17,6 +17,23 @@ from app.runs.uncertainty import forecast
 from tests.runs.test_uncertainty import short_collision
 
 
+def _plant(path, content: str, elsewhere: str, huge: str):
+    """Put a hostile file where a kept one would be: a FIFO, a symlink to a file holding
+    ``elsewhere`` (next to ``path``'s folder), ``huge`` (over the size bound), or
+    ``content`` itself; the symlink's target."""
+    target = path.parent.parent / "elsewhere.json"
+    target.write_text(elsewhere)
+    if content == "fifo":
+        os.mkfifo(path)
+    elif content == "symlink":
+        path.symlink_to(target)
+    elif content == "huge":
+        path.write_text(huge)
+    else:
+        path.write_text(content)
+    return target
+
+
 def _counted(calls: list):
     def compute(config, ideal):
         calls.append(config.loop.seed)
@@ -94,17 +111,8 @@ def test_a_file_that_is_not_a_forecast_is_computed_anew_and_written_over(content
     ideal = {"pair": ["sat0", "sat1"], "restitution": 0.3}
     path = tmp_path / "forecasts" / f"{forecast_key(config, ideal)}.json"
     path.parent.mkdir(parents=True)
-    target = tmp_path / "elsewhere.json"
-    target.write_text('{"forecast": {"restitution_sd": 9.0}}')
-    if content == "fifo":
-        os.mkfifo(path)
-    elif content == "symlink":
-        path.symlink_to(target)
-    elif content == "huge":
-        path.write_text('{"forecast": {"restitution_sd": 9.0, "note": "'
-                        + "x" * (2 << 20) + '"}}')
-    else:
-        path.write_text(content)
+    target = _plant(path, content, '{"forecast": {"restitution_sd": 9.0}}',
+                    '{"forecast": {"restitution_sd": 9.0, "note": "' + "x" * (2 << 20) + '"}}')
     got = cached_forecast(config, ideal, lambda c, i: {"restitution_sd": 0.1,
                                                        "velocity_sd_mps": {"sat1": [0, 0, 0]}})
     assert got == {"restitution_sd": 0.1, "velocity_sd_mps": {"sat1": [0, 0, 0]}}
@@ -165,14 +173,8 @@ def test_a_file_that_is_not_a_reference_is_computed_anew_and_written_over(conten
     duration = config.loop.duration_s
     path = tmp_path / "references" / f"{reference_key(config, duration)}.json"
     path.parent.mkdir(parents=True)
-    target = tmp_path / "elsewhere.json"
-    target.write_text('{"reference": null}')
-    if content == "symlink":
-        path.symlink_to(target)
-    elif content == "huge":
-        path.write_text('{"reference": null, "x": "' + "x" * (2 << 20) + '"}')
-    else:
-        path.write_text(content)
+    target = _plant(path, content, '{"reference": null}',
+                    '{"reference": null, "x": "' + "x" * (2 << 20) + '"}')
     got = checked_reference(config, duration)
     assert got["restitution"] is not None and got["forecast"]["restitution_sd"] is not None
     assert path.is_file() and not path.is_symlink()
