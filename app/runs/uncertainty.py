@@ -302,8 +302,9 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     except StartPoseError as err:  # the run itself will say so, and stop there
         out["note"] = f"the noise-free twin could not start: {err}"
         return out
-    if lead_warning(config, at_s):
-        out["note"] = lead_warning(config, at_s)
+    early = lead_warning(config, at_s)
+    if early:
+        out["note"] = early
     noise = configured_noise(config)
     expect_measured_noise(twin, noise)
     while twin.status == "running" and twin.t_s < at_s - 1e-9:
