@@ -104,6 +104,7 @@ def run_summary(metrics: dict) -> str:
             + f", peak force {coll['peak_force_N']:.1f} N, contact "
             f"{1e3 * coll['contact_duration_s']:.0f} ms, energy absorbed "
             f"{1e3 * coll['contact_energy_J']:.2f} mJ",
+            *([rendering_text(coll)] if coll.get("rendering_error_m") is not None else []),
             *([interval_text(coll)] if interval_text(coll) else []),
             *([forecast_text(metrics["collision_forecast"])]
               if metrics.get("collision_forecast") else []),
@@ -256,6 +257,15 @@ def _chain_text(coll: dict) -> str:
     return (", widened by the chain's systematic error" + ("s " if len(used) > 1 else " ")
             + " and ".join(f"{d:+.3f} ({n})" for d, n in used)
             + "".join(f"; the {n}'s {d:+.3f}" for d, n in rest))
+
+
+def rendering_text(coll: dict) -> str:
+    """How far the mockups' contact was the satellites' (app/runs/rendering.py, Eq. R1)."""
+    err, depth = coll["rendering_error_m"], coll["approach_depth_m"]
+    share = f", {100 * err / depth:.1f} % of" if depth else " against"
+    return (f"the arms rendered the contact to {1e6 * err:.1f} µm rms (at most "
+            f"{1e6 * coll['rendering_error_max_m']:.1f} µm) off the satellites' course{share} "
+            f"the {1e6 * depth:.0f} µm they moved into each other")
 
 
 def interval_text(coll: dict) -> str | None:
