@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RENDERING_TOLERANCE", "rendering_error", "rendering_warning"]
+__all__ = ["RENDERING_TOLERANCE", "rendering_error", "rendering_warning", "unrendered_share"]
 
 RENDERING_TOLERANCE = 0.1
 """A rendering error beyond this share of the approach depth is said: the contact the
@@ -63,13 +63,22 @@ def rendering_error(rows: np.ndarray, index: dict, coll: dict, bodies: dict[int,
             "approach_depth_m": float(sat_later.max() - sat_later.min())}
 
 
-def rendering_warning(coll: dict) -> str | None:
-    """The sentence a run says when its rendering error exceeds RENDERING_TOLERANCE of the
-    approach depth; None within it (or without the figures)."""
-    err, depth = coll.get("rendering_error_m"), coll.get("approach_depth_m")
+def unrendered_share(figures: dict) -> float | None:
+    """The rendering error's share of the approach depth where it exceeds
+    RENDERING_TOLERANCE (the arms did not render the contact); None within it, or without
+    the figures (``rendering_error_m``, ``approach_depth_m``: a collision's or a forecast's)."""
+    err, depth = figures.get("rendering_error_m"), figures.get("approach_depth_m")
     if err is None or not depth or err <= RENDERING_TOLERANCE * depth:
         return None
+    return err / depth
+
+
+def rendering_warning(coll: dict) -> str | None:
+    """The sentence a run says when the arms did not render its contact (None else)."""
+    share = unrendered_share(coll)
+    if share is None:
+        return None
     return (f"the arms did not render this contact: its rendering error (Eq. R1) is "
-            f"{100 * err / depth:.0f} % of the approach depth, beyond "
+            f"{100 * share:.0f} % of the approach depth, beyond "
             f"{100 * RENDERING_TOLERANCE:.0f} %; this restitution is the arms' as much as "
             f"the contact law's, and can match the ideal one only by chance")

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from app.runs.rendering import unrendered_share
+
 
 def write_telemetry_csv(path: str | Path, columns: list[str], rows: np.ndarray) -> None:
     """CSV with a header line; floats in %.12g so equal runs give equal bytes."""
@@ -295,4 +297,14 @@ def forecast_text(forecast: dict) -> str:
             + ("" if ratio is None else f": ratio {ratio:.2g}") + ")"
             + ("" if forecast.get("restitution_error_mean") is None else
                "; the chain's predicted mean error "
-               f"{100 * forecast['restitution_error_mean']:+.0f} %"))
+               f"{100 * forecast['restitution_error_mean']:+.0f} %")
+            + _unrendered(forecast))
+
+
+def _unrendered(forecast: dict) -> str:
+    """What the forecast line adds when the noise-free twin's arms did not render the
+    contact (app/runs/rendering.py); "" otherwise."""
+    share = unrendered_share(forecast)
+    return ("" if share is None else
+            f"; the arms will not render this contact (the noise-free twin's rendering "
+            f"error is {100 * share:.0f} % of the approach depth)")

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from app.runs.rendering import RENDERING_TOLERANCE, rendering_error, rendering_warning
+from app.runs.report import forecast_text
 
 EXE = shutil.which("orbit-emulator") or f"{sys.prefix}/bin/orbit-emulator"
 DT_S = 0.002
@@ -81,6 +82,16 @@ def test_the_warning_is_said_beyond_a_tenth_of_the_approach_depth():
         "approach depth, beyond 10 %; this restitution is the arms' as much as the contact "
         "law's, and can match the ideal one only by chance")
     assert rendering_warning({"rendering_error_m": None, "approach_depth_m": depth}) is None
+
+
+def test_the_forecast_line_says_when_the_twin_s_arms_will_not_render_the_contact():
+    fc = {"restitution_sd": 0.001, "peak_force_N": 11.0, "noise_force_N": 0.025,
+          "peak_to_noise": 440.0, "restitution_error_mean": -0.227,
+          "rendering_error_m": 157e-6, "approach_depth_m": 769e-6}
+    assert forecast_text(fc).endswith(
+        "the chain's predicted mean error -23 %; the arms will not render this contact "
+        "(the noise-free twin's rendering error is 20 % of the approach depth)")
+    assert forecast_text({**fc, "rendering_error_m": 26e-6}).endswith("error -23 %")
 
 
 def _rigid_run(tmp_path, speed_mps: float, duration_s: float) -> tuple[dict, str]:
