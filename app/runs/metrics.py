@@ -8,7 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import EmulatorConfig
+from app.runs.rendering import rendering_error, rendering_warning
 from app.runs.success import success_metrics
+from app.sim.compensation import force_lag_s
 from app.sim.loop import Emulator
 from app.sim.scaling import describe as describe_scaling
 from app.sim.scaling import describe_body, scaling_of
@@ -462,6 +464,9 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
             coll["restitution_systematic"] = None
             coll["restitution_bias_noisy"] = None
             coll["uncertainty"] = None  # by app/runs/uncertainty.py after the run
+            if facts.arm_of:  # how far the mockups' contact was the satellites' (Eq. R1)
+                coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(config)))
+                coll["warnings"] += [w for w in [rendering_warning(coll)] if w]
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
                 coll["warnings"].append(
                     f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the F/T "

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from app.runs.rendering import unrendered_share
+
 
 def write_telemetry_csv(path: str | Path, columns: list[str], rows: np.ndarray) -> None:
     """CSV with a header line; floats in %.12g so equal runs give equal bytes."""
@@ -104,6 +106,7 @@ def run_summary(metrics: dict) -> str:
             + f", peak force {coll['peak_force_N']:.1f} N, contact "
             f"{1e3 * coll['contact_duration_s']:.0f} ms, energy absorbed "
             f"{1e3 * coll['contact_energy_J']:.2f} mJ",
+            *([rendering_text(coll)] if coll.get("rendering_error_m") is not None else []),
             *([interval_text(coll)] if interval_text(coll) else []),
             *([forecast_text(metrics["collision_forecast"])]
               if metrics.get("collision_forecast") else []),
@@ -258,6 +261,15 @@ def _chain_text(coll: dict) -> str:
             + "".join(f"; the {n}'s {d:+.3f}" for d, n in rest))
 
 
+def rendering_text(coll: dict) -> str:
+    """How far the mockups' contact was the satellites' (app/runs/rendering.py, Eq. R1)."""
+    err, depth = coll["rendering_error_m"], coll["approach_depth_m"]
+    share = f", {100 * err / depth:.1f} % of" if depth else " against"
+    return (f"the arms rendered the contact to {1e6 * err:.1f} µm rms (at most "
+            f"{1e6 * coll['rendering_error_max_m']:.1f} µm) off the satellites' course{share} "
+            f"the {1e6 * depth:.0f} µm they moved into each other")
+
+
 def interval_text(coll: dict) -> str | None:
     """The restitution's 95 % interval as a line (app/runs/uncertainty.py); None without one."""
     interval, sd = coll.get("restitution_interval_95"), coll.get("restitution_sd")
@@ -285,4 +297,14 @@ def forecast_text(forecast: dict) -> str:
             + ("" if ratio is None else f": ratio {ratio:.2g}") + ")"
             + ("" if forecast.get("restitution_error_mean") is None else
                "; the chain's predicted mean error "
-               f"{100 * forecast['restitution_error_mean']:+.0f} %"))
+               f"{100 * forecast['restitution_error_mean']:+.0f} %")
+            + _unrendered(forecast))
+
+
+def _unrendered(forecast: dict) -> str:
+    """What the forecast line adds when the noise-free twin's arms did not render the
+    contact (app/runs/rendering.py); "" otherwise."""
+    share = unrendered_share(forecast)
+    return ("" if share is None else
+            f"; the arms will not render this contact (the noise-free twin's rendering "
+            f"error is {100 * share:.0f} % of the approach depth)")

@@ -29,6 +29,8 @@ import numpy as np
 
 from app.config import EmulatorConfig, merge_overrides
 from app.runs.metrics import collision_metrics
+from app.runs.rendering import rendering_error
+from app.sim.compensation import force_lag_s
 from app.sim.loop import Emulator, StartPoseError
 from app.sim.rotations import skew
 
@@ -143,6 +145,8 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
     bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
     rows, index = em.telemetry.rows(), em.telemetry.index
     coll = collision_metrics(rows, index, dt_s, *pair, bodies=bodies)
+    if coll is not None:  # how far the arms rendered it (Eq. R1)
+        coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(em.config)))
     if coll is not None:  # the satellites' velocities (R) as the replicate ends
         coll["velocity_after_mps"] = {
             f"sat{s}": rows[-1, [index[f"sat{s}_v{a}_mps"] for a in "xyz"]].tolist()
@@ -280,6 +284,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     out over seeds), "restitution_noise_free" (the twin's own restitution, its contact
     window run on without noise) and "restitution_systematic" (that against the ideal
     restitution: the chain's systematic error on this contact, :func:`add_systematic`),
+    "rendering_error_m" and "approach_depth_m" (the twin's Eq. R1, app/runs/rendering.py:
+    whether the arms will render the contact at all),
     "velocity_sd_mps" (per satellite of the pair, the replicates' per-axis standard
     deviation of its velocity after the contact, R: the pre-flight's drift check,
     app.runs.preflight.check_drift)}.
@@ -293,6 +299,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     out = {"restitution_sd": None, "restitution_sd_se": None, "restitution_mean": None,
            "restitution_error_mean": None, "restitution_noise_free": None,
            "restitution_systematic": None, "velocity_sd_mps": None,
+           "rendering_error_m": None, "approach_depth_m": None,
            "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
            "replicates": config.uncertainty.forecast_count}
@@ -317,6 +324,9 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
     snap = twin.copy_state()
     quiet_coll = replicate(snap, pair, min(until_s, config.loop.duration_s))
+    if quiet_coll is not None:  # whether the arms will render the contact (Eq. R1)
+        out["rendering_error_m"] = quiet_coll["rendering_error_m"]
+        out["approach_depth_m"] = quiet_coll["approach_depth_m"]
     if quiet_coll is not None and quiet_coll["restitution"] is not None:
         out["restitution_noise_free"] = float(quiet_coll["restitution"])
         out["restitution_systematic"] = (float(quiet_coll["restitution"])

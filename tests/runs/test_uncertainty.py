@@ -216,8 +216,11 @@ def test_with_the_noise_at_zero_the_interval_holds_the_ideal(material):
                              "uncertainty.replicates=2", "uncertainty.forecast_replicates=2",
                              f'satellites.1.material="{material}"')
     ref = checked_reference(config, config.loop.duration_s)
-    coll = run_scenario(config, ideal=ref, preflight_done=True).metrics["collision"]
+    metrics = run_scenario(config, ideal=ref, preflight_done=True).metrics
+    coll = metrics["collision"]
     e, e_ideal, delta = coll["restitution"], ref["restitution"], coll["restitution_systematic"]
+    for key in ("rendering_error_m", "approach_depth_m"):  # the twin's R1 is the run's
+        assert metrics["collision_forecast"][key] == pytest.approx(coll[key], rel=1e-9)
     assert coll["restitution_sd"] < 1e-9
     assert delta == pytest.approx(e - e_ideal, abs=1e-9)  # the twin is this very run
     assert coll["restitution_bias_noisy"] == pytest.approx(delta, abs=1e-9)  # and so are
