@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
+from app.sim.arm_command import ArmCommand
 from app.sim.feedforward import ServoFeedforward, send, servo_feedforward
 from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
@@ -81,6 +82,7 @@ class ArmRig:
     """How many rest readings the calibration averaged."""
     _state_key: tuple | None = field(default=None, repr=False)
     _state: tuple = field(default=(), repr=False)
+    _fused: ArmCommand | None = field(default=None, repr=False)
 
     @property
     def T_W_B(self) -> np.ndarray:
@@ -159,7 +161,22 @@ class ArmRig:
     def command(self, T_B_C_target: np.ndarray) -> None:
         """VFDM set-points towards the target (through the servo feedforward, if on), one
         servo step (which may stop the arm). With ``[vfdm] sync_to_measured`` the virtual
-        arm first takes the measured joints."""
+        arm first takes the measured joints.
+
+        Without the feedforward the two run as one compiled call (app/sim/arm_command.py,
+        the same kernels on the same buffers); :meth:`command_in_stages` is the same
+        cycle stage by stage."""
+        if self.feedforward is not None:
+            self.command_in_stages(T_B_C_target)
+            return
+        fused = self._fused
+        if fused is None or fused.vfdm is not self.vfdm or fused.servo is not self.servo:
+            fused = self._fused = ArmCommand(self.vfdm, self.servo)
+        fused(T_B_C_target)
+
+    def command_in_stages(self, T_B_C_target: np.ndarray) -> None:
+        """:meth:`command` as its stages: the VFDM's solve, then the feedforward (if on)
+        and the servo's step."""
         if self.vfdm.cfg.sync_to_measured:
             self.vfdm.q_rad[:] = self.servo.state.q_rad
         q_d = self.vfdm.solve(T_B_C_target)
