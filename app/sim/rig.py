@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
+from app.sim import arm_sense
 from app.sim.arm_command import ArmCommand
 from app.sim.feedforward import ServoFeedforward, send, servo_feedforward
 from app.sim.frames import satellite_pose
@@ -141,7 +142,21 @@ class ArmRig:
         too (the TCP velocity from the measured joint velocities, differenced; the chain's
         low-pass filters the compensation with the reading), which the chain applies to the
         reading taken at the same instant.
+
+        A sensor at the flange that samples every cycle runs this as one compiled call
+        (app/sim/arm_sense.py, the same kernels on the same buffers); :meth:`sense_in_stages`
+        is the same cycle stage by stage.
         """
+        if self.T_C_S is None and self.sensor.every_cycles == 1.0:
+            return arm_sense.sense(self, wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
+                                   gate_open)
+        return self.sense_in_stages(wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
+                                    gate_open)
+
+    def sense_in_stages(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
+                        R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
+                        gate_open: bool = False) -> ProcessedWrench:
+        """:meth:`sense` as its stages: the acceleration, the sensor's reading, the chain."""
         accel_W = (v_W - self.v_W_prev) / dt_s if not first_cycle else np.zeros(3)
         self.v_W_prev = v_W.copy()
         T_W_S = self.sensor_pose_W(self.mockup_state_W()[0], T_W_C)
