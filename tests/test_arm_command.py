@@ -22,18 +22,19 @@ def _rig(overrides: dict) -> ArmRig:
 
 
 def _state(rig: ArmRig) -> list:
-    """Everything the command path writes (the VFDM's, the servo's)."""
+    """Everything the command path writes (the VFDM's, the servo's) and the forward
+    kinematics of the new joint state (the fused call's, or computed here)."""
     v, s = rig.vfdm, rig.servo
     return [v.q_rad, v.qd_radps, v._e_prev, v._has_prev, v._step_prev, v._ff, v._R_prev,
             v._p_prev, v.last_error, v.last_scale, s.state.q_rad, s.state.qd_radps,
             s.state.qdd_radps2, s.state.stopped, s.state.reason, s._ring, s._slot,
-            s._sp_prev]
+            s._sp_prev, *rig.mockup_state_W()]
 
 
 def _drive(rig: ArmRig, cycles: int, speed_mps: float, spin_radps: float) -> tuple:
     """The fused rig and a deep copy taking the stages, both sent along the same target
     path (a line from the home TCP pose and a spin about a tilted axis); asserts that
-    every written field stays bit-identical. Returns the two rigs."""
+    every written field and the new FK stay bit-identical. Returns the two rigs."""
     staged = copy.deepcopy(rig)
     T0 = rig.vfdm.tcp_pose()
     axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
@@ -44,6 +45,9 @@ def _drive(rig: ArmRig, cycles: int, speed_mps: float, spin_radps: float) -> tup
         T[:3, :3] = rotvec_to_matrix(axis * spin_radps * k * dt) @ T0[:3, :3]
         rig.command(T)
         staged.command_in_stages(T)
+        st = rig.servo.state  # the fused call left the new state's FK in the cache
+        assert rig._state_key[0] is st.q_rad and rig._state_key[1] is st.qd_radps
+        assert staged._state_key is None or staged._state_key[0] is not staged.servo.state.q_rad
         for a, b in zip(_state(rig), _state(staged), strict=True):
             np.testing.assert_array_equal(a, b, err_msg=f"cycle {k}")
     return rig, staged

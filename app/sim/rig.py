@@ -179,15 +179,19 @@ class ArmRig:
         arm first takes the measured joints.
 
         Without the feedforward the two run as one compiled call (app/sim/arm_command.py,
-        the same kernels on the same buffers); :meth:`command_in_stages` is the same
-        cycle stage by stage."""
+        the same kernels on the same buffers), which also leaves the forward kinematics of
+        the new joint state in :meth:`mockup_state_W`'s cache; :meth:`command_in_stages` is
+        the same cycle stage by stage."""
         if self.feedforward is not None:
             self.command_in_stages(T_B_C_target)
             return
         fused = self._fused
-        if fused is None or fused.vfdm is not self.vfdm or fused.servo is not self.servo:
-            fused = self._fused = ArmCommand(self.vfdm, self.servo)
-        fused(T_B_C_target)
+        if (fused is None or fused.vfdm is not self.vfdm or fused.servo is not self.servo
+                or fused.chain is not self.chain):
+            fused = self._fused = ArmCommand(self.vfdm, self.servo, self.chain)
+        fk = fused(T_B_C_target)  # the new joint state's FK: mockup_state_W's, made here
+        st = self.servo.state
+        self._state, self._state_key = fk, (st.q_rad, st.qd_radps)
 
     def command_in_stages(self, T_B_C_target: np.ndarray) -> None:
         """:meth:`command` as its stages: the VFDM's solve, then the feedforward (if on)
