@@ -181,6 +181,9 @@ class Emulator:
         self._contact_kinematics: list[dict[tuple[int, int], tuple[float, float]]] = []
         """Per recent cycle (newest last), each touching pair's (depth m, depth rate m/s)
         from the mockups' boxes at their FK poses: the readings arrive delayed."""
+        self._kinematics_kept = 2 + max((arm.processor.max_age_cycles for arm in self.arms),
+                                        default=0)
+        """How many cycles of them are kept: as many as a reading can be old, and two."""
         self.rail_arms = [arm for arm in self.arms if getattr(arm, "rail_servo", None)]
         """The arms on a rail (app/sim/rail_rig.py), in robot order."""
         self.recorder = self._recorder(config.loop.telemetry_capacity)
@@ -411,8 +414,7 @@ class Emulator:
             now[(a, b)] = (-float(clearance[a]), float((v_a - v_b) @ n))
         history = self._contact_kinematics
         history.append(now)
-        keep = 2 + max((arm.processor.max_age_cycles for arm in self.arms), default=0)
-        if len(history) > keep:
+        if len(history) > self._kinematics_kept:
             del history[0]
 
     def _identified_normal_force(self, a: int, b: int, s: int, f_n: float) -> float:
