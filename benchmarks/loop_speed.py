@@ -186,7 +186,8 @@ def _with_stage_timers(em) -> dict[str, int]:
     em._tracking = _timed(em._tracking, acc, "tracking watchdog")
     for arm in em.arms:  # each arm's sensor path and command path (each one compiled call)
         arm.sense = _timed(arm.sense, acc, "F/T sensor + processing")
-        arm.command = _timed(arm.command, acc, f"arm {arm.index + 1}: VFDM + servo")
+        arm.command_towards = _timed(arm.command_towards, acc,
+                                     f"arm {arm.index + 1}: target, VFDM, servo, FK")
     return acc
 
 

@@ -10,6 +10,7 @@ import pytest
 from app.config import merge_overrides
 from app.scenarios import load_scenario
 from app.sim.arm_command import ArmCommand
+from app.sim.orbital import OrbitalSimulator
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import make_transform, quat_to_matrix, rotvec_to_matrix
 from app.sim.servo import SafetyBox
@@ -91,3 +92,19 @@ def test_a_replaced_vfdm_or_servo_is_what_the_fused_command_drives(fields):
     rig.command(rig.vfdm.tcp_pose())
     assert rig._fused is not old and getattr(rig._fused, fields) is getattr(rig, fields)
     assert rig.servo.state.q_rad is not q_before  # the servo in the rig stepped
+
+
+def test_commanding_towards_the_ods_state_is_commanding_its_tcp_target():
+    cfg = load_scenario("collision")
+    rig = _rig({})
+    staged = copy.deepcopy(rig)
+    ods = OrbitalSimulator.from_config(cfg)
+    push = np.zeros((len(cfg.satellites), 3))
+    push[rig.satellite] = [3.0, -1.0, 2.0]  # N: the satellite drifts off and turns
+    for k in range(200):
+        ods.step(push, 0.2 * push, rig.servo.dt_s)
+        rig.command_towards(ods.y)
+        staged.command_in_stages(staged.tcp_target_B(ods.y))
+        for a, b in zip(_state(rig), _state(staged), strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=f"cycle {k}")
+    assert np.linalg.norm(rig.vfdm.last_error[:3]) > 0.0  # it had somewhere to go

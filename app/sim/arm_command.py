@@ -29,11 +29,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from app.sim.frames import satellite_pose
 from app.sim.servo import UR10eServo, servo_constants, servo_step
 from app.sim.ur10e import TcpChain, mockup_state
 from app.sim.vfdm import Vfdm, vfdm_constants, vfdm_cycle_packed
 
-__all__ = ["ArmCommand", "arm_command", "chain_constants", "chain_views"]
+__all__ = ["ArmCommand", "arm_command", "arm_command_towards", "chain_constants",
+           "chain_views"]
 
 OUT_SIZE = 62
 """arm_command's out: the servo's new q, q̇, q̈ (18), the VFDM's last pose error (6), the
@@ -56,9 +58,9 @@ def chain_views(c):
             c[81:84], c[84:100].reshape((4, 4)), c[100:116].reshape((4, 4)))
 
 
-@njit(cache=True, fastmath=False)
-def arm_command(T, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd, stopped,
-                out):
+@njit(cache=True, fastmath=False, inline="always")
+def command_cycle(T, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd, stopped,
+                  out):
     """One cycle of a fixed arm's command path; returns (VFDM step scale, servo stop code).
 
     With ``[vfdm] sync_to_measured`` the virtual arm first takes the measured joints q;
@@ -88,6 +90,26 @@ def arm_command(T, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd,
     return scale, code
 
 
+@njit(cache=True, fastmath=False)
+def arm_command(T, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd, stopped,
+                out):
+    """:func:`command_cycle` towards the target T (4, 4) in the base frame."""
+    return command_cycle(T, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd,
+                         stopped, out)
+
+
+@njit(cache=True, fastmath=False)
+def arm_command_towards(T_B_R, y, satellite, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot,
+                        sp_prev, q, qd, stopped, out):
+    """:func:`command_cycle` towards satellite ``satellite`` of the ODS state y (N, 13):
+    the TCP target ``T_B_C* = T_B_R · T_R_sat`` (:func:`satellite_pose`, as
+    ``ArmRig.tcp_target_B``)."""
+    T = np.empty((4, 4))
+    satellite_pose(T_B_R, y, satellite, T)
+    return command_cycle(T, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd,
+                         stopped, out)
+
+
 class ArmCommand:
     """The fused command path of one VFDM, one servo and the TCP chain of the arm they
     drive (a fixed arm: its safety box and its chain stand still, so the servo's and the
@@ -103,12 +125,19 @@ class ArmCommand:
         set-point, in one compiled call; both objects end as after those two calls.
         Returns the forward kinematics of the new joint state, (T_W_F, T_W_C, v_W, ω_W),
         as :func:`mockup_state` gives it."""
+        return self._cycle(arm_command, np.ascontiguousarray(T_B_C_target, dtype=float))
+
+    def towards(self, T_B_R: np.ndarray, ods_y: np.ndarray, satellite: int) -> tuple:
+        """As a call with the target ``T_B_R · T_R_sat`` of satellite ``satellite`` in the
+        ODS state ``ods_y``, worked out in the same compiled call."""
+        return self._cycle(arm_command_towards, T_B_R, ods_y, satellite)
+
+    def _cycle(self, kernel, *target) -> tuple:
         vfdm, servo = self.vfdm, self.servo
         st, slot, out = servo.state, servo.delay_slot, np.empty(OUT_SIZE)
-        vfdm.last_scale, code = arm_command(
-            np.ascontiguousarray(T_B_C_target, dtype=float), vfdm.constants, vfdm._x,
-            self.servo_constants, self.chain_constants, servo._ring, slot, servo._sp_prev,
-            st.q_rad, st.qd_radps, st.stopped, out)
+        vfdm.last_scale, code = kernel(
+            *target, vfdm.constants, vfdm._x, self.servo_constants, self.chain_constants,
+            servo._ring, slot, servo._sp_prev, st.q_rad, st.qd_radps, st.stopped, out)
         vfdm.last_error = out[18:24]
         servo.commit(slot, out[0:6], out[6:12], out[12:18], code)
         return out[24:40].reshape(4, 4), out[40:56].reshape(4, 4), out[56:59], out[59:62]

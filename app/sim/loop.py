@@ -254,7 +254,7 @@ class Emulator:
         for arm in self.arms:  # TCP target (where the satellite will be) -> VFDM -> servo
             if arm.lead_s not in predicted:
                 predicted[arm.lead_s] = predicted_state(self.ods, force_R, torque_B, arm.lead_s)
-            arm.command(arm.tcp_target_B(predicted[arm.lead_s]))
+            arm.command_towards(predicted[arm.lead_s])
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
         self._cycle_time_ns[self.cycles % len(self._cycle_time_ns)] = time.perf_counter_ns() - t0
@@ -710,7 +710,8 @@ class Emulator:
                         np.random.default_rng(0))
         T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
         rig.sense(np.zeros(6), T_W_C, v_W, self.R_W_R, self.dt_s, first_cycle=True)
-        rig.command(rig.tcp_target_B(ods.y))
+        rig.command(rig.tcp_target_B(ods.y))  # the run-up's
+        rig.command_towards(ods.y)  # the cycle's
         scratch.record(0.0, ods.y, zeros, zeros,
                        [(T_W_C, v_W, rig.servo.state.q_rad, rig.last_raw_S,
                          rig.last_processed)] * len(self.arms),

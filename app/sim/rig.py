@@ -182,14 +182,35 @@ class ArmRig:
         the same kernels on the same buffers), which also leaves the forward kinematics of
         the new joint state in :meth:`mockup_state_W`'s cache; :meth:`command_in_stages` is
         the same cycle stage by stage."""
-        if self.feedforward is not None:
+        fused = self._fused_command()
+        if fused is None:
             self.command_in_stages(T_B_C_target)
-            return
+        else:
+            self._keep_state(fused(T_B_C_target))
+
+    def command_towards(self, ods_y: np.ndarray) -> None:
+        """:meth:`command` towards :meth:`tcp_target_B` of the ODS state ``ods_y`` (fused:
+        the target is worked out in the same compiled call)."""
+        fused = self._fused_command()
+        if fused is None:
+            self.command(self.tcp_target_B(ods_y))
+        else:
+            self._keep_state(fused.towards(self.T_B_R, ods_y, self.satellite))
+
+    def _fused_command(self) -> ArmCommand | None:
+        """The fused command path of this VFDM, servo and chain (None: the stages, with
+        the servo feedforward)."""
+        if self.feedforward is not None:
+            return None
         fused = self._fused
         if (fused is None or fused.vfdm is not self.vfdm or fused.servo is not self.servo
                 or fused.chain is not self.chain):
             fused = self._fused = ArmCommand(self.vfdm, self.servo, self.chain)
-        fk = fused(T_B_C_target)  # the new joint state's FK: mockup_state_W's, made here
+        return fused
+
+    def _keep_state(self, fk: tuple) -> None:
+        """Keep the forward kinematics the fused call made of the new joint state as
+        :meth:`mockup_state_W`'s."""
         st = self.servo.state
         self._state, self._state_key = fk, (st.q_rad, st.qd_radps)
 
