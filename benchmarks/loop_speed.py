@@ -184,11 +184,10 @@ def _with_stage_timers(em) -> dict[str, int]:
     em._record = _timed(em._record, acc, "telemetry row")
     em.ods_advance = _timed(em.ods_advance, acc, "ODS step")
     em._tracking = _timed(em._tracking, acc, "tracking watchdog")
-    for arm in em.arms:
-        arm.sensor.measure = _timed(arm.sensor.measure, acc, "F/T sensor + processing")
-        arm.processor.process = _timed(arm.processor.process, acc, "F/T sensor + processing")
-        arm.vfdm.solve = _timed(arm.vfdm.solve, acc, f"VFDM arm {arm.index + 1}")
-        arm.servo.step = _timed(arm.servo.step, acc, f"servo arm {arm.index + 1}")
+    for arm in em.arms:  # each arm's sensor path and command path (each one compiled call)
+        arm.sense = _timed(arm.sense, acc, "F/T sensor + processing")
+        arm.command_towards = _timed(arm.command_towards, acc,
+                                     f"arm {arm.index + 1}: target, VFDM, servo, FK")
     return acc
 
 

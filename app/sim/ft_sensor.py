@@ -184,6 +184,30 @@ def process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertia
         out[a + 3] = T_W_C[0, a] * tW0 + T_W_C[1, a] * tW1 + T_W_C[2, a] * tW2
 
 
+@njit(cache=True, fastmath=False)
+def process_cycle(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertial, bias,
+                  mass, com, alpha, contact_alpha, state, contact_state, gate_open,
+                  reset_slow, db_force, db_torque, soft, scratch, out):
+    """One cycle of the chain with both its filters (:meth:`WrenchProcessor.process`):
+    ``reset_slow`` zeroes the slow filter's state first (a gate that has just closed);
+    :func:`process_step` at ``alpha`` always runs, into out (12,), or into scratch when
+    the gate is open and the contact's filter (``contact_alpha``) differs, which then
+    runs from its own state into out; with the gate closed the contact's state follows
+    the slow one."""
+    if reset_slow:
+        for k in range(6):
+            state[k] = 0.0
+    dual = gate_open and contact_alpha != alpha
+    process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertial, bias,
+                 mass, com, alpha, state, db_force, db_torque, soft, scratch if dual else out)
+    if not gate_open:
+        for k in range(6):
+            contact_state[k] = state[k]
+    elif dual:
+        process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertial, bias,
+                     mass, com, contact_alpha, contact_state, db_force, db_torque, soft, out)
+
+
 # --- the sensor and the processing chain ---------------------------------------------------
 
 
@@ -244,6 +268,28 @@ class VirtualFTSensor:
         self._calls += 1
         return n == 1.0 or k == 0 or math.floor(k / n) > math.floor((k - 1) / n)
 
+    def advance(self) -> tuple[np.ndarray, bool, np.ndarray | None]:
+        """The bookkeeping of one call, before the reading: (the six normal draws, whether
+        the delay ring is to be filled, the held reading handed out when the sensor does
+        not sample in this call, else None); the ring's head and ``age_cycles`` move on."""
+        normals = self.rng.standard_normal(6)
+        fill = self._head < 0
+        held = None if fill or self.every_cycles == 1.0 else self._ring[self._head].copy()
+        self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
+        n = self._ring.shape[0]
+        oldest = (self._head + 1) % n
+        if held is not None and not self._samples_now():  # zero-order hold
+            self._held_for[self._head] = self._held_for[(self._head - 1) % n] + 1
+            self._ring[self._head] = held
+            self.age_cycles = self.config.delay_cycles + int(self._held_for[oldest])
+            return normals, fill, self._ring[oldest].copy()
+        if fill:
+            self._samples_now()
+            self._held_for[:] = 0
+        self._held_for[self._head] = 0
+        self.age_cycles = self.config.delay_cycles + int(self._held_for[oldest])
+        return normals, fill, None
+
     def measure(
         self,
         wrench_ext_W: np.ndarray,
@@ -257,22 +303,9 @@ class VirtualFTSensor:
         T_W_C, T_W_F: mockup COM and flange poses; accel_W_mps2: the mockup COM's linear
         acceleration in W (None: at rest).
         """
-        normals = self.rng.standard_normal(6)
-        fill = self._head < 0
-        held = None if fill or self.every_cycles == 1.0 else self._ring[self._head].copy()
-        self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
-        n = self._ring.shape[0]
-        oldest = (self._head + 1) % n
-        if held is not None and not self._samples_now():  # zero-order hold
-            self._held_for[self._head] = self._held_for[(self._head - 1) % n] + 1
-            self._ring[self._head] = held
-            self.age_cycles = self.config.delay_cycles + int(self._held_for[oldest])
-            return self._ring[oldest].copy()
-        if fill:
-            self._samples_now()
-            self._held_for[:] = 0
-        self._held_for[self._head] = 0
-        self.age_cycles = self.config.delay_cycles + int(self._held_for[oldest])
+        normals, fill, held = self.advance()
+        if held is not None:
+            return held
         accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
         out = np.empty(6)
         sensor_step(
@@ -485,6 +518,25 @@ class WrenchProcessor:
             raise ValueError("calibration: COM needs readings in three or more orientations")
         return x[:3], x[3:]
 
+    def begin(self, T_W_F: np.ndarray, T_W_C: np.ndarray, accel: np.ndarray,
+              gate_open: bool) -> tuple[tuple, float, float, bool]:
+        """The bookkeeping of one cycle, before the chain runs: ((T_W_F, T_W_C, accel) of
+        the cycle the arriving reading was taken in, the force and torque deadbands, whether
+        the slow filter restarts from rest).
+
+        The filter at lowpass_hz always runs, so that the chain returns to it without a
+        step when the gate closes; the contact's filter starts from it when it opens.
+        When the gate closes after a contact the contact's force has been delivered whole
+        by the contact's filter: the slow filter restarts from rest, so that its lagging
+        copy of the contact (up to several N after a rigid one) is not handed over a
+        second time."""
+        aligned = self._aligned(T_W_F, T_W_C, accel)
+        db_force, db_torque = ((0.0, 0.0) if gate_open
+                               else (self.deadband_force_N, self.deadband_torque_Nm))
+        reset_slow = self._gate_was_open and not gate_open and self.contact_alpha != self.alpha
+        self._gate_was_open = gate_open
+        return aligned, db_force, db_torque, reset_slow
+
     def process(
         self,
         wrench_S: np.ndarray,
@@ -506,28 +558,13 @@ class WrenchProcessor:
         if cfg.inertial_compensation and accel_W_mps2 is None:
             raise ValueError("inertial_compensation needs the mockup's acceleration")
         accel = _ZERO3 if accel_W_mps2 is None else np.asarray(accel_W_mps2, dtype=float)
-        T_W_F, T_W_C, accel = self._aligned(T_W_F, T_W_C, accel)
-        db_force, db_torque = ((0.0, 0.0) if gate_open
-                               else (self.deadband_force_N, self.deadband_torque_Nm))
+        (T_W_F, T_W_C, accel), db_force, db_torque, reset_slow = self.begin(
+            T_W_F, T_W_C, accel, gate_open)
         out = np.empty(12)
-        args = (np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R, self.gravity_W_mps2,
-                cfg.payload_compensation, accel, cfg.inertial_compensation, cal.bias_S,
-                cal.mass_kg, cal.com_F_m)
-        soft = cfg.deadband_mode == "soft"
-        # the filter at lowpass_hz always runs, so that the chain returns to it without a
-        # step when the gate closes; the contact's filter starts from it when it opens.
-        # When the gate closes after a contact the contact's force has been delivered
-        # whole by the contact's filter: the slow filter restarts from rest, so that its
-        # lagging copy of the contact (up to several N after a rigid one) is not handed
-        # over a second time
-        if self._gate_was_open and not gate_open and self.contact_alpha != self.alpha:
-            self._state_S[:] = 0.0
-        self._gate_was_open = gate_open
-        process_step(*args, self.alpha, self._state_S, db_force, db_torque, soft,
-                     self._scratch if gate_open and self.contact_alpha != self.alpha else out)
-        if not gate_open:
-            self._contact_state_S[:] = self._state_S
-        elif self.contact_alpha != self.alpha:
-            process_step(*args, self.contact_alpha, self._contact_state_S, db_force,
-                         db_torque, soft, out)
+        process_cycle(np.asarray(wrench_S, dtype=float), T_W_F, T_W_C, R_W_R,
+                      self.gravity_W_mps2, cfg.payload_compensation, accel,
+                      cfg.inertial_compensation, cal.bias_S, cal.mass_kg, cal.com_F_m,
+                      self.alpha, self.contact_alpha, self._state_S, self._contact_state_S,
+                      gate_open, reset_slow, db_force, db_torque,
+                      cfg.deadband_mode == "soft", self._scratch, out)
         return ProcessedWrench(force_R_N=out[0:3], torque_B_Nm=out[3:6], wrench_S=out[6:12])

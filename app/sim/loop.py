@@ -181,6 +181,9 @@ class Emulator:
         self._contact_kinematics: list[dict[tuple[int, int], tuple[float, float]]] = []
         """Per recent cycle (newest last), each touching pair's (depth m, depth rate m/s)
         from the mockups' boxes at their FK poses: the readings arrive delayed."""
+        self._kinematics_kept = 2 + max((arm.processor.max_age_cycles for arm in self.arms),
+                                        default=0)
+        """How many cycles of them are kept: as many as a reading can be old, and two."""
         self.rail_arms = [arm for arm in self.arms if getattr(arm, "rail_servo", None)]
         """The arms on a rail (app/sim/rail_rig.py), in robot order."""
         self.recorder = self._recorder(config.loop.telemetry_capacity)
@@ -251,7 +254,7 @@ class Emulator:
         for arm in self.arms:  # TCP target (where the satellite will be) -> VFDM -> servo
             if arm.lead_s not in predicted:
                 predicted[arm.lead_s] = predicted_state(self.ods, force_R, torque_B, arm.lead_s)
-            arm.command(arm.tcp_target_B(predicted[arm.lead_s]))
+            arm.command_towards(predicted[arm.lead_s])
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
         self._cycle_time_ns[self.cycles % len(self._cycle_time_ns)] = time.perf_counter_ns() - t0
@@ -411,8 +414,7 @@ class Emulator:
             now[(a, b)] = (-float(clearance[a]), float((v_a - v_b) @ n))
         history = self._contact_kinematics
         history.append(now)
-        keep = 2 + max((arm.processor.max_age_cycles for arm in self.arms), default=0)
-        if len(history) > keep:
+        if len(history) > self._kinematics_kept:
             del history[0]
 
     def _identified_normal_force(self, a: int, b: int, s: int, f_n: float) -> float:
@@ -708,7 +710,8 @@ class Emulator:
                         np.random.default_rng(0))
         T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
         rig.sense(np.zeros(6), T_W_C, v_W, self.R_W_R, self.dt_s, first_cycle=True)
-        rig.command(rig.tcp_target_B(ods.y))
+        rig.command(rig.tcp_target_B(ods.y))  # the run-up's
+        rig.command_towards(ods.y)  # the cycle's
         scratch.record(0.0, ods.y, zeros, zeros,
                        [(T_W_C, v_W, rig.servo.state.q_rad, rig.last_raw_S,
                          rig.last_processed)] * len(self.arms),

@@ -86,6 +86,11 @@ class RailRig(ArmRig):
         elif arm.stopped and not rs.stopped:
             rs.state.stopped, rs.state.reason = True, arm.state.reason
 
+    def _fused_command(self) -> None:
+        """None: the chain's command (above) takes its stages (the safety box moves with
+        the carriage)."""
+        return None
+
     def solve_start_posture(self, T_B0_C_target: np.ndarray, max_steps: int,
                             tick=None) -> tuple[np.ndarray | None, float]:
         """The fixed rig's search with the base where the carriage stands."""

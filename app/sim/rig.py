@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
+from app.sim import arm_sense
+from app.sim.arm_command import ArmCommand
 from app.sim.feedforward import ServoFeedforward, send, servo_feedforward
 from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
@@ -81,6 +83,7 @@ class ArmRig:
     """How many rest readings the calibration averaged."""
     _state_key: tuple | None = field(default=None, repr=False)
     _state: tuple = field(default=(), repr=False)
+    _fused: ArmCommand | None = field(default=None, repr=False)
 
     @property
     def T_W_B(self) -> np.ndarray:
@@ -139,7 +142,21 @@ class ArmRig:
         too (the TCP velocity from the measured joint velocities, differenced; the chain's
         low-pass filters the compensation with the reading), which the chain applies to the
         reading taken at the same instant.
+
+        A sensor at the flange that samples every cycle runs this as one compiled call
+        (app/sim/arm_sense.py, the same kernels on the same buffers); :meth:`sense_in_stages`
+        is the same cycle stage by stage.
         """
+        if self.T_C_S is None and self.sensor.every_cycles == 1.0:
+            return arm_sense.sense(self, wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
+                                   gate_open)
+        return self.sense_in_stages(wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
+                                    gate_open)
+
+    def sense_in_stages(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
+                        R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
+                        gate_open: bool = False) -> ProcessedWrench:
+        """:meth:`sense` as its stages: the acceleration, the sensor's reading, the chain."""
         accel_W = (v_W - self.v_W_prev) / dt_s if not first_cycle else np.zeros(3)
         self.v_W_prev = v_W.copy()
         T_W_S = self.sensor_pose_W(self.mockup_state_W()[0], T_W_C)
@@ -159,7 +176,47 @@ class ArmRig:
     def command(self, T_B_C_target: np.ndarray) -> None:
         """VFDM set-points towards the target (through the servo feedforward, if on), one
         servo step (which may stop the arm). With ``[vfdm] sync_to_measured`` the virtual
-        arm first takes the measured joints."""
+        arm first takes the measured joints.
+
+        Without the feedforward the two run as one compiled call (app/sim/arm_command.py,
+        the same kernels on the same buffers), which also leaves the forward kinematics of
+        the new joint state in :meth:`mockup_state_W`'s cache; :meth:`command_in_stages` is
+        the same cycle stage by stage."""
+        fused = self._fused_command()
+        if fused is None:
+            self.command_in_stages(T_B_C_target)
+        else:
+            self._keep_state(fused(T_B_C_target))
+
+    def command_towards(self, ods_y: np.ndarray) -> None:
+        """:meth:`command` towards :meth:`tcp_target_B` of the ODS state ``ods_y`` (fused:
+        the target is worked out in the same compiled call)."""
+        fused = self._fused_command()
+        if fused is None:
+            self.command(self.tcp_target_B(ods_y))
+        else:
+            self._keep_state(fused.towards(self.T_B_R, ods_y, self.satellite))
+
+    def _fused_command(self) -> ArmCommand | None:
+        """The fused command path of this VFDM, servo and chain (None: the stages, with
+        the servo feedforward)."""
+        if self.feedforward is not None:
+            return None
+        fused = self._fused
+        if (fused is None or fused.vfdm is not self.vfdm or fused.servo is not self.servo
+                or fused.chain is not self.chain):
+            fused = self._fused = ArmCommand(self.vfdm, self.servo, self.chain)
+        return fused
+
+    def _keep_state(self, fk: tuple) -> None:
+        """Keep the forward kinematics the fused call made of the new joint state as
+        :meth:`mockup_state_W`'s."""
+        st = self.servo.state
+        self._state, self._state_key = fk, (st.q_rad, st.qd_radps)
+
+    def command_in_stages(self, T_B_C_target: np.ndarray) -> None:
+        """:meth:`command` as its stages: the VFDM's solve, then the feedforward (if on)
+        and the servo's step."""
         if self.vfdm.cfg.sync_to_measured:
             self.vfdm.q_rad[:] = self.servo.state.q_rad
         q_d = self.vfdm.solve(T_B_C_target)

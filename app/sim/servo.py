@@ -39,8 +39,9 @@ from app.sim.ur10e import (
     tcp_position_W,
 )
 
-__all__ = ["SafetyBox", "ServoState", "UR10eServo", "reason_of", "safety_box_for_robot",
-           "seconds_until_beyond", "seconds_until_outside", "tracking_gains"]
+__all__ = ["N_SERVO_CONSTANTS", "SafetyBox", "ServoState", "UR10eServo", "reason_of",
+           "safety_box_for_robot", "seconds_until_beyond", "seconds_until_outside",
+           "servo_constants", "servo_step", "tracking_gains"]
 
 BOX_CODE = 2 * N_JOINTS + 1
 """Stop code of "TCP left safety volume"; 1..6: joint position limit, 7..12: speed limit."""
@@ -268,7 +269,7 @@ class UR10eServo:
         s, box, cfg = self.state, self.safety, self.cfg
         chain = _NO_CHAIN if box is None else box.chain
         lo, hi = (_NO_BOX, _NO_BOX) if box is None else (box.p_min_W_m, box.p_max_W_m)
-        slot = self._slot if len(self._ring) else -1
+        slot = self.delay_slot
         q, qd, qdd = np.empty(N_JOINTS), np.empty(N_JOINTS), np.empty(N_JOINTS)
         code = servo_step(
             np.asarray(q_setpoint_rad, dtype=float), self._ring, slot, self._sp_prev,
@@ -276,9 +277,53 @@ class UR10eServo:
             self.accel_limit_radps2, cfg.position_limit_rad, self.speed_limits_radps,
             box is not None, lo, hi, *chain,
         )
+        return self.commit(slot, q, qd, qdd, code)
+
+    @property
+    def delay_slot(self) -> int:
+        """The transport delay ring's oldest row, which this step hands out (-1: no delay)."""
+        return self._slot if len(self._ring) else -1
+
+    def commit(self, slot: int, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+               code: int) -> ServoState:
+        """Take a step that :func:`servo_step` made (here or inside a fused kernel,
+        app/sim/arm_command.py) from ring row ``slot``: the new joint state (new arrays),
+        the stop its code names; returns the state."""
+        s = self.state
         if slot >= 0:
             self._slot = (slot + 1) % len(self._ring)
         s.q_rad, s.qd_radps, s.qdd_radps2 = q, qd, qdd
         if code:
             s.stopped, s.reason = True, reason_of(code)
         return s
+
+    def constants(self) -> np.ndarray:
+        """(N_SERVO_CONSTANTS,) what :func:`servo_step` reads and never writes, in one
+        buffer (:func:`servo_constants`): dt, the tracking gains, the acceleration and
+        position limits, whether there is a safety box, its corners, the speed limits, the
+        box's TCP chain (pR, pp, fR, fp, T_W_B, T_F_C). A snapshot: a box that moves (a
+        rail's) needs :meth:`step`."""
+        box = self.safety
+        chain = _NO_CHAIN if box is None else box.chain
+        lo, hi = (_NO_BOX, _NO_BOX) if box is None else (box.p_min_W_m, box.p_max_W_m)
+        c = np.concatenate([
+            [self.dt_s, self._w2, self._2zw, self.accel_limit_radps2,
+             self.cfg.position_limit_rad, float(box is not None)],
+            lo, hi, self.speed_limits_radps, *(np.ravel(a) for a in chain)]).astype(float)
+        assert c.shape == (N_SERVO_CONSTANTS,)
+        return c
+
+
+N_SERVO_CONSTANTS = 134
+"""Length of :meth:`UR10eServo.constants`: 6 scalars, the box (3 + 3), the speed limits
+(6), the chain (54 + 18 + 9 + 3 + 16 + 16)."""
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def servo_constants(c):
+    """The arguments of :func:`servo_step` after ``stopped`` from a
+    :meth:`UR10eServo.constants` buffer: (dt, w2, two_zw, accel, pos_lim, speed_lim,
+    use_box, box_min, box_max, pR, pp, fR, fp, T_W_B, T_F_C)."""
+    return (c[0], c[1], c[2], c[3], c[4], c[12:18], c[5] > 0.5, c[6:9], c[9:12],
+            c[18:72].reshape((6, 3, 3)), c[72:90].reshape((6, 3)), c[90:99].reshape((3, 3)),
+            c[99:102], c[102:118].reshape((4, 4)), c[118:134].reshape((4, 4)))

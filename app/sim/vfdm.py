@@ -68,6 +68,8 @@ __all__ = [
     "joint_acceleration",
     "limit_joint_step",
     "vfdm_cycle",
+    "vfdm_cycle_packed",
+    "vfdm_constants",
     "log3",
     "pose_error",
     "virtual_arm",
@@ -469,6 +471,60 @@ def limit_joint_step(q, qd, q0, step_prev, max_step, max_change, qlim):
     return s
 
 
+# --- one buffer of constants, one of state -------------------------------------------------
+
+# Vfdm.constants: the virtual arm (VirtualArm), the gains and limits, then the scalars
+_C_PR, _C_PP, _C_MASS, _C_LEVER, _C_ICOM, _C_TR, _C_TP = 0, 54, 72, 78, 96, 150, 159
+_C_KP, _C_KDH, _C_FFG, _C_MAXDQ, _C_MAXSTEP, _C_MAXCHANGE, _C_SCALARS = (
+    162, 168, 174, 180, 186, 192, 198)
+N_CONSTANTS = _C_SCALARS + 10
+"""Length of :attr:`Vfdm.constants`; its scalars, in order: armature, keep, h, qlim,
+max_lin, max_rot, iterations, use_kd, reset_velocity, sync_to_measured (flags as 0.0/1.0)."""
+# Vfdm's state: q, qd, e_prev, has_prev (2), step_prev, ff, R_prev (3, 3), p_prev
+_X_Q, _X_QD, _X_EP, _X_HP, _X_SP, _X_FF, _X_RP, _X_PP = 0, 6, 12, 18, 20, 26, 32, 41
+N_STATE = 44
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def vfdm_constants(c):
+    """The views and scalars of a :attr:`Vfdm.constants` buffer, in vfdm_cycle's order:
+    (pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd, keep, h, qlim, max_lin,
+    max_rot, max_dq, max_step, max_change, ff_gain, iterations, reset_velocity, sync)."""
+    s = _C_SCALARS
+    return (c[_C_PR:_C_PP].reshape((6, 3, 3)), c[_C_PP:_C_MASS].reshape((6, 3)),
+            c[_C_MASS:_C_LEVER], c[_C_LEVER:_C_ICOM].reshape((6, 3)),
+            c[_C_ICOM:_C_TR].reshape((6, 3, 3)), c[_C_TR:_C_TP].reshape((3, 3)),
+            c[_C_TP:_C_KP], c[s], c[_C_KP:_C_KDH], c[_C_KDH:_C_FFG], c[s + 7] > 0.5,
+            c[s + 1], c[s + 2], c[s + 3], c[s + 4], c[s + 5], c[_C_MAXDQ:_C_MAXSTEP],
+            c[_C_MAXSTEP:_C_MAXCHANGE], c[_C_MAXCHANGE:_C_SCALARS], c[_C_FFG:_C_MAXDQ],
+            int(c[s + 6]), c[s + 8] > 0.5, c[s + 9] > 0.5)
+
+
+@njit(cache=True, fastmath=False)
+def vfdm_cycle_packed(T, c, x, last_e):
+    """:func:`vfdm_cycle` on a :class:`Vfdm`'s two buffers: c its constants, x its state
+    (q, qd, e_prev, has_prev, step_prev, ff, R_prev, p_prev), towards the target pose
+    T (4, 4); with ``velocity_mode = "reset"`` the virtual arm first stops (Eq. 11).
+    Returns the uniform scale the speed limit put on the joint step."""
+    (pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd, keep, h, qlim, max_lin,
+     max_rot, max_dq, max_step, max_change, ff_gain, iterations, reset_velocity,
+     _) = vfdm_constants(c)
+    q, qd = x[_X_Q:_X_QD], x[_X_QD:_X_EP]
+    if reset_velocity:
+        for i in range(6):
+            qd[i] = 0.0
+    Rt, pt = np.empty((3, 3)), np.empty(3)
+    for a in range(3):
+        pt[a] = T[a, 3]
+        for b in range(3):
+            Rt[a, b] = T[a, b]
+    return vfdm_cycle(q, qd, x[_X_EP:_X_HP], x[_X_HP:_X_SP], last_e, Rt, pt, iterations,
+                      pR, pp, mass, lever, Icom, tR, tp, armature, kp, kdh, use_kd,
+                      x[_X_FF:_X_RP], keep, h, qlim, max_lin, max_rot, max_dq,
+                      x[_X_SP:_X_FF], max_step, max_change, ff_gain,
+                      x[_X_RP:_X_PP].reshape((3, 3)), x[_X_PP:N_STATE])
+
+
 # --- the solver ---------------------------------------------------------------------------
 
 
@@ -513,7 +569,6 @@ class Vfdm:
             self._max_step = f * np.asarray(limits.speed_radps, dtype=float) * dt
             self._max_change = np.full(N_JOINTS, f * limits.accel_radps2 * dt * dt)
         self._max_dq = self._max_step / cfg.iterations
-        self._step_prev = np.zeros(N_JOINTS)
         self.last_scale = 1.0
         """Uniform scale the speed limit put on the last cycle's joint step (1.0: none)."""
         self.T_F_C = np.array(T_F_C, dtype=float)
@@ -530,15 +585,44 @@ class Vfdm:
         lam = np.array([cfg.end_mass_kg] * 3 + [cfg.end_inertia_kgm2] * 3)
         drag = (1.0 - self._keep) / (self._keep * h) if cfg.velocity_feedforward else 0.0
         self._ff_gain = lam * drag / (cfg.iterations * h)
-        self._ff = np.zeros(6)
-        self._R_prev, self._p_prev = np.eye(3), np.zeros(3)  # the last cycle's target
-        self._e_prev = np.zeros(6)
-        self._has_prev = np.zeros(2)  # [an e_prev (D term), a last target (feedforward)]
-        self.q_rad = np.zeros(N_JOINTS)
-        self.qd_radps = np.zeros(N_JOINTS)
+        self.constants = self._pack_constants()
+        """(N_CONSTANTS,) everything a cycle reads and never writes, in one buffer (one
+        argument of the compiled cycle instead of two dozen): :func:`vfdm_constants`."""
+        self._x = np.zeros(N_STATE)
+        """The state a cycle carries to the next, in one buffer: q, q̇, the last error and
+        whether there is one (the D term), the last step, the feedforward wrench and the
+        last target (R, p); the attributes below are views of it."""
+        self._R_prev[:] = np.eye(3)
         self.last_error = np.zeros(6)
         """Clamped pose error [m; rad] seen by the last internal step (before its move)."""
         self.reset(np.zeros(N_JOINTS) if q0_rad is None else q0_rad)
+
+    def _pack_constants(self) -> np.ndarray:
+        cfg, arm = self.cfg, self.arm
+        scalars = [arm.armature, self._keep, self._h, POSITION_LIMIT_RAD, cfg.max_error_lin_m,
+                   cfg.max_error_rot_rad, cfg.iterations, self._use_kd,
+                   cfg.velocity_mode == "reset", cfg.sync_to_measured]
+        c = np.concatenate([np.ravel(a) for a in (
+            arm.pR, arm.pp, arm.mass, arm.lever, arm.Icom, arm.tR, arm.tp, self._kp,
+            self._kd_over_h, self._ff_gain, self._max_dq, self._max_step, self._max_change,
+            np.array(scalars, dtype=float))])
+        assert c.shape == (N_CONSTANTS,)
+        return c
+
+    # the state, as views of the one buffer (a deep copy copies the buffer, not the views)
+    q_rad = property(lambda self: self._x[_X_Q:_X_QD],
+                     lambda self, v: self._x.__setitem__(slice(_X_Q, _X_QD), v),
+                     doc="(6,) the virtual joints [rad].")
+    qd_radps = property(lambda self: self._x[_X_QD:_X_EP],
+                        lambda self, v: self._x.__setitem__(slice(_X_QD, _X_EP), v),
+                        doc="(6,) the virtual joint velocities [rad/s].")
+    _e_prev = property(lambda self: self._x[_X_EP:_X_HP])
+    _has_prev = property(lambda self: self._x[_X_HP:_X_SP],
+                         doc="[an e_prev (D term), a last target (feedforward)]")
+    _step_prev = property(lambda self: self._x[_X_SP:_X_FF])
+    _ff = property(lambda self: self._x[_X_FF:_X_RP])
+    _R_prev = property(lambda self: self._x[_X_RP:_X_PP].reshape(3, 3))
+    _p_prev = property(lambda self: self._x[_X_PP:N_STATE])
 
     def reset(self, q_rad: np.ndarray) -> None:
         """Put the virtual arm at ``q_rad``, at rest."""
@@ -554,17 +638,8 @@ class Vfdm:
 
     def solve(self, T_B_C_target: np.ndarray) -> np.ndarray:
         """One control cycle: ``iterations`` internal steps; returns the joint set-points."""
-        cfg = self.cfg
-        if cfg.velocity_mode == "reset":
-            self.qd_radps[:] = 0.0  # the paper's "each cycle starts at rest" (Eq. 11)
-        T = np.asarray(T_B_C_target, dtype=float)
         last_e = np.empty(6)
-        self.last_scale = vfdm_cycle(
-            self.q_rad, self.qd_radps, self._e_prev, self._has_prev, last_e,
-            np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), cfg.iterations,
-            *self.arm, self._kp, self._kd_over_h, self._use_kd, self._ff, self._keep, self._h,
-            POSITION_LIMIT_RAD, cfg.max_error_lin_m, cfg.max_error_rot_rad, self._max_dq,
-            self._step_prev, self._max_step, self._max_change,
-            self._ff_gain, self._R_prev, self._p_prev)
+        self.last_scale = vfdm_cycle_packed(np.ascontiguousarray(T_B_C_target, dtype=float),
+                                            self.constants, self._x, last_e)
         self.last_error = last_e
         return self.q_rad.copy()

@@ -1,0 +1,92 @@
+"""One arm's sensor path as one compiled call: the F/T reading and the lab's processing chain.
+
+Per cycle a rig (app/sim/rig.py :meth:`ArmRig.sense`) turns the external wrench on its
+mockup into the ODS's input in three stages, each called from Python:
+
+1. the mockup's acceleration over the cycle that just ended, the difference of its
+   velocity (NumPy);
+2. :meth:`app.sim.ft_sensor.VirtualFTSensor.measure` — load ``m (g − a)``, bias, noise,
+   range, delay (:func:`sensor_step`);
+3. :meth:`app.sim.ft_sensor.WrenchProcessor.process` — bias and payload compensation,
+   low-pass (two filters while the contact gate is open), shift to the COM, deadbands,
+   rotation into R and B (:func:`process_cycle`).
+
+:func:`arm_sense` runs the three in one call. What stays in Python is the bookkeeping the
+objects do anyway (the noise draws from the sensor's generator, the delay ring's head,
+the ring of poses that aligns a delayed reading, the gate's flags: ``advance`` and
+``begin``), so the numbers are those of the stages to the last bit; what it saves is the
+Python between them and the unpacking of some thirty arguments.
+
+Not fused: a sensor slower than the loop (its held readings) and a sensor on the mockup
+body (its wrench shifted to the face): their rigs take the stages.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from app.sim.ft_sensor import ProcessedWrench, process_cycle, sensor_step
+
+__all__ = ["OUT_SIZE", "arm_sense", "sense"]
+
+OUT_SIZE = 24
+"""arm_sense's out: the chain's (12,) output (force in R, torque in B, wrench in S), the
+raw reading in S (6,), the ODS's part of the processed wrench (force in R, torque in B)."""
+
+
+@njit(cache=True, fastmath=False)
+def arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel,
+              normals, s_mass, s_gravity, s_bias, s_noise, s_range, ring, head, fill,
+              T_W_F_then, T_W_C_then, accel_then, R_W_R, p_gravity, payload, inertial,
+              p_bias, p_mass, p_com, alpha, contact_alpha, state, contact_state, gate_open,
+              reset_slow, db_force, db_torque, soft, scratch, out):
+    """One cycle of a rig's sensor path, into out (:data:`OUT_SIZE`).
+
+    accel (3,) := the mockup's acceleration ``(v_W − v_W_prev) / dt_s`` (zeros on the first
+    cycle), then v_W_prev := v_W; the sensor's reading of the wrench on the mockup at
+    T_W_C, sensor at T_W_F (:func:`sensor_step`, constants s_*, the delay ring at row
+    ``head``) into out[12:18]; the chain on it with the poses and the acceleration of the
+    cycle it was taken in (``*_then``; :func:`process_cycle`, constants p_*) into
+    out[0:12]; out[18:24] := out[0:6].
+    """
+    for a in range(3):
+        accel[a] = 0.0 if first_cycle else (v_W[a] - v_W_prev[a]) / dt_s
+        v_W_prev[a] = v_W[a]
+    raw = out[12:18]
+    sensor_step(wrench_W, T_W_C, T_W_F, s_mass, s_gravity, accel, normals, s_bias, s_noise,
+                s_range, ring, head, fill, raw)
+    process_cycle(raw, T_W_F_then, T_W_C_then, R_W_R, p_gravity, payload, accel_then,
+                  inertial, p_bias, p_mass, p_com, alpha, contact_alpha, state,
+                  contact_state, gate_open, reset_slow, db_force, db_torque, soft, scratch,
+                  out[0:12])
+    for k in range(6):
+        out[18 + k] = out[k]
+
+
+def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
+          R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
+          gate_open: bool) -> ProcessedWrench:
+    """:meth:`ArmRig.sense` of a rig whose sensor sits at the flange and samples every
+    cycle, in one compiled call; the rig, its sensor and its chain end as after the
+    stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included)."""
+    sensor, proc = rig.sensor, rig.processor
+    cfg, cal = proc.config, proc.calibration
+    T_W_F = rig.mockup_state_W()[0]
+    accel = np.empty(3)
+    normals, fill, held = sensor.advance()
+    assert held is None  # a sensor that samples every cycle holds nothing
+    proc.reading_age_cycles = sensor.age_cycles
+    (T_W_F_then, T_W_C_then, accel_then), db_force, db_torque, reset_slow = proc.begin(
+        T_W_F, T_W_C, accel, gate_open)
+    out = np.empty(OUT_SIZE)
+    arm_sense(np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, v_W, rig.v_W_prev,
+              dt_s, first_cycle, accel, normals, sensor.mass_kg, sensor.gravity_W_mps2,
+              sensor.bias_S, sensor.noise_std_S, sensor.range_S, sensor._ring, sensor._head,
+              fill, T_W_F_then, T_W_C_then, accel_then, R_W_R, proc.gravity_W_mps2,
+              cfg.payload_compensation, cfg.inertial_compensation, cal.bias_S, cal.mass_kg,
+              cal.com_F_m, proc.alpha, proc.contact_alpha, proc._state_S,
+              proc._contact_state_S, gate_open, reset_slow, db_force, db_torque,
+              cfg.deadband_mode == "soft", proc._scratch, out)
+    rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
+    return ProcessedWrench(force_R_N=out[0:3], torque_B_Nm=out[3:6], wrench_S=out[6:12])
