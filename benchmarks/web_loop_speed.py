@@ -2,6 +2,7 @@
 
     .venv/bin/python -m benchmarks.web_loop_speed --against /tmp/old            # 3 rounds
     .venv/bin/python -m benchmarks.web_loop_speed --against /tmp/old --rounds 1 --window-s 20
+    .venv/bin/python -m benchmarks.web_loop_speed --against /tmp/old --parts 20  # loop alone
 
 For each tree in turn (this one, then ``--against``'s, alternating over ``--rounds``) it
 starts that tree's web app (``python -m app.cli serve --port 0``, with the tree on
@@ -30,6 +31,13 @@ load average (1 min) as the row ended: the machine is shared, compare ratios onl
 
 Everything goes to 127.0.0.1; servers and browsers are stopped at the end (also on
 error). A round costs about ``2 * (warm-up + window + 40 s)``.
+
+``--parts SECONDS`` instead runs each tree's loop process body alone (its ``LoopCore``
+in a fresh process of that tree, no web process, no browser, no spin before a cycle):
+the step's p50 / p99 / mean, the same run's steps back to back and unpaced (a headless
+run's cycle, in the same process right after), the process's CPU per period, what of it
+is not the step (between cycles: polling the pipe, the heartbeat, the snapshots, the
+pacing), and one snapshot's cost.
 """
 
 from __future__ import annotations
@@ -266,6 +274,97 @@ def measure_tree(tree: Path, cache_dir: str, warmup_s: float, window_s: float,
     return out
 
 
+# --- the loop process's own costs (no server, no browser) ---------------------------------
+
+
+def parts_child(scenario: str, seconds: float) -> dict:
+    """In a fresh process of a tree: that tree's LoopCore (the loop process's body) runs
+    ``scenario`` paced for ``seconds`` here, with its pipe and shared memory but no web
+    process, and without the spin before each cycle (``spin_s`` 0), so that the process's
+    CPU per period is the cycle plus what the loop does between cycles (polling the pipe,
+    the heartbeat, a snapshot every 10 cycles, the pacing's bookkeeping and sleep)."""
+    import multiprocessing
+    from multiprocessing import shared_memory
+
+    from app.backend import snapshots
+    from app.backend.loop_process import LoopCore
+    from app.backend.ring import RunTelemetry
+    from app.scenarios import load_scenario
+
+    base = load_scenario(scenario)
+    config = base.model_copy(update={"loop": base.loop.model_copy(
+        update={"duration_s": seconds})})
+    shm = shared_memory.SharedMemory(create=True, size=snapshots.SHM_BYTES)
+    ours, theirs = multiprocessing.Pipe()
+    core = LoopCore(theirs, shm.name, config, scenario, "hil",
+                    {"spin_s": 0.0, "rt_priority": 10, "nice": -10})
+    ring = RunTelemetry(config, "hil")
+    try:
+        core.handle(("start", scenario, config, "hil", ring.name, None))
+        cpu0 = time.process_time()
+        core.run_paced()
+        cpu_s = time.process_time() - cpu0
+        n = min(core.cycle_count, len(core.cycle_ns))
+        step_us = core.cycle_ns[:n] / 1e3
+        cycles, cpu_per_cycle = core.cycle_count, 1e6 * cpu_s / core.cycle_count
+        publish_us = []
+        for _ in range(500):  # as the loop publishes: 10 cycles on (1 in 25 refreshes the
+            core.cycle_count += core.snapshot_every  # percentiles: app/backend/loop_process.py)
+            t0 = time.perf_counter_ns()
+            core.publish()
+            publish_us.append((time.perf_counter_ns() - t0) / 1e3)
+        from app.sim.loop import Emulator
+
+        tight = Emulator(config, mode="hil")  # the same run's steps back to back, unpaced
+        tight.prepare()
+        tight_us = []
+        for _ in range(3000):
+            t0 = time.perf_counter_ns()
+            tight.step()
+            tight_us.append((time.perf_counter_ns() - t0) / 1e3)
+        return {"tight_p50": float(np.median(tight_us)),
+                "tight_p99": float(np.percentile(tight_us, 99)),
+                "status": core.status, "cycles": cycles,
+                "misses": core.deadline_misses, "step_mean": float(step_us.mean()),
+                "step_p50": float(np.median(step_us)),
+                "step_p99": float(np.percentile(step_us, 99)),
+                "cpu_per_cycle": cpu_per_cycle,
+                "between": cpu_per_cycle - float(step_us.mean()),
+                "publish": float(np.mean(publish_us)), "scheduling": core.scheduling}
+    finally:
+        ring.release()
+        shm.close()
+        shm.unlink()
+
+
+def parts(trees: dict[str, Path], rounds: int, seconds: float) -> None:
+    """parts_child of each tree in turn (free-floating and collision), ``rounds`` times."""
+    import json
+
+    print(f"\n## The loop process alone ({seconds:g} s paced, no spin, no web process)\n")
+    print("| round | tree | scenario | step p50 / p99 / mean (µs) | the same back to back: "
+          "p50 / p99 (µs) | CPU per period (µs) | between cycles (µs) | snapshot, mean (µs) | "
+          "misses / cycles |")
+    print("|---:|---|---|---:|---:|---:|---:|---:|---:|")
+    names = list(trees)
+    numba = tempfile.TemporaryDirectory(prefix="web-loop-numba-")  # (nothing into the trees)
+    for rnd in range(1, rounds + 1):
+        for name in (names if rnd % 2 else names[::-1]):
+            for scenario, secs in (("free-floating", seconds), ("collision", 8.0)):
+                env = dict(os.environ, PYTHONPATH=str(trees[name]),
+                           NUMBA_CACHE_DIR=os.path.join(numba.name, str(names.index(name))))
+                out = subprocess.run(
+                    [sys.executable, str(HERE), "--parts-child", scenario, str(secs)],
+                    env=env, cwd=trees[name], capture_output=True, text=True, check=True)
+                r = json.loads(out.stdout.strip().splitlines()[-1])
+                print(f"| {rnd} | {name} | {scenario} | {r['step_p50']:.0f} / "
+                      f"{r['step_p99']:.0f} / {r['step_mean']:.0f} | "
+                      f"{r['tight_p50']:.0f} / {r['tight_p99']:.0f} | "
+                      f"{r['cpu_per_cycle']:.0f} | {r['between']:.0f} | {r['publish']:.0f} "
+                      f"| {r['misses']} / {r['cycles']} |", flush=True)
+    numba.cleanup()
+
+
 # --- the table --------------------------------------------------------------------------
 
 
@@ -295,18 +394,34 @@ def summary(results: dict[str, dict[str, list[dict]]], names: list[str]) -> None
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--against", type=Path, required=True,
+    parser.add_argument("--against", type=Path,
                         help="another checkout of the project (e.g. git worktree add)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--warmup-s", type=float, default=10.0)
     parser.add_argument("--window-s", type=float, default=60.0)
     parser.add_argument("--no-collision", action="store_true")
+    parser.add_argument("--parts", type=float, default=None, metavar="SECONDS",
+                        help="instead: each tree's loop process alone (parts_child), "
+                             "free-floating for SECONDS and the 8 s collision")
+    parser.add_argument("--parts-child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.parts_child:
+        import json
+
+        print(json.dumps(parts_child(args.parts_child[0], float(args.parts_child[1]))))
+        return
+    if args.against is None:
+        parser.error("--against TREE is needed")
     other = args.against.resolve()
     if not (other / "app" / "cli.py").exists():
         sys.exit(f"--against {other}: not a checkout of the project (no app/cli.py)")
     trees = {"this tree": ROOT, str(other): other}
     names = list(trees)
+    if args.parts:
+        print(f"load average {os.getloadavg()[0]:.2f} at the start")
+        parts(trees, args.rounds, args.parts)
+        print(f"load average {os.getloadavg()[0]:.2f} at the end")
+        return
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
           f"{os.getloadavg()[2]:.2f} at the start; {os.cpu_count()} CPUs")
     print("\n| round | tree | scenario | cycle p50 (µs) | cycle p99 (µs) | deadline misses / "
