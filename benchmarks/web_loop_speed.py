@@ -370,6 +370,8 @@ def parts(trees: dict[str, Path], rounds: int, seconds: float) -> None:
 
 def row(rnd: int, name: str, scenario: str, r: dict) -> str:
     cpu = r["cpu"]
+    if r.get("status", "finished") != "finished":  # e.g. a safety stop: its cycles so far
+        scenario += f" ({r['status']})"
     return (f"| {rnd} | {name} | {scenario} | {r['p50']:.0f} | {r['p99']:.0f} | "
             f"{r['misses']} / {r['cycles']} | {r['resyncs']} | {r['window_s']:.0f} | "
             f"{cpu['loop']:.2f} / {cpu['web']:.2f} / {cpu['chromium']:.2f} | "
