@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import logging
 import os
+import select
 import time
 import traceback
+from collections.abc import Callable
 from multiprocessing import shared_memory
 from typing import Any
 
@@ -60,6 +62,7 @@ class LoopCore:
         self.writer = SnapshotWriter(self.shm)
         self._beats = 0
         self._warned_em, self._warnings = None, []
+        self._static_em, self._static = None, {}
         self.snapshot_every = max(1, int(settings.get("snapshot_every", 10)))
         self.spin_s = float(settings.get("spin_s", 0.0003))
         self.max_lag_s = float(settings.get("max_lag_s", 0.1))
@@ -226,7 +229,7 @@ class LoopCore:
         max_lag_ns = int(self.max_lag_s * 1e9)
         duration_s = em.config.loop.duration_s - 0.5 * em.dt_s
         perf = time.perf_counter_ns
-        poll = self.cmd_conn.poll
+        poll = readable(self.cmd_conn)
         wall0 = time.monotonic() - self.wall_s
         t0 = perf()
         k = n = 0
@@ -315,11 +318,51 @@ class LoopCore:
             self._warned_em = em
         return self._warnings
 
+    def _static_parts(self, em: Emulator) -> dict[str, dict]:
+        """The snapshot's parts that follow from the emulator's configuration alone (the
+        panels' settings, the layout but the arms' bases): built once per emulator, not
+        at every publish (they were 30 % of building one: 44 of 150 µs)."""
+        if self._static_em is not em:
+            cfg = em.config
+            scaling = scaling_of(cfg)
+            self._static = {
+                "settings": {  # what the panels show (the run's, whoever started it)
+                    "altitude_m": cfg.orbit.altitude_m,
+                    "velocity_mps": list(cfg.satellites[0].velocity_mps),
+                    "kp_lin": cfg.vfdm.kp_lin, "kp_rot": cfg.vfdm.kp_rot,
+                    "duration_s": cfg.loop.duration_s,
+                    "hand_stiffness_Npm": cfg.hand.stiffness_Npm,
+                    "hand_max_force_N": cfg.hand.max_force_N,
+                    "hand_twist_Nmprad": cfg.hand.twist_stiffness_Nmprad,
+                    "hand_max_torque_Nm": cfg.hand.max_torque_Nm,
+                    "deadband_force_N": cfg.wrench.deadband_force_N,
+                    "deadband_torque_Nm": cfg.wrench.deadband_torque_Nm,
+                    "satellite1_mass_kg": cfg.satellites[0].mass_kg,
+                    "satellite1_inertia_kgm2": [float(v) for v in
+                                                cfg.satellites[0].principal_inertia()],
+                    "force_scale": scaling.force_scale, "torque_scale": scaling.torque_scale,
+                    "scaling": summary_line(cfg),
+                    "rails": cfg.rail_settings(),
+                },
+                "layout": {
+                    "T_W_R": em.T_W_R.tolist(),
+                    "rails_W_m": [_rail_ends_W(cfg.robots[a.index]) for a in em.arms],
+                    "safety_boxes_W_m": [[list(cfg.robots[a.index].safety_box_min_m),
+                                          list(cfg.robots[a.index].safety_box_max_m)]
+                                         for a in em.arms],
+                    "satellites": [[s.name, list(s.size_m), s.material]
+                                   for s in cfg.satellites],
+                },
+            }
+            self._static_em = em
+        return self._static
+
     def build_snapshot(self) -> dict[str, Any]:
         em = self.em
         ods = em.ods
         cfg = em.config
-        scaling = scaling_of(cfg)
+        static = self._static_parts(em)
+        layout = static["layout"]
         T_W_R = em.T_W_R
         R_W_R = T_W_R[:3, :3]
         sats = []
@@ -368,24 +411,7 @@ class LoopCore:
             "safety_stop": em.safety_stop,
             "t_s": float(ods.t_s),
             "duration_s": cfg.loop.duration_s,
-            "settings": {  # what the panels show (the run's, whoever started it)
-                "altitude_m": cfg.orbit.altitude_m,
-                "velocity_mps": list(cfg.satellites[0].velocity_mps),
-                "kp_lin": cfg.vfdm.kp_lin, "kp_rot": cfg.vfdm.kp_rot,
-                "duration_s": cfg.loop.duration_s,
-                "hand_stiffness_Npm": cfg.hand.stiffness_Npm,
-                "hand_max_force_N": cfg.hand.max_force_N,
-                "hand_twist_Nmprad": cfg.hand.twist_stiffness_Nmprad,
-                "hand_max_torque_Nm": cfg.hand.max_torque_Nm,
-                "deadband_force_N": cfg.wrench.deadband_force_N,
-                "deadband_torque_Nm": cfg.wrench.deadband_torque_Nm,
-                "satellite1_mass_kg": cfg.satellites[0].mass_kg,
-                "satellite1_inertia_kgm2": [float(v) for v in
-                                            cfg.satellites[0].principal_inertia()],
-                "force_scale": scaling.force_scale, "torque_scale": scaling.torque_scale,
-                "scaling": summary_line(cfg),
-                "rails": cfg.rail_settings(),
-            },
+            "settings": static["settings"],
             "n_satellites": em.n_sat,
             "satellites": sats,
             "robots": robots,
@@ -395,13 +421,12 @@ class LoopCore:
             "interval": self.interval,
             "warnings": self._config_warnings(em),
             "layout": {
-                "T_W_R": T_W_R.tolist(),
+                "T_W_R": layout["T_W_R"],
+                # the bases move with their rails' carriages
                 "arms": [[cfg.robots[a.index].name, a.T_W_B.tolist()] for a in em.arms],
-                "rails_W_m": [_rail_ends_W(cfg.robots[a.index]) for a in em.arms],
-                "safety_boxes_W_m": [[list(cfg.robots[a.index].safety_box_min_m),
-                                      list(cfg.robots[a.index].safety_box_max_m)]
-                                     for a in em.arms],
-                "satellites": [[s.name, list(s.size_m), s.material] for s in cfg.satellites],
+                "rails_W_m": layout["rails_W_m"],
+                "safety_boxes_W_m": layout["safety_boxes_W_m"],
+                "satellites": layout["satellites"],
             },
             "loop": {
                 "rate_hz": cfg.loop.rate_hz,
@@ -417,6 +442,16 @@ class LoopCore:
                 "pid": os.getpid(),
             },
         }
+
+
+def readable(conn) -> Callable[[], bool]:
+    """``conn.poll()`` for the paced loop: whether a message (or the pipe's end) waits, by
+    one poll(2) on a poller registered once (0.5 µs; ``Connection.poll`` builds a selector
+    at every call, 7 µs, and the loop asks every cycle). An end of the pipe or an error
+    reads as readable, so that ``recv`` raises as it would after ``Connection.poll``."""
+    poller = select.poll()
+    poller.register(conn.fileno(), select.POLLIN)
+    return lambda: bool(poller.poll(0))
 
 
 def _rail_ends_W(robot) -> list | None:
