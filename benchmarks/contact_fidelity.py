@@ -699,8 +699,8 @@ def rig_cell(runs: list[dict], ideal: dict) -> dict:
     forecasts = [f.get("restitution_sd") for f in (r.get("forecast") or {} for r in runs)
                  if isinstance(f.get("restitution_sd"), (int, float))]
     sd_seeds = statistics.stdev(values) if len(values) > 1 else None
-    rendered = [c["rendering_error_m"] / c["approach_depth_m"] for c in colls
-                if c.get("rendering_error_m") is not None and c.get("approach_depth_m")]
+    rendered = [c["rendering_error_m"] / c["contact_depth_m"] for c in colls
+                if c.get("rendering_error_m") is not None and c.get("contact_depth_m")]
     return {"errors": errors, "off_normal": statistics.fmean(off) if off else None,
             "rendering": rendered,
             "covered": covered, "n": len(runs),
@@ -719,8 +719,8 @@ def rig_table(pool, seeds: list[int], sensors=RIG_SENSORS, placements=RIG_PLACEM
     across-seed sd (columns "—" while the metrics lack them)."""
     lines = ["| material | sensor | placement | servo | restitution error: mean % (SE) ± sd "
              "(worst) | within ±5 % / ±10 % | stops | off-normal share | interval holds "
-             "the ideal | forecast sd / seeds' sd | rendering error / approach depth: "
-             "median (runs beyond 10 %) |",
+             "the ideal | forecast sd / seeds' sd | rendering error / contact depth: "
+             f"median (runs beyond {100 * RENDERING_TOLERANCE:g} %) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for material in materials:

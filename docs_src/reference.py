@@ -458,6 +458,11 @@ METRIC_MEANINGS = {
     "ē − e_ideal (the forecast's noisy replicates' mean); None within two of its standard "
     "errors of zero",
     "collision.uncertainty": "how the interval was obtained (replicates, method)",
+    "collision.rendering_error_m": "Eq. R1: rms of the mockups' overlap against the "
+    "satellites' one force lag later, over the contact; null in an ideal run",
+    "collision.rendering_error_max_m": "its largest magnitude",
+    "collision.contact_depth_m": "the satellites' largest overlap over the contact (the "
+    "scale for R1; beyond 5 % of it the run warns)",
     "collision_forecast.restitution_sd": "forecast standard deviation of e",
     "collision_forecast.restitution_sd_se": "the forecast sd's own sampling error (its "
     "replicates)",
@@ -483,6 +488,8 @@ METRIC_MEANINGS = {
     "systematic error",
     "collision_forecast.velocity_sd_mps": "per satellite, the sd of its velocity after the "
     "contact (R, per axis): the pre-flight's drift check",
+    "collision_forecast.rendering_error_m": "the noise-free twin's Eq. R1",
+    "collision_forecast.contact_depth_m": "the twin's satellites' contact depth",
     "cycle_time_us.p50": "median cycle time", "cycle_time_us.p99": "99th percentile cycle time",
     "safety_stop.robot": "the arm that stopped", "safety_stop.t_s": "when it stopped",
     "safety_stop.reason": "why (e.g. \"joint 3 speed limit\")",

@@ -77,11 +77,11 @@
         (iv ? ` (95 % interval ${num(iv[0])} – ${num(iv[1])})` : "") +
         ` · ideal run ${num(c.restitution_ideal)} · error ${pct(c.restitution_error)}` +
         ` · peak force ${num(c.peak_force_N, 1)} N · contact at ${num(c.contact_start_s, 3)} s`));
-      if (typeof c.rendering_error_m === "number" && c.approach_depth_m) {
+      if (typeof c.rendering_error_m === "number" && c.contact_depth_m) {
         box.append(el("p", { class: "result-rendering" },
-          `the arms rendered the contact to ${num(1e6 * c.rendering_error_m, 1)} µm rms ` +
-          `(${num(100 * c.rendering_error_m / c.approach_depth_m, 1)} % of the ` +
-          `${num(1e6 * c.approach_depth_m, 0)} µm approach depth)`));
+          `the mockups rendered the contact to ${num(1e6 * c.rendering_error_m, 1)} µm rms ` +
+          `of overlap against the satellites' ${num(1e6 * c.contact_depth_m, 0)} µm ` +
+          `contact depth (${num(100 * c.rendering_error_m / c.contact_depth_m, 1)} %)`));
       }
       if (c.true_impulse_ratio) {
         box.append(el("p", {}, "true impulse × ideal: " + Object.entries(c.true_impulse_ratio)

@@ -184,7 +184,7 @@ def test_a_web_run_is_listed_with_its_figures_and_the_cli_s_numbers(live, tmp_pa
     cli = json.loads((out / "metrics.json").read_text())
     for key in ("restitution", "restitution_ideal", "restitution_error", "true_impulse_ratio",
                 "restitution_interval_95", "peak_force_N", "rendering_error_m",
-                "approach_depth_m"):
+                "contact_depth_m"):
         assert web["collision"][key] == pytest.approx(cli["collision"][key], rel=1e-9), key
     web_fc, cli_fc = dict(web["collision_forecast"]), dict(cli["collision_forecast"])
     web_v, cli_v = web_fc.pop("velocity_sd_mps"), cli_fc.pop("velocity_sd_mps")
@@ -390,10 +390,10 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
         assert (f"restitution {h['restitution']:.3f} (ideal {h['restitution_ideal']:.3f}"
                 in page.locator("#runs-headline").inner_text())  # the line at a glance
         c = live.client.get(f"/api/runs/{run_id}").json()["metrics"]["collision"]
-        err, depth = c["rendering_error_m"], c["approach_depth_m"]
+        err, depth = c["rendering_error_m"], c["contact_depth_m"]
         assert page.locator("#run-result .result-rendering").inner_text() == (
-            f"the arms rendered the contact to {1e6 * err:.1f} µm rms "
-            f"({100 * err / depth:.1f} % of the {1e6 * depth:.0f} µm approach depth)")
+            f"the mockups rendered the contact to {1e6 * err:.1f} µm rms of overlap against "
+            f"the satellites' {1e6 * depth:.0f} µm contact depth ({100 * err / depth:.1f} %)")
         src = page.locator("#run-result img.run-plot").first.get_attribute("src")
         assert src.startswith(f"/api/runs/{run_id}/files/") and ".png" in src
         assert page.locator("#runs-retention").inner_text().startswith("the newest 6 runs")

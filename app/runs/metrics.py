@@ -8,7 +8,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from app.config import EmulatorConfig
-from app.runs.rendering import rendering_error, rendering_warning
+from app.runs.rendering import (
+    RENDERING_FIELDS,
+    contact_geometry,
+    rendering_error,
+    rendering_warning,
+)
 from app.runs.success import success_metrics
 from app.sim.compensation import force_lag_s
 from app.sim.loop import Emulator
@@ -465,8 +470,11 @@ def metrics_of(config: EmulatorConfig, rows: np.ndarray, index: dict, facts: Run
             coll["restitution_bias_noisy"] = None
             coll["uncertainty"] = None  # by app/runs/uncertainty.py after the run
             if facts.arm_of:  # how far the mockups' contact was the satellites' (Eq. R1)
-                coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(config)))
+                coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(config),
+                                             contact_geometry(config)))
                 coll["warnings"] += [w for w in [rendering_warning(coll)] if w]
+            else:  # ideal: no mockups
+                coll.update(dict.fromkeys(RENDERING_FIELDS))
             if facts.arm_of and coll["peak_force_N"] >= config.sensor.range_force_N:
                 coll["warnings"].append(
                     f"the contact peaked at {coll['peak_force_N']:.0f} N, beyond the F/T "

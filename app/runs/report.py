@@ -263,11 +263,11 @@ def _chain_text(coll: dict) -> str:
 
 def rendering_text(coll: dict) -> str:
     """How far the mockups' contact was the satellites' (app/runs/rendering.py, Eq. R1)."""
-    err, depth = coll["rendering_error_m"], coll["approach_depth_m"]
-    share = f", {100 * err / depth:.1f} % of" if depth else " against"
-    return (f"the arms rendered the contact to {1e6 * err:.1f} µm rms (at most "
-            f"{1e6 * coll['rendering_error_max_m']:.1f} µm) off the satellites' course{share} "
-            f"the {1e6 * depth:.0f} µm they moved into each other")
+    err, depth = coll["rendering_error_m"], coll["contact_depth_m"]
+    share = f" ({100 * err / depth:.1f} %)" if depth else ""
+    return (f"the mockups rendered the contact to {1e6 * err:.1f} µm rms (at most "
+            f"{1e6 * coll['rendering_error_max_m']:.1f} µm) of overlap against the "
+            f"satellites' {1e6 * depth:.0f} µm contact depth{share}")
 
 
 def interval_text(coll: dict) -> str | None:
@@ -306,5 +306,5 @@ def _unrendered(forecast: dict) -> str:
     contact (app/runs/rendering.py); "" otherwise."""
     share = unrendered_share(forecast)
     return ("" if share is None else
-            f"; the arms will not render this contact (the noise-free twin's rendering "
-            f"error is {100 * share:.0f} % of the approach depth)")
+            f"; the mockups will not render this contact (the noise-free twin's rendering "
+            f"error is {100 * share:.0f} % of the contact depth)")

@@ -146,7 +146,8 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
     rows, index = em.telemetry.rows(), em.telemetry.index
     coll = collision_metrics(rows, index, dt_s, *pair, bodies=bodies)
     if coll is not None:  # how far the arms rendered it (Eq. R1)
-        coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(em.config)))
+        coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(em.config),
+                                     em.interaction.contact))
     if coll is not None:  # the satellites' velocities (R) as the replicate ends
         coll["velocity_after_mps"] = {
             f"sat{s}": rows[-1, [index[f"sat{s}_v{a}_mps"] for a in "xyz"]].tolist()
@@ -284,7 +285,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     out over seeds), "restitution_noise_free" (the twin's own restitution, its contact
     window run on without noise) and "restitution_systematic" (that against the ideal
     restitution: the chain's systematic error on this contact, :func:`add_systematic`),
-    "rendering_error_m" and "approach_depth_m" (the twin's Eq. R1, app/runs/rendering.py:
+    "rendering_error_m" and "contact_depth_m" (the twin's Eq. R1, app/runs/rendering.py:
     whether the arms will render the contact at all),
     "velocity_sd_mps" (per satellite of the pair, the replicates' per-axis standard
     deviation of its velocity after the contact, R: the pre-flight's drift check,
@@ -299,7 +300,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     out = {"restitution_sd": None, "restitution_sd_se": None, "restitution_mean": None,
            "restitution_error_mean": None, "restitution_noise_free": None,
            "restitution_systematic": None, "velocity_sd_mps": None,
-           "rendering_error_m": None, "approach_depth_m": None,
+           "rendering_error_m": None, "contact_depth_m": None,
            "peak_force_N": float(ideal["peak_force_N"]), "noise_force_N": sigma,
            "peak_to_noise": float(ideal["peak_force_N"]) / sigma if sigma > 0 else None,
            "replicates": config.uncertainty.forecast_count}
@@ -326,7 +327,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     quiet_coll = replicate(snap, pair, min(until_s, config.loop.duration_s))
     if quiet_coll is not None:  # whether the arms will render the contact (Eq. R1)
         out["rendering_error_m"] = quiet_coll["rendering_error_m"]
-        out["approach_depth_m"] = quiet_coll["approach_depth_m"]
+        out["contact_depth_m"] = quiet_coll["contact_depth_m"]
     if quiet_coll is not None and quiet_coll["restitution"] is not None:
         out["restitution_noise_free"] = float(quiet_coll["restitution"])
         out["restitution_systematic"] = (float(quiet_coll["restitution"])

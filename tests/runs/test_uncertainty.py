@@ -219,7 +219,7 @@ def test_with_the_noise_at_zero_the_interval_holds_the_ideal(material):
     metrics = run_scenario(config, ideal=ref, preflight_done=True).metrics
     coll = metrics["collision"]
     e, e_ideal, delta = coll["restitution"], ref["restitution"], coll["restitution_systematic"]
-    for key in ("rendering_error_m", "approach_depth_m"):  # the twin's R1 is the run's
+    for key in ("rendering_error_m", "contact_depth_m"):  # the twin's R1 is the run's
         assert metrics["collision_forecast"][key] == pytest.approx(coll[key], rel=1e-9)
     assert coll["restitution_sd"] < 1e-9
     assert delta == pytest.approx(e - e_ideal, abs=1e-9)  # the twin is this very run
