@@ -24,7 +24,8 @@ def _run(module: str, timeout_s: float = 120) -> str:
 def test_loop_speed_quick():
     out = _run("benchmarks.loop_speed")
     for line in ("## Cycle breakdown: collision", "## Cycle breakdown: free-floating-scripted",
-                 "| VFDM arm 1 |", "| servo arm 2 |", "| ODS step |", "| contact (coal) |",
+                 "| arm 1: target, VFDM, servo, FK |", "| arm 2: target, VFDM, servo, FK |",
+                 "| ODS step |", "| contact (coal) |",
                  "| telemetry row |", "| F/T sensor + processing |",
                  "| actual mockups (arm FK + twist) |", "| ODS coupling (passivity) |",
                  "| rest (glue) |", "**total cycle**",
