@@ -21,6 +21,7 @@ import re
 import shutil
 import signal
 import subprocess
+import threading
 import time
 import zipfile
 
@@ -449,6 +450,32 @@ def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
     rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
     assert rows[-1, 0] >= s["t_s"] - 1e-9  # (the CSV's 12 digits against the state's float)
     assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"
+
+
+def test_a_start_the_loop_takes_late_is_recorded_whole(live, runs_dir):
+    """The loop process paused for 0.8 s as a start is sent (a core taken by other work):
+    the recorder waits for the loop to take the new run, instead of ending it at once as
+    "stopped" by a reset with none of its rows; the run is kept finished, whole."""
+    live.wait_for(lambda s: s["status"] not in ("running", "starting"))
+    r = live.client.post("/api/scenarios/collision/start",  # a live loop (after a fault)
+                         json={"mode": "ideal", "loop": {"duration_s": 0.1}})
+    assert r.status_code == 200, r.text
+    pid = live.wait_for(lambda s: s["status"] == "finished")["loop"]["pid"]
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        start = threading.Thread(target=lambda: httpx.post(
+            f"{live.url}/api/scenarios/collision/start", timeout=60.0,
+            json={"mode": "ideal", "loop": {"duration_s": 1.0}}))
+        start.start()
+        time.sleep(0.8)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    start.join(60.0)
+    run_id = max(_runs(live))  # the newest (ids begin with their start time)
+    record = _ended(live, run_id)
+    assert record["status"] == "finished", record
+    rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
+    assert rows[-1, 0] == pytest.approx(1.0, abs=0.003) and len(rows) >= 500
 
 
 class _FillingDisk:

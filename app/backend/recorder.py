@@ -95,6 +95,9 @@ class _Active:
     record_error: str | None = None
     """Why the run stopped being recorded (its telemetry.csv could not be written)."""
     disk_logged: bool = False
+    generation: int | None = None
+    """The loop generation of the run: a state of an older one is the loop not yet having
+    taken this run (it stalled), not a run that replaced it."""
 
 
 class RunRecorder:
@@ -211,7 +214,8 @@ class RunRecorder:
             self._run = _Active(
                 run_id=run_id, folder=folder, ring=ring, fd=fd, reader=reader,
                 appender=appender, config=config, mode=mode, ideal=ideal,
-                expect_interval=mode == "hil" and snapshot_at_s is not None)
+                expect_interval=mode == "hil" and snapshot_at_s is not None,
+                generation=generation)
             with self._names_lock:
                 if ideal is not None:
                     self._ideals[run_id] = ideal
@@ -352,13 +356,15 @@ class RunRecorder:
         mine = snap is not None and self.runner.ring_of(snap) is run.ring
         if mine:
             run.last_snap = snap
+        replaced = snap is not None and not mine and (
+            run.generation is None or snap.get("generation", -1) > run.generation)
         self._flush(run)
         if run.phase == "recording":
             last = run.last_snap or {}
             if dead is not None:
                 self._end(run, "fault", dead)
                 self._final(run)
-            elif not mine and snap is not None:  # replaced (a reset, a new loop)
+            elif replaced:  # a reset, a new loop (an older state: not taken yet, wait)
                 status = last.get("status", "running")
                 if status in LIVE:
                     self._end(run, "stopped", "a reset or a new run ended it")
