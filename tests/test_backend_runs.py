@@ -434,9 +434,10 @@ def test_the_page_shows_the_result_and_compares_two_runs(live):
         assert viewer.title() == "orbit-emulator replay: collision (hil)"
 
 
-def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
+def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir, caplog):
     """The loop process killed mid-run: the run ends "fault" with the reason, and its
-    rows up to the kill are on disk (read from the ring the recorder keeps open)."""
+    rows up to the kill are on disk (read from the ring the recorder keeps open); the
+    server's log says so."""
     live.wait_for(lambda s: s["status"] not in ("running", "starting"))
     r = live.client.post("/api/scenarios/collision/start",
                          json={"mode": "ideal", "loop": {"duration_s": 30.0}})
@@ -450,6 +451,8 @@ def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir):
     rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
     assert rows[-1, 0] >= s["t_s"] - 1e-9  # (the CSV's 12 digits against the state's float)
     assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"
+    assert any(r.getMessage().startswith("the loop process exited (code -9), killed by "
+                                         "SIGKILL: the run ends here") for r in caplog.records)
 
 
 def test_a_start_the_loop_takes_late_is_recorded_whole(live, runs_dir):

@@ -214,6 +214,8 @@ class Runner:
                 return self._fault
             if not proc.is_alive():
                 self._fault = exit_reason(proc.exitcode)
+                log.error("%s: the run ends here, its rows kept; the next start brings up a "
+                          "new loop process", self._fault)
                 return self._fault
             count, since = self._beat
             now = time.monotonic()
