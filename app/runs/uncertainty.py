@@ -118,9 +118,11 @@ def lead_warning(config: EmulatorConfig, at_s: float | None) -> str | None:
 
 def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
               noise: list[SensorNoise] | None = None,
-              rng: np.random.Generator | None = None) -> dict | None:
+              rng: np.random.Generator | None = None, rendering: bool = False) -> dict | None:
     """One replicate of the contact window from ``snapshot`` (left untouched): its
-    collision metrics (app/runs/metrics.collision_metrics; None if the pair never touched).
+    collision metrics (app/runs/metrics.collision_metrics; None if the pair never touched),
+    with ``rendering`` also how far its mockups rendered the contact (Eq. R1, the
+    forecast's noise-free twin's).
 
     It steps until the pair's contact has ended (apart for QUIET_S) and WAIT_S more, a
     stop, or ``until_s``. ``noise``: per arm, draw fresh noise of this size with ``rng``
@@ -145,7 +147,7 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
     bodies = {arm.satellite + 1: f"rob{arm.index + 1}" for arm in em.arms}
     rows, index = em.telemetry.rows(), em.telemetry.index
     coll = collision_metrics(rows, index, dt_s, *pair, bodies=bodies)
-    if coll is not None:  # how far the arms rendered it (Eq. R1)
+    if coll is not None and rendering:  # how far the mockups rendered it (Eq. R1)
         coll.update(rendering_error(rows, index, coll, bodies, force_lag_s(em.config),
                                      em.interaction.contact))
     if coll is not None:  # the satellites' velocities (R) as the replicate ends
@@ -324,7 +326,7 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     pair = tuple(int(p[3:]) for p in ideal["pair"])
     until_s = ideal["window_s"][1] + 0.5 + 2 * ideal["contact_duration_s"]
     snap = twin.copy_state()
-    quiet_coll = replicate(snap, pair, min(until_s, config.loop.duration_s))
+    quiet_coll = replicate(snap, pair, min(until_s, config.loop.duration_s), rendering=True)
     if quiet_coll is not None:  # whether the arms will render the contact (Eq. R1)
         out["rendering_error_m"] = quiet_coll["rendering_error_m"]
         out["contact_depth_m"] = quiet_coll["contact_depth_m"]
