@@ -5,7 +5,9 @@ the sweep joins that Ray cluster (``ray start --head`` there) and leaves it runn
 run is one task (``max_retries=1``: a worker that dies is retried once) that returns only
 its row's outcome (the metrics), never its telemetry; a hil run of two or more satellites
 gets its ideal reference from a task computed once per configuration (apart from the seed)
-and shared by the runs of every seed. Rows are appended to results.csv as runs end; Ctrl+C
+and shared by the runs of every seed; the next configurations' ideal runs start while the
+runs of the one before them are under way (a worker never idles waiting for one while
+another could be computed). Rows are appended to results.csv as runs end; Ctrl+C
 cancels what is under way and keeps them.
 """
 
@@ -17,7 +19,7 @@ import socket
 import sys
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from pathlib import Path
 
 from app.campaign.sweep import (
@@ -43,6 +45,8 @@ OBJECT_STORE_BYTES = 256 * 2**20
 """A local Ray's object store: runs return only their metrics."""
 IDEAL_CACHE = 64
 """Ideal references kept for runs still to come (runs of one configuration are adjacent)."""
+LOOKAHEAD_RUNS = 256
+"""How far ahead of the runs under way the sweep looks for ideal references to start."""
 
 
 def run_sweep(plan: SweepPlan, out_dir: Path, *, address: str | None = None,
@@ -54,6 +58,7 @@ def run_sweep(plan: SweepPlan, out_dir: Path, *, address: str | None = None,
     table = ResultsTable(out_dir / "results.csv", plan.columns(), resume)
     t0 = time.perf_counter()
     summary = {"runs_planned": plan.count, "skipped": 0, "ran": 0, "ideal_runs": 0,
+               "ideal_runs_ahead": 0,
                "address": address or "local", "workers": None, "interrupted": False}
     pending = _pending(plan, table, summary)
     first = next(pending, None)
@@ -98,15 +103,17 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         run_task = ray.remote(num_cpus=1, max_retries=1)(execute_run)
         ideal_task = ray.remote(num_cpus=1, max_retries=1)(compute_ideal)
         ideals: OrderedDict = OrderedDict()
+        finished: set = set()  # ideal references known to be done
         in_flight: dict = {}
-        runs = iter(first)
+        upcoming = _Lookahead(first, pending)
         bar = tqdm(total=plan.count - summary["skipped"], unit="run", file=sys.stderr,
                    disable=quiet, smoothing=0.1)
         counts = status_counts([])
         try:
             while True:
+                _prefetch_ideals(ray, upcoming, ideals, finished, ideal_task, summary)
                 while len(in_flight) < window:
-                    run = next(runs, None) or next(pending, None)
+                    run = upcoming.pop()
                     if run is None:
                         break
                     if run.config is None:  # its settings are not valid together
@@ -144,6 +151,48 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
             bar.close()
     finally:
         ray.shutdown()
+
+
+class _Lookahead:
+    """The runs still to submit, with the next LOOKAHEAD_RUNS of them in view."""
+
+    def __init__(self, first: list[Run], pending):
+        self._buffer = deque(first)
+        self._pending = pending
+
+    def pop(self) -> Run | None:
+        """The next run to submit (None when there is none)."""
+        return self._buffer.popleft() if self._buffer else next(self._pending, None)
+
+    def ahead(self):
+        """The runs to come, nearest first, LOOKAHEAD_RUNS at most."""
+        while len(self._buffer) < LOOKAHEAD_RUNS:
+            run = next(self._pending, None)
+            if run is None:
+                break
+            self._buffer.append(run)
+        return iter(self._buffer)
+
+
+def _prefetch_ideals(ray, upcoming: _Lookahead, ideals: OrderedDict, finished: set,
+                     ideal_task, summary: dict) -> None:
+    """Start the ideal runs of the configurations to come, nearest first, while fewer than
+    one per worker are unfinished: the runs that wait for an ideal hold no worker, so
+    without this a worker idles while the next configuration's ideal runs alone.
+    ``finished``: the ideal references known to be done (kept up to date here)."""
+    unfinished = [ref for ref in ideals.values() if ref not in finished]
+    if unfinished:
+        ready, unfinished = ray.wait(unfinished, num_returns=len(unfinished), timeout=0)
+        finished.update(ready)
+    finished.intersection_update(ideals.values())  # not those the cache let go
+    room = min(summary["workers"], IDEAL_CACHE // 2) - len(unfinished)
+    for run in upcoming.ahead():
+        if room <= 0:
+            break
+        if run.config is not None and run.ideal_id is not None and run.ideal_id not in ideals:
+            _ideal_ref(ideals, run, ideal_task, summary)
+            summary["ideal_runs_ahead"] += 1
+            room -= 1
 
 
 def _ideal_ref(ideals: OrderedDict, run: Run, ideal_task, summary: dict):
