@@ -65,7 +65,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if config.loop.mode == "hil":  # refused before anything is created or moves
         from app.runs.headless import checked_reference
 
-        ideal = checked_reference(headless_config(config, duration), duration)
+        ideal = checked_reference(headless_config(config, duration), duration,
+                                  processes=_cores())  # the forecast's replicates
         if ideal and ideal.get("forecast"):  # the fidelity forecast, before the arms move
             from app.runs.report import forecast_text
 
@@ -89,7 +90,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         result = run_scenario(config, mode=config.loop.mode, duration_s=duration,
                               out_dir=out_dir, progress=progress, bag=args.bag,
                               bag_rate_hz=args.bag_rate, ideal=ideal, preflight_done=True,
-                              plots_apart=_cores() > 1)  # a core free
+                              plots_apart=_cores() > 1,  # a core free
+                              processes=_cores())  # the interval's replicates
         bar.update(bar.total - bar.n)
     except RunFailed as failed:
         result = failed.result

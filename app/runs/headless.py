@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 import stat
@@ -59,7 +60,7 @@ def collision_of(em: Emulator) -> dict:
 
 
 def checked_reference(config: EmulatorConfig, duration_s: float,
-                      with_ideal: bool = True) -> dict | None:
+                      with_ideal: bool = True, processes: int = 1) -> dict | None:
     """Before a hil run: its pre-flight (app/runs/preflight.py; raises PreflightRefused naming
     the robot, the time and the limit), and from the same ideal run the collision
     reference a run with two or more satellites is compared with (None when it needs
@@ -67,19 +68,21 @@ def checked_reference(config: EmulatorConfig, duration_s: float,
 
     Once a setting has passed (the same configuration but its seed, duration and code),
     its reference is read back (app/runs/forecast_cache.py :func:`cached_reference`): the
-    pre-flight, its ideal run and the forecast do not depend on the seed."""
+    pre-flight, its ideal run and the forecast do not depend on the seed. ``processes``:
+    how many processes run the forecast's replicates (app/runs/replicate_pool.py)."""
     if not with_ideal:
         preflight(config, duration_s)
         return None
     kept = cached_reference(config, duration_s)
     if kept is not NOT_KEPT:
         return kept
-    reference = _checked_reference(config, duration_s)
+    reference = _checked_reference(config, duration_s, processes)
     keep_reference(config, duration_s, reference)
     return reference
 
 
-def _checked_reference(config: EmulatorConfig, duration_s: float) -> dict | None:
+def _checked_reference(config: EmulatorConfig, duration_s: float,
+                       processes: int = 1) -> dict | None:
     """:func:`checked_reference` computed (with the ideal reference)."""
     prediction = preflight(config, duration_s)
     if len(config.satellites) < 2:
@@ -89,7 +92,8 @@ def _checked_reference(config: EmulatorConfig, duration_s: float) -> dict | None
     reference = collision_of(prediction)  # at the run's rate (two satellites)
     if reference:  # the fidelity forecast (app/runs/uncertainty.py), in metrics.json,
         # once per setting (app/runs/forecast_cache.py)
-        reference["forecast"] = cached_forecast(config, reference, forecast)
+        reference["forecast"] = cached_forecast(
+            config, reference, functools.partial(forecast, processes=processes))
         check_drift(config, prediction, reference)  # the noise's drift after the contact
     return reference
 
@@ -106,6 +110,7 @@ def run_scenario(
     ideal: dict | None = None,
     preflight_done: bool = False,
     plots_apart: bool = False,
+    processes: int = 1,
 ) -> RunResult:
     """Run a scenario headless; with out_dir, write its telemetry, metrics and plots (and
     with ``bag`` a ROS 2 bag, ``out_dir/bag``: :func:`app.runs.bag.write_bag`).
@@ -120,12 +125,14 @@ def run_scenario(
     after its files are written (status "error"); one its start-up refuses (e.g. a start
     pose not found) raises as it is. ``plots_apart``: the plots are drawn in a process of
     their own while this one finishes the run (app/runs/plot_process.py; the same files).
+    ``processes``: how many processes run the replicates of its pre-flight's forecast and
+    of its interval (app/runs/replicate_pool.py; the same results).
     """
     duration_s = duration_s or config.loop.duration_s
     config = headless_config(config, duration_s)
     hil = (mode or config.loop.mode) == "hil"
     if hil and not preflight_done:
-        reference = checked_reference(config, duration_s, with_ideal)
+        reference = checked_reference(config, duration_s, with_ideal, processes)
         ideal = reference if ideal is None else ideal
     em = Emulator(config, mode=mode)
     if em.mode == "hil":  # the uncertainty's snapshot, before the predicted contact
@@ -154,7 +161,7 @@ def run_scenario(
                 plotter = None
         try:
             if failure is None:
-                _add_uncertainty(em, metrics)
+                _add_uncertainty(em, metrics, processes)
             files, unwritten = [], None
             if out_dir is not None:
                 try:
@@ -170,7 +177,7 @@ def run_scenario(
     return RunResult(em, metrics, files, unwritten)
 
 
-def _add_uncertainty(em: Emulator, metrics: dict) -> None:
+def _add_uncertainty(em: Emulator, metrics: dict, processes: int = 1) -> None:
     """The restitution's interval from the replicates of the contact window
     (app/runs/uncertainty.py); if they fail, the run's record is written all the same, with a
     warning and no interval."""
@@ -178,7 +185,7 @@ def _add_uncertainty(em: Emulator, metrics: dict) -> None:
     if coll is None or em.snapshot is None:
         return
     try:
-        spread_of_run(em, coll)
+        spread_of_run(em, coll, processes=processes)
         add_systematic(coll, metrics.get("collision_forecast"))
     except Exception as err:  # noqa: BLE001 - the run's record matters more
         coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None

@@ -129,11 +129,19 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
     and shift each calibration's bias by a fresh draw of its error; None: the snapshot's
     own noise sequence and calibration (the replicate then is the run itself).
     """
+    return _replicate(snapshot, pair, until_s, None if noise is None else _draw(noise, rng),
+                      noise, rendering)
+
+
+def _replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
+               draw: list | None, noise: list[SensorNoise] | None,
+               rendering: bool = False) -> dict | None:
+    """:func:`replicate` with its draws made (:func:`_draw`; None: the snapshot's own)."""
     dt_s = snapshot.dt_s
     cycles = int(math.ceil((until_s - snapshot.t_s) / dt_s)) + 3
     em = snapshot.copy_state(capacity=max(100, cycles))
-    if noise is not None:
-        _redraw(em, noise, rng)
+    if draw is not None:
+        _redraw(em, noise, draw)
     a, b = pair[0] - 1, pair[1] - 1
     after = int(round((QUIET_S + WAIT_S) / dt_s)) + 2
     last_touch = None
@@ -157,30 +165,38 @@ def replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
     return coll
 
 
-def _redraw(em: Emulator, noise: list[SensorNoise], rng: np.random.Generator) -> None:
+def _draw(noise: list[SensorNoise], rng: np.random.Generator) -> list[tuple]:
+    """One replicate's draws from ``rng``, per arm: its sensor's new generator seed and
+    its calibration's bias-estimate error (S). Made before the replicate runs, in this
+    order, so that replicates run anywhere give the same results."""
+    return [(rng.integers(2**63), nz.bias_sd_S * rng.standard_normal(6)) for nz in noise]
+
+
+def _redraw(em: Emulator, noise: list[SensorNoise], draw: list[tuple]) -> None:
     """Give each arm's sensor a new noise generator and standard deviation, and its
-    calibration a new draw of the bias estimate's error."""
-    for arm, nz in zip(em.arms, noise, strict=True):
-        arm.sensor.rng = np.random.default_rng(rng.integers(2**63))
+    calibration a new draw of the bias estimate's error (:func:`_draw`)."""
+    for arm, nz, (seed, bias_error_S) in zip(em.arms, noise, draw, strict=True):
+        arm.sensor.rng = np.random.default_rng(seed)
         arm.sensor.noise_std_S = np.array(nz.sd_S, dtype=float)
         cal = arm.processor.calibration
-        arm.processor.calibration = replace(
-            cal, bias_S=cal.bias_S + nz.bias_sd_S * rng.standard_normal(6))
+        arm.processor.calibration = replace(cal, bias_S=cal.bias_S + bias_error_S)
 
 
 def restitution_spread(snapshot: Emulator, pair: tuple[int, int], until_s: float,
                        noise: list[SensorNoise], replicates: int,
-                       rng: np.random.Generator, tick=None) -> dict:
+                       rng: np.random.Generator, tick=None, processes: int = 1) -> dict:
     """{"restitution_sd", "replicates", "replicates_with_restitution", "restitutions",
     "velocity_sd_mps"}: the standard deviation (ddof 1) of the replicates' restitutions
     (None with fewer than two), and per satellite of the pair of their velocities (R, per
     axis) as they end, after the contact. ``tick``: called before each replicate (a
-    supervisor's heartbeat)."""
+    supervisor's heartbeat). ``processes``: how many processes run the replicates
+    (app/runs/replicate_pool.py); the results are the same bit for bit."""
+    from app.runs.replicate_pool import run_replicates
+
+    draws = [_draw(noise, rng) for _ in range(replicates)]
     values, after = [], []
-    for _ in range(replicates):
-        if tick is not None:
-            tick()
-        coll = replicate(snapshot, pair, until_s, noise, rng)
+    for coll in run_replicates(_replicate, (snapshot, pair, until_s), noise, draws,
+                               processes, tick):
         values.append(None if coll is None else coll["restitution"])
         if coll is not None and coll["restitution"] is not None:
             after.append(coll["velocity_after_mps"])
@@ -224,12 +240,12 @@ def _rng(config: EmulatorConfig, stream: int) -> np.random.Generator:
     return np.random.default_rng([seed, 28, stream])
 
 
-def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
+def spread_of_run(em: Emulator, coll: dict | None, tick=None, processes: int = 1) -> None:
     """After a hil run (its ``snapshot`` kept): add ``restitution_sd`` and
     ``restitution_interval_95`` ([e − 1.96 sd, e + 1.96 sd]) to its collision metrics
     ``coll`` (in place; both None where there is no snapshot, no noise measured, or no
     restitution), and ``uncertainty`` (how they were found). ``tick``: called before each
-    replicate."""
+    replicate. ``processes``: how many processes run the replicates (the same results)."""
     if coll is None:
         return
     coll["restitution_sd"] = coll["restitution_interval_95"] = None
@@ -252,7 +268,7 @@ def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
                   coll["window_s"][1] + 0.5 + 2 * coll["contact_duration_s"])
     cfg = em.config.uncertainty
     spread = restitution_spread(snap, pair, until_s, noise, cfg.run_replicates,
-                                _rng(em.config, 1), tick)
+                                _rng(em.config, 1), tick, processes)
     sd, e = spread["restitution_sd"], coll["restitution"]
     coll["restitution_sd"] = sd
     if sd is not None:
@@ -270,7 +286,7 @@ def spread_of_run(em: Emulator, coll: dict | None, tick=None) -> None:
             f"interval covers those that did")
 
 
-def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
+def forecast(config: EmulatorConfig, ideal: dict | None, processes: int = 1) -> dict | None:
     """Before the arms move: the restitution's predicted standard deviation for this
     contact and this sensing chain, ``collision_forecast`` in metrics.json (None without
     arms, a contact in the ideal run ``ideal`` (its collision metrics), or with
@@ -291,7 +307,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
     whether the arms will render the contact at all),
     "velocity_sd_mps" (per satellite of the pair, the replicates' per-axis standard
     deviation of its velocity after the contact, R: the pre-flight's drift check,
-    app.runs.preflight.check_drift)}.
+    app.runs.preflight.check_drift)}. ``processes``: how many processes run the
+    replicates (the same results).
     """
     at_s = snapshot_time_s(config, ideal)
     if at_s is None or not config.robots or ideal.get("restitution") is None:
@@ -335,7 +352,8 @@ def forecast(config: EmulatorConfig, ideal: dict | None) -> dict | None:
         out["restitution_systematic"] = (float(quiet_coll["restitution"])
                                          - float(ideal["restitution"]))
     spread = restitution_spread(snap, pair, min(until_s, config.loop.duration_s),
-                                noise, config.uncertainty.forecast_count, _rng(config, 2))
+                                noise, config.uncertainty.forecast_count, _rng(config, 2),
+                                processes=processes)
     out["restitution_sd"] = spread["restitution_sd"]
     out["velocity_sd_mps"] = spread["velocity_sd_mps"]
     out["replicates_with_restitution"] = spread["replicates_with_restitution"]
