@@ -54,6 +54,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from app.runs.headless import RunFailed, headless_config, run_scenario
+    from app.runs.replicate_pool import cores
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
@@ -66,7 +67,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from app.runs.headless import checked_reference
 
         ideal = checked_reference(headless_config(config, duration), duration,
-                                  processes=_cores())  # the forecast's replicates
+                                  processes=cores())  # the forecast's replicates
         if ideal and ideal.get("forecast"):  # the fidelity forecast, before the arms move
             from app.runs.report import forecast_text
 
@@ -90,22 +91,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         result = run_scenario(config, mode=config.loop.mode, duration_s=duration,
                               out_dir=out_dir, progress=progress, bag=args.bag,
                               bag_rate_hz=args.bag_rate, ideal=ideal, preflight_done=True,
-                              plots_apart=_cores() > 1,  # a core free
-                              processes=_cores())  # the interval's replicates
+                              plots_apart=cores() > 1,  # a core free
+                              processes=cores())  # the interval's replicates
         bar.update(bar.total - bar.n)
     except RunFailed as failed:
         result = failed.result
     finally:
         bar.close()
     return _report_run(result)
-
-
-def _cores() -> int:
-    """The cores this process may run on (all of the machine's where the system cannot
-    say: sched_getaffinity is Linux's)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def _report_run(result) -> int:

@@ -14,11 +14,20 @@ already fill the cores, and the web app's loop process must keep its core to its
 from __future__ import annotations
 
 import multiprocessing
+import os
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 _job: tuple | None = None
 """In a forked worker: (replicate function, its leading arguments, the noise)."""
+
+
+def cores() -> int:
+    """The cores this process may run on (all of the machine's where the system cannot
+    say: sched_getaffinity is Linux's)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def run_replicates(fn, args: tuple, noise, draws: list, processes: int = 1,

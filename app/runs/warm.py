@@ -100,13 +100,15 @@ def keep_forecasts() -> float:
     """Compute and keep the pre-flight reference and forecast of each of
     :data:`KEPT_SETTINGS` (app/runs/forecast_cache.py); the seconds it took."""
     from app.runs.headless import checked_reference, headless_config
+    from app.runs.replicate_pool import cores
     from app.scenarios import load_scenario
 
     t0 = time.perf_counter()
     for name in KEPT_SETTINGS:
         config = load_scenario(name)
         duration_s = config.loop.duration_s
-        checked_reference(headless_config(config, duration_s), duration_s)
+        checked_reference(headless_config(config, duration_s), duration_s,
+                          processes=cores())
     return time.perf_counter() - t0
 
 
