@@ -137,6 +137,12 @@ def run_scenario(
     em = Emulator(config, mode=mode)
     if em.mode == "hil":  # the uncertainty's snapshot, before the predicted contact
         em.snapshot_at_s = snapshot_time_s(config, ideal)
+    plotter = None
+    if out_dir is not None and plots_apart:  # matplotlib imported while the loop runs
+        try:
+            plotter = plot_process.prestart(out_dir, em.config, guard=_whole_or_none)
+        except OSError:  # no process to be had (EAGAIN, ENOMEM): drawn here
+            plotter = None
     t0 = time.perf_counter()
     failure = None
     try:
@@ -150,14 +156,12 @@ def run_scenario(
             ideal = None
         error = None if failure is None else f"{type(failure).__name__}: {failure}"
         metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
-        plotter = None
-        if out_dir is not None and plots_apart:  # drawing while the replicates run
+        if plotter is not None:  # drawing while the replicates run
             try:
-                plotter = plot_process.start(em.telemetry.rows(), em.telemetry.index,
-                                             out_dir, em.config, metrics,
-                                             note=metrics["scaling"]["text"],
-                                             guard=_whole_or_none)
-            except OSError:  # no process to be had (EAGAIN, ENOMEM): drawn here
+                plotter.begin(em.telemetry.rows(), em.telemetry.index, metrics,
+                              note=metrics["scaling"]["text"])
+            except OSError:  # it died: drawn here
+                plotter.close()
                 plotter = None
         try:
             if failure is None:

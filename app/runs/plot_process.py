@@ -2,9 +2,11 @@
 finishes (the uncertainty's replicates, telemetry.csv, metrics.json), joined before the
 run returns: where a second core is free, most of the plots cost the run no wall time.
 
-:func:`start` forks the process once the loop has ended, with the run's telemetry and its
-metrics as they are then (the restitution's interval not yet in them). It imports
-matplotlib and draws at once each planned figure that carries no text of metrics (the
+:func:`prestart` forks the process before the loop starts: it imports matplotlib (half a
+second) while the loop runs on the other core. Once the loop has ended,
+:meth:`PlotProcess.begin` sends it the run's telemetry and its metrics as they are then
+(the restitution's interval not yet in them; :func:`start` does both at once). It draws at
+once each planned figure that carries no text of metrics (the
 velocities, positions, tracking errors...), then waits for the final metrics
 (:meth:`PlotProcess.finish`), plans again and writes every figure as
 :func:`app.runs.plots.plot_run` does: a figure drawn early is written as it is only where
@@ -30,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["FINISH_TIMEOUT_S", "PlotProcess", "start"]
+__all__ = ["FINISH_TIMEOUT_S", "PlotProcess", "prestart", "start"]
 
 FINISH_TIMEOUT_S = 120.0
 """How long :meth:`PlotProcess.finish` waits for the figures once the final metrics are
@@ -44,12 +46,23 @@ class PlotProcess:
     def __init__(self, process, conn) -> None:
         self._process, self._conn = process, conn
         self._answered = False  # (then it exits by itself)
+        self._begun = False
+
+    def begin(self, rows: np.ndarray, index: dict, metrics: dict, note: str = "") -> None:
+        """Send the run's telemetry and its metrics as they are now (the loop has ended):
+        it draws the figures that carry no text of metrics. Raises the OSError of a
+        process that has died (the caller then draws the figures itself)."""
+        self._conn.send((np.asarray(rows), index, metrics, note))
+        self._begun = True
 
     def finish(self, metrics: dict) -> list[Path] | None:
         """Send the run's final metrics, wait for its figures: the paths written; raises
         the OSError or ValueError that kept them from being written; None if the process
         died first, failed, or gave no answer within :data:`FINISH_TIMEOUT_S` (it is then
-        killed; the caller draws them)."""
+        killed; the caller draws them; also where :meth:`begin` was not reached)."""
+        if not self._begun:
+            self.close()
+            return None
         try:
             self._conn.send(metrics)
             answer = self._answer(time.monotonic() + FINISH_TIMEOUT_S)
@@ -91,19 +104,31 @@ class PlotProcess:
 
 def start(rows: np.ndarray, index: dict, out_dir: str | Path, config, metrics: dict,
           note: str = "", guard=None) -> PlotProcess | None:
-    """Fork the process that draws the run's figures into ``out_dir`` (module doc);
-    ``metrics``: the run's as they are now. ``guard(write, folder)``: how the files are
-    written (app/runs/headless.py: whole, or nothing left in the folder). None where
-    processes cannot be forked (the caller draws); raises the OSError of a fork that
-    failed (EAGAIN, ENOMEM)."""
+    """:func:`prestart` and :meth:`PlotProcess.begin` at once (the loop has ended)."""
+    process = prestart(out_dir, config, guard)
+    if process is not None:
+        try:
+            process.begin(rows, index, metrics, note)
+        except BaseException:
+            process.close()
+            raise
+    return process
+
+
+def prestart(out_dir: str | Path, config, guard=None) -> PlotProcess | None:
+    """Fork the process that draws the run's figures into ``out_dir`` (module doc) before
+    the loop: it imports matplotlib, then waits for :meth:`PlotProcess.begin`.
+    ``guard(write, folder)``: how the files are written (app/runs/headless.py: whole, or
+    nothing left in the folder). None where processes cannot be forked (the caller
+    draws); raises the OSError of a fork that failed (EAGAIN, ENOMEM)."""
     if "fork" not in multiprocessing.get_all_start_methods():
         return None
     sys.stdout.flush()  # nothing the run printed is written twice by the child
     sys.stderr.flush()
     context = multiprocessing.get_context("fork")
     ours, theirs = context.Pipe()
-    process = context.Process(target=_draw, args=(theirs, rows, index, Path(out_dir), config,
-                                                  metrics, note, guard, ours), daemon=True)
+    process = context.Process(target=_draw, args=(theirs, Path(out_dir), config, guard, ours),
+                              daemon=True)
     try:
         process.start()
     except BaseException:
@@ -114,8 +139,7 @@ def start(rows: np.ndarray, index: dict, out_dir: str | Path, config, metrics: d
     return PlotProcess(process, ours)
 
 
-def _draw(conn, rows, index, out_dir: Path, config, metrics: dict, note: str,
-          guard, runs_end=None) -> None:
+def _draw(conn, out_dir: Path, config, guard, runs_end=None) -> None:
     """The process's work (module doc). Whatever it raises is answered as ("died",
     reason) and ends it with exit status 1, quietly (the run then draws the figures).
     ``runs_end``: the run's end of the pipe, closed here (the fork's copy would keep
@@ -124,6 +148,13 @@ def _draw(conn, rows, index, out_dir: Path, config, metrics: dict, note: str,
     if runs_end is not None:
         runs_end.close()
     try:
+        from app.runs.plots import pyplot
+
+        pyplot()  # while the run's loop runs
+        try:
+            rows, index, metrics, note = conn.recv()
+        except (EOFError, OSError):  # the run ended before its loop did
+            return
         answer = _drawn(conn, rows, index, out_dir, config, metrics, note, guard)
     except BaseException as err:  # noqa: BLE001 - the run draws them; no second traceback
         _send(conn, ("died", f"{type(err).__name__}: {err}"))

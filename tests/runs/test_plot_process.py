@@ -144,3 +144,19 @@ def test_where_processes_cannot_be_forked_none_is_started(both, monkeypatch, tmp
     assert plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path, em.config,
                               metrics) is None  # (the run draws them: run_scenario's None)
     assert not any(tmp_path.iterdir())
+
+
+def test_started_before_the_loop_it_waits_for_the_telemetry(both, tmp_path):
+    """Forked before the loop, the process imports matplotlib while it waits; a run that
+    ends before its loop does (its start-up failed) leaves nothing drawn: finish without
+    begin is None (the run draws), and the process exits by itself once the pipe is gone."""
+    em = both[True][1].emulator
+    process = plot_process.prestart(tmp_path, em.config)
+    assert process.finish({}) is None
+    assert process._process.exitcode is not None
+    assert not any(tmp_path.iterdir())
+    waiting = plot_process.prestart(tmp_path, em.config)
+    waiting._conn.close()  # the run's process gone before its loop ended
+    waiting._process.join(timeout=60.0)
+    assert waiting._process.exitcode == 0
+    assert not any(tmp_path.iterdir())
