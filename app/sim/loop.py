@@ -27,6 +27,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from pydantic import BaseModel
 
 from app.config import EmulatorConfig
 from app.sim.capture import Compound, compound_wrench, join, relative_state, spread
@@ -67,9 +68,41 @@ from app.sim.rotations import (
 from app.sim.run_up import relative_rates, run_up_state, runs_up
 from app.sim.scaling import scaling_of
 from app.sim.sensor_models import sample_every_cycles
+from app.sim.servo import SafetyBox
 from app.sim.telemetry import Recorder
+from app.sim.ur10e import TcpChain
+from app.sim.vfdm import JointLimits, VirtualArm
 
 __all__ = ["Emulator", "StartPoseError", "tracking_stop_reason"]
+
+
+SHARED_TYPES = (BaseModel, OdsParams, TcpChain, VirtualArm, JointLimits, SafetyBox)
+"""What a copy of the loop (:meth:`Emulator.copy_state`) shares with the loop it copies,
+not copied: the configuration (frozen pydantic models) and the models built from it once,
+never written (the ODS's parameters, the arms' kinematic chains, virtual arms, joint
+limits and safety boxes)."""
+
+
+def shared_constants(root) -> dict[int, object]:
+    """{id: object} of every SHARED_TYPES instance reachable from ``root`` through
+    attributes, lists, tuples and dicts: a :func:`copy.deepcopy` memo that shares them."""
+    found: dict[int, object] = {}
+    seen: set[int] = set()
+    todo = [root]
+    while todo:
+        x = todo.pop()
+        if id(x) in seen or isinstance(x, (np.ndarray, str, bytes, int, float, bool)):
+            continue
+        seen.add(id(x))
+        if isinstance(x, SHARED_TYPES):
+            found[id(x)] = x
+        elif isinstance(x, dict):
+            todo.extend(x.values())
+        elif isinstance(x, (list, tuple, set, frozenset)):
+            todo.extend(x)
+        elif hasattr(x, "__dict__") and not isinstance(x, type):
+            todo.extend(vars(x).values())
+    return found
 
 
 class StartPoseError(ValueError):
@@ -212,6 +245,7 @@ class Emulator:
         """When set: at the first cycle that starts at or after this time, the loop keeps a
         copy of its whole state in ``snapshot`` (app/runs/uncertainty.py replays from it)."""
         self.snapshot: Emulator | None = None
+        self._shared: dict[int, object] | None = None  # copy_state's, found when first used
         self._load_kernels()
 
     # --- the cycle ------------------------------------------------------------------------
@@ -571,13 +605,18 @@ class Emulator:
         """A deep copy of the loop's whole state (arms, sensors and their random generators,
         filters, gate, coupling, ODS, hand) that steps on exactly as this one would, with a
         fresh telemetry recorder of ``capacity`` rows instead of this one's (and no
-        snapshot of its own)."""
+        snapshot of its own). What is never written (SHARED_TYPES: the configuration, the
+        kinematic models) is shared, not copied; the list of them is found once per loop
+        copied (a snapshot is copied once per replicate)."""
+        if self._shared is None:
+            self._shared = shared_constants(self)
         recorder = self._recorder(capacity)
-        memo = {id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
-                id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
-                id(self.snapshot): None}
+        memo = dict(self._shared)
+        memo.update({id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
+                     id(self.columns): recorder.buffer.columns,
+                     id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
+                     id(self.snapshot): None, id(self._shared): None})
         twin = copy.deepcopy(self, memo)
-        twin.columns = recorder.buffer.columns
         twin.snapshot_at_s = None
         return twin
 
