@@ -383,8 +383,11 @@ class Emulator:
             fuse_pair_forces(force_R, pairs)
         if not wrench.contact_estimator:
             return
-        single = [s for s in np.nonzero(near & self._is_carried & alone)[0]
-                  if partner[s] >= 0 and not self._is_carried[partner[s]]]
+        carried, partners = self._is_carried.tolist(), partner.tolist()  # a few bodies
+        single = [s for s, (gate_open, by_itself) in enumerate(zip(near.tolist(),
+                                                                    alone.tolist(), strict=True))
+                  if gate_open and by_itself and carried[s] and partners[s] >= 0
+                  and not carried[partners[s]]]
         contact = self.lab_geometry
         identified = wrench.contact_force == "identified"
         fused = {s for pair in pairs for s in pair} if wrench.fuse_pair_contact else set()
