@@ -113,9 +113,10 @@ def _timed(uncertainty, counter: _Counter, call) -> dict:
 
     def timed_spread(*args, **kwargs):
         c0, r0 = counter.cycles, counter.replicates
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         out = spread(*args, **kwargs)
-        got.update(spread_s=time.perf_counter() - t0, cycles=counter.cycles - c0,
+        got.update(spread_s=time.perf_counter() - t0, spread_cpu_s=time.process_time() - cpu0,
+                   cycles=counter.cycles - c0,
                    replicates=counter.replicates - r0, restitutions=out["restitutions"])
         return out
 
@@ -189,11 +190,11 @@ class Worker:
 
 
 def _row(name: str, what: str, tree: str, got: dict) -> str:
-    per_rep = 1e3 * got["spread_s"] / max(got["replicates"], 1)
-    per_cycle = 1e6 * got["spread_s"] / max(got["cycles"], 1)
+    n, cycles = max(got["replicates"], 1), max(got["cycles"], 1)
     return (f"| {name} | {what} | {tree} | {got['total_s']:.2f} | {got['replicates']} | "
-            f"{got['cycles'] / max(got['replicates'], 1):.0f} | {per_rep:.1f} | "
-            f"{per_cycle:.0f} |")
+            f"{got['cycles'] / n:.0f} | {1e3 * got['spread_s'] / n:.1f} | "
+            f"{1e3 * got['spread_cpu_s'] / n:.1f} | {1e6 * got['spread_s'] / cycles:.0f} | "
+            f"{1e6 * got['spread_cpu_s'] / cycles:.0f} |")
 
 
 def measure(trees: dict[str, Path], rounds: int, quick: bool) -> int:
@@ -216,27 +217,31 @@ def measure(trees: dict[str, Path], rounds: int, quick: bool) -> int:
     print(f"\n## Replicates: {rounds} round(s){', alternating' if len(names) > 1 else ''} "
           f"(load {os.getloadavg()[0]:.2f}{', quick' if quick else ''})\n")
     print("| setting | call | tree | wall s | replicates | cycles / replicate | "
-          "ms / replicate | µs / replicate cycle |")
-    print("|---|---|---|---:|---:|---:|---:|---:|")
+          "ms / replicate | CPU ms / replicate | µs / replicate cycle | CPU µs / cycle |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for (setting, what, name), got in results.items():
         for g in got:
             print(_row(setting, what, name, g))
     same_all = True
     if len(names) > 1:
-        print("\n| setting | call | ratio per replicate (rounds) | median | "
+        print(f"\n{names[0]} / {names[1]}, the replicates' time (wall; CPU: the process's "
+              "own, less sensitive to other processes on a shared machine)\n")
+        print("| setting | call | wall ratio (rounds) | median | CPU ratio (rounds) | median | "
               "restitutions identical | output identical |")
-        print("|---|---|---|---:|---|---|")
+        print("|---|---|---|---:|---|---:|---|---|")
         for setting in SETTINGS:
             for what in ("forecast", "interval"):
                 a, b = (results[(setting, what, n)] for n in names)
                 pairs = list(zip(a, b, strict=True))
                 ratios = [x["spread_s"] / y["spread_s"] for x, y in pairs]
+                cpu = [x["spread_cpu_s"] / y["spread_cpu_s"] for x, y in pairs]
                 same_e = all(x["restitutions"] == y["restitutions"] for x, y in pairs)
                 same_out = all(x["result"] == y["result"] for x, y in pairs)
                 same_all &= same_e and same_out
                 print(f"| {setting} | {what} | {', '.join(f'{r:.2f}' for r in ratios)} | "
-                      f"{statistics.median(ratios):.2f} | {'yes' if same_e else 'NO'} | "
-                      f"{'yes' if same_out else 'NO'} |")
+                      f"{statistics.median(ratios):.2f} | "
+                      f"{', '.join(f'{r:.2f}' for r in cpu)} | {statistics.median(cpu):.2f} | "
+                      f"{'yes' if same_e else 'NO'} | {'yes' if same_out else 'NO'} |")
         print("\nall identical" if same_all else "\nDIFFERENCES FOUND")
     return 0 if same_all else 1
 
