@@ -59,10 +59,11 @@ from app.sim.rail_rig import build_cell
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig
 from app.sim.rotations import (
-    cross3,
     invert_transform,
     make_transform,
     matrix_to_quat,
+    minus3_floats,
+    point_velocity_floats,
     quat_to_matrix,
 )
 from app.sim.run_up import relative_rates, run_up_state, runs_up
@@ -441,14 +442,19 @@ class Emulator:
         reading can be old."""
         frames = self.lab_geometry.frames
         now = {}
+        v_W, w_W, T_W_C = bodies.v_W, bodies.w_W, bodies.T_W_C
         for a in range(self.n_sat):
             b = int(nearest[a])
             if b <= a or clearance[a] >= 0.0 or (a, b) not in frames:
                 continue
             n, p = frames[(a, b)]
-            v_a = bodies.v_W[a] + cross3(bodies.w_W[a], p - bodies.T_W_C[a][:3, 3])
-            v_b = bodies.v_W[b] + cross3(bodies.w_W[b], p - bodies.T_W_C[b][:3, 3])
-            now[(a, b)] = (-float(clearance[a]), float((v_a - v_b) @ n))
+            p = p.tolist()  # a few 3-vectors: plain floats, the same operations
+            v_a = point_velocity_floats(v_W[a].tolist(), w_W[a].tolist(),
+                                        minus3_floats(p, T_W_C[a][:3, 3].tolist()))
+            v_b = point_velocity_floats(v_W[b].tolist(), w_W[b].tolist(),
+                                        minus3_floats(p, T_W_C[b][:3, 3].tolist()))
+            now[(a, b)] = (-float(clearance[a]),
+                           float(np.array(minus3_floats(v_a, v_b)) @ n))
         history = self._contact_kinematics
         history.append(now)
         if len(history) > self._kinematics_kept:
