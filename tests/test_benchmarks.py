@@ -112,3 +112,17 @@ def test_the_rig_table_cell_reads_the_contact_measurement_metrics_when_present()
                       "forecast": None, "status": "safety_stop"}], ideal)
     assert bare["covered"] is None and bare["forecast_ratio"] is None
     assert bare["off_normal"] is None and bare["stops"] == 1
+
+
+def test_replicate_speed_quick():
+    out = _run("benchmarks.replicate_speed")
+    assert "## Replicates: 1 round(s)" in out
+    for setting in ("collision (shipped, sponge 500 N/m)",
+                    "stiff contact (sponge 8000 N/m, 3.5 s)"):
+        for call, replicates in (("forecast", 6), ("interval", 4)):
+            row = next(line for line in out.splitlines()
+                       if line.startswith(f"| {setting} | {call} | this tree |"))
+            cells = [c.strip() for c in row.split("|")[1:-1]]
+            assert int(cells[4]) == replicates, row  # every replicate counted
+            assert float(cells[5]) > 20, row  # each steps its contact window
+            assert all(float(c) > 0 for c in cells[6:10]), row

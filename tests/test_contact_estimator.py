@@ -117,3 +117,14 @@ def test_with_friction_the_odss_tangential_impulse_follows_the_ideal_one():
     assert j_ideal[1] == pytest.approx(0.3 * j_ideal[0], rel=2e-3)
     assert j_hil[1] == pytest.approx(j_ideal[1], rel=0.01)
     assert j_hil[0] == pytest.approx(j_ideal[0], rel=0.01)
+
+
+def test_the_torque_is_the_array_cross_product_bit_for_bit():
+    """r × f on plain floats gives np.cross's products and differences to the last bit."""
+    rng = np.random.default_rng(33)
+    for _ in range(2000):
+        force, point, com = rng.normal(0.0, 5.0, 3), *rng.normal(0.0, 0.3, (2, 3))
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        f, t = contact_wrench_W(force, normal, point, com, 0.3)
+        assert t.tobytes() == np.cross(point - com, f).tobytes()

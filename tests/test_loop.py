@@ -5,6 +5,7 @@ import re
 import shutil
 import subprocess
 import sys
+from types import FunctionType, MethodType
 
 import numpy as np
 import pytest
@@ -429,3 +430,77 @@ def test_an_ideal_run_asks_no_contact_gate(collision_runs):
     assert np.abs(rows[:, col["sat1_fx_N"]]).max() > 1.0  # the contact happened
     np.testing.assert_array_equal(em.gate.partner, -1)
     assert em.lab_geometry.frames == {} and em.consistent_pairs == []
+
+
+def _same_state(a, b, path: str = "em", seen: set | None = None) -> list[str]:
+    """Where two loop states differ (every attribute, list, dict, array and random
+    generator; coal's scratch objects skipped): [] for none."""
+    seen = set() if seen is None else seen
+    if isinstance(a, (bool, int, float, str, type(None))):
+        return [] if a == b or (a != a and b != b) else [path]  # nan: itself
+    if id(a) in seen or type(a).__module__.split(".")[0] in ("coal", "hppfcl"):
+        return []
+    seen.add(id(a))
+    if isinstance(a, np.ndarray):
+        return [] if a.shape == b.shape and a.tobytes() == b.tobytes() else [path]
+    if isinstance(a, np.random.Generator):
+        return [] if a.bit_generator.state == b.bit_generator.state else [path]
+    if isinstance(a, dict):
+        if a.keys() != b.keys():
+            return [path]
+        return [d for k in a for d in _same_state(a[k], b[k], f"{path}[{k!r}]", seen)]
+    if hasattr(a, "__dict__") and not isinstance(a, (type, FunctionType, MethodType)):
+        va, vb = vars(a), vars(b)
+        if va.keys() != vb.keys():
+            return [path]
+        return [d for k in va if k != "_shared"  # copy_state's cache (ids) aside
+                for d in _same_state(va[k], vb[k], f"{path}.{k}", seen)]
+    if isinstance(a, (list, tuple)):
+        if len(a) != len(b):
+            return [path]
+        return [d for i, (x, y) in enumerate(zip(a, b, strict=True))
+                for d in _same_state(x, y, f"{path}[{i}]", seen)]
+    return [] if a == b else [path]
+
+
+def test_a_copy_of_the_loop_steps_on_alone_and_shares_only_constants():
+    """copy_state: stepping the copy through a contact, with its own copy of the
+    sensors' generators, then with fresh noise and calibration (as a replicate draws
+    them), leaves the original untouched in every attribute (sensors' generators,
+    calibration, servo and delay buffers, filters, gate, identified contact laws,
+    telemetry), and the original then steps on exactly as a full deep copy of it taken
+    before; only the configuration and the kinematic models are shared."""
+    import copy as copy_module
+
+    from app.runs.uncertainty import _redraw, configured_noise
+    from app.sim.loop import SHARED_TYPES
+
+    config = merge_overrides(load_scenario("collision"), {
+        "satellites": {"0": {"position_m": [-0.16, 0, 0]}, "1": {"position_m": [0.16, 0, 0]}},
+        "loop": {"duration_s": 1.2, "telemetry_capacity": 1000}})
+    em = Emulator(config)
+    em.prepare()
+    for _ in range(275):  # to 0.55 s: the contact starts at about 0.74 s
+        em.step()
+    before = copy_module.deepcopy(em)
+    twin = em.copy_state(capacity=400)
+    assert twin.arms[0].sensor.rng is not em.arms[0].sensor.rng
+    for _ in range(50):  # its own copies of the generators, then fresh ones
+        twin.step()
+    _redraw(twin, configured_noise(config), np.random.default_rng(5))
+    for _ in range(150):
+        twin.step()
+    assert len(twin.interaction.contact.frames) and twin.contact_fits  # it touched
+    assert twin.telemetry.rows().shape[0] > 100
+    assert _same_state(em, before) == []
+    assert twin.config is em.config and twin.arms[0].chain is em.arms[0].chain
+    for name in ("sensor", "processor", "servo", "vfdm"):
+        assert getattr(twin.arms[0], name) is not getattr(em.arms[0], name)
+    assert twin.recorder is not em.recorder and twin.gate is not em.gate
+    for constant in em._shared.values():  # nothing shared that a step writes
+        assert isinstance(constant, SHARED_TYPES)
+    for loop in (em, before):
+        for _ in range(200):
+            loop.step()
+    assert np.array_equal(em.telemetry.rows(), before.telemetry.rows())
+    assert len(em.telemetry.rows()) > 400

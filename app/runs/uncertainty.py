@@ -147,7 +147,7 @@ def _replicate(snapshot: Emulator, pair: tuple[int, int], until_s: float,
     last_touch = None
     while em.status == "running" and em.t_s < until_s - 1e-9:
         em.step()
-        if np.any(em.true_force_R[a]) and np.any(em.true_force_R[b]):
+        if em.true_force_R[a].any() and em.true_force_R[b].any():
             last_touch = em.cycles
         elif last_touch is not None and em.cycles - last_touch > after:
             break

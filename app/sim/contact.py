@@ -40,6 +40,7 @@ import coal
 import numpy as np
 
 from app.config import DEFAULT_MATERIALS, ContactMaterial, SatelliteConfig
+from app.sim.rotations import cross3_floats, minus3_floats, point_velocity_floats
 
 __all__ = [
     "BoxContactModel",
@@ -133,16 +134,14 @@ class ContactResult:
     contacts: tuple[PairContact, ...]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """3-vector cross product (np.cross costs ~20 µs on tiny arrays)."""
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
-
-
-def _point_velocity(v: np.ndarray, w: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Velocity of a body point at offset r from the COM: v + ω × r."""
-    return v + _cross(w, r)
+def _add(acc: list[float], x: list[float], sign: float) -> None:
+    """acc += x (sign 1) or acc -= x (sign -1), in place, element by element."""
+    if sign > 0.0:
+        for k, value in enumerate(x):
+            acc[k] += value
+    else:
+        for k, value in enumerate(x):
+            acc[k] -= value
 
 
 def _holds_coal(value) -> bool:
@@ -330,15 +329,18 @@ class BoxContactModel:
         zeros = np.zeros((self.n, 3))
         v = zeros if v_W_mps is None else np.asarray(v_W_mps, dtype=float)
         w = zeros if omega_W_radps is None else np.asarray(omega_W_radps, dtype=float)
-        wrench = np.zeros((self.n, 6))
-        contacts = []
+        wrench = None  # per body [f, τ] as plain floats (a few of them: list arithmetic,
+        contacts = []  # the same IEEE operations as the arrays' in the same order)
         for a, b in self.pairs:
             geo = self.geometry(a, b, T_W_C[a], T_W_C[b])
             if geo is None:
                 continue
-            p, n = geo.point_W_m, geo.normal_W
-            r_a, r_b = p - T_W_C[a][:3, 3], p - T_W_C[b][:3, 3]
-            v_rel = _point_velocity(v[a], w[a], r_a) - _point_velocity(v[b], w[b], r_b)
+            p, n = geo.point_W_m.tolist(), geo.normal_W
+            r_a = minus3_floats(p, T_W_C[a][:3, 3].tolist())
+            r_b = minus3_floats(p, T_W_C[b][:3, 3].tolist())
+            v_a = point_velocity_floats(v[a].tolist(), w[a].tolist(), r_a)
+            v_b = point_velocity_floats(v[b].tolist(), w[b].tolist(), r_b)
+            v_rel = np.array(minus3_floats(v_a, v_b))
             depth_rate = float(v_rel @ n)  # > 0 while approaching
             f_n = hunt_crossley_force(geo.depth_m, depth_rate, *self._law[(a, b)],
                                       self._exponent[(a, b)])
@@ -348,9 +350,10 @@ class BoxContactModel:
             contacts.append(PairContact(a, b, geo, depth_rate, f_n, friction))
             if f_n == 0.0:
                 continue
-            f_b = f_n * n if friction is None else f_n * n + friction
-            wrench[b, :3] += f_b
-            wrench[a, :3] -= f_b
-            wrench[b, 3:] += _cross(r_b, f_b)
-            wrench[a, 3:] -= _cross(r_a, f_b)
-        return ContactResult(wrench, tuple(contacts))
+            f_b = (f_n * n if friction is None else f_n * n + friction).tolist()
+            if wrench is None:
+                wrench = [[0.0] * 6 for _ in range(self.n)]
+            _add(wrench[b], f_b + cross3_floats(r_b, f_b), 1.0)
+            _add(wrench[a], f_b + cross3_floats(r_a, f_b), -1.0)
+        return ContactResult(np.zeros((self.n, 6)) if wrench is None else np.array(wrench),
+                             tuple(contacts))

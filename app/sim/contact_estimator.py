@@ -44,6 +44,8 @@ import math
 
 import numpy as np
 
+from app.sim.rotations import cross3_floats, minus3_floats
+
 __all__ = ["cone_projection", "contact_wrench_W"]
 
 
@@ -70,7 +72,5 @@ def contact_wrench_W(force_W: np.ndarray, normal_W: np.ndarray, point_W: np.ndar
     """(force, torque about the COM), W axes: the measured force on the cone, acting at
     the contact point (module doc, wrench)."""
     f = cone_projection(force_W, normal_W, mu, no_pull)
-    r = point_W - com_W
-    torque = np.array([r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2],
-                       r[0] * f[1] - r[1] * f[0]])
-    return f, torque
+    r = minus3_floats(point_W.tolist(), com_W.tolist())  # r × f on plain floats: the
+    return f, np.array(cross3_floats(r, f.tolist()))     # same operations, the same bits

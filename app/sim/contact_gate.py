@@ -38,6 +38,8 @@ import math
 
 import numpy as np
 
+from app.sim.small_solve import solve
+
 __all__ = ["CHI2_THRESHOLD", "ContactGate", "contact_pairs", "fuse_pair_forces",
            "hold_cycles_for", "newton_consistent"]
 
@@ -48,6 +50,8 @@ COV_FLOOR_N2 = 1e-6
 """Added to the covariance's diagonal (N²): a noiseless sensor's is zero, and two
 noiseless chains still differ by up to 1e-6 N in contact (the compensation's rounding):
 no sensor is trusted beyond 1 mN."""
+_FLOOR_N2 = COV_FLOOR_N2 * np.eye(3)
+_FLOOR_N2.flags.writeable = False
 
 
 def hold_cycles_for(sensor_delay_cycles: int, lowpass_alpha: float) -> int:
@@ -100,10 +104,12 @@ def contact_pairs(open_: np.ndarray, partner: np.ndarray, alone: np.ndarray,
     (``partner``: the gate's partners) and that are near nothing else (``alone``). A body
     that touches two others measures the sum of two contacts: it is in no pair."""
     pairs = []
-    for a in np.nonzero(open_ & carried & alone)[0]:
-        b = int(partner[a])
-        if b > a and open_[b] and carried[b] and alone[b] and partner[b] == a:
-            pairs.append((int(a), b))
+    o, p, al, c = open_.tolist(), partner.tolist(), alone.tolist(), carried.tolist()
+    for a in range(len(o)):  # a few bodies: plain Python beats array calls
+        if o[a] and c[a] and al[a]:
+            b = p[a]
+            if b > a and o[b] and c[b] and al[b] and p[b] == a:
+                pairs.append((a, b))
     return pairs
 
 
@@ -112,7 +118,7 @@ def newton_consistent(force_a: np.ndarray, force_b: np.ndarray,
     """Whether two measured forces are equal and opposite within the noise (module doc,
     Newton); noise_cov_sum: Σ_a + Σ_b (3, 3), in the forces' axes."""
     s = force_a + force_b
-    chi2 = float(s @ np.linalg.solve(noise_cov_sum + COV_FLOOR_N2 * np.eye(3), s))
+    chi2 = float(s @ solve(noise_cov_sum + _FLOOR_N2, s))
     return chi2 <= CHI2_THRESHOLD
 
 

@@ -51,6 +51,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.sim.small_solve import solve
+
 __all__ = ["HuntCrossleyFit"]
 
 DEPTH_SCALE_M = 1e-3
@@ -59,6 +61,8 @@ RATE_SCALE_MPS = 0.1
 """ḋ is regressed in units of 0.1 m/s."""
 RIDGE = 1e-9
 """ε of (LS), in the scaled units."""
+_RIDGE_I = RIDGE * np.eye(2)
+_RIDGE_I.flags.writeable = False
 
 
 class HuntCrossleyFit:
@@ -81,10 +85,10 @@ class HuntCrossleyFit:
         if depth_m <= 0.0:
             return
         phi = self.regressor(depth_m, depth_rate_mps)
-        self.A += np.outer(phi, phi)
+        self.A += phi[:, None] * phi[None, :]  # np.outer(φ, φ), without its wrapper
         self.b += phi * force_N
         self.samples += 1
-        self._theta = np.linalg.solve(self.A + RIDGE * np.eye(2), self.b)
+        self._theta = solve(self.A + _RIDGE_I, self.b)
 
     def predict(self, depth_m: float, depth_rate_mps: float) -> float:
         """F̂_n (N, ≥ 0) of the identified law (module doc, model); 0 apart."""

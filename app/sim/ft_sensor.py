@@ -398,6 +398,7 @@ class WrenchProcessor:
         self.contact_alpha = (self.alpha if config.contact_lowpass_hz is None
                               else lowpass_alpha(config.contact_lowpass_hz, rate_hz))
         self.calibration = Calibration(np.zeros(6), 0.0, np.zeros(3))
+        self._filtered_cov: tuple | None = None  # (calibration, α, its filtered Σ_f)
         self.deadband_force_N = float(config.deadband_force_N)
         self.deadband_torque_Nm = float(config.deadband_torque_Nm)
         """The deadbands applied (force N, torque about the COM N·m): the configured
@@ -484,9 +485,11 @@ class WrenchProcessor:
         contact gate is open, in the axes X with R_X_S the sensor's orientation in them:
         the calibration's estimate of the reading noise through the low-pass at
         ``contact_lowpass_hz`` (white noise: variance × α / (2 − α))."""
-        alpha = self.contact_alpha
-        cov = self.calibration.force_noise_cov_S * (alpha / (2.0 - alpha))
-        return R_X_S @ cov @ R_X_S.T
+        cal, alpha, kept = self.calibration, self.contact_alpha, self._filtered_cov
+        if kept is None or kept[0] is not cal or kept[1] != alpha:  # the calibration's
+            kept = self._filtered_cov = (cal, alpha, cal.force_noise_cov_S
+                                         * (alpha / (2.0 - alpha)))
+        return R_X_S @ kept[2] @ R_X_S.T
 
     @staticmethod
     def _fit_force(

@@ -27,6 +27,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from pydantic import BaseModel
 
 from app.config import EmulatorConfig
 from app.sim.capture import Compound, compound_wrench, join, relative_state, spread
@@ -58,18 +59,51 @@ from app.sim.rail_rig import build_cell
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig
 from app.sim.rotations import (
-    cross3,
     invert_transform,
     make_transform,
     matrix_to_quat,
+    minus3_floats,
+    point_velocity_floats,
     quat_to_matrix,
 )
 from app.sim.run_up import relative_rates, run_up_state, runs_up
 from app.sim.scaling import scaling_of
 from app.sim.sensor_models import sample_every_cycles
+from app.sim.servo import SafetyBox
 from app.sim.telemetry import Recorder
+from app.sim.ur10e import TcpChain
+from app.sim.vfdm import JointLimits, VirtualArm
 
 __all__ = ["Emulator", "StartPoseError", "tracking_stop_reason"]
+
+
+SHARED_TYPES = (BaseModel, OdsParams, TcpChain, VirtualArm, JointLimits, SafetyBox)
+"""What a copy of the loop (:meth:`Emulator.copy_state`) shares with the loop it copies,
+not copied: the configuration (frozen pydantic models) and the models built from it once,
+never written (the ODS's parameters, the arms' kinematic chains, virtual arms, joint
+limits and safety boxes)."""
+
+
+def shared_constants(root) -> dict[int, object]:
+    """{id: object} of every SHARED_TYPES instance reachable from ``root`` through
+    attributes, lists, tuples and dicts: a :func:`copy.deepcopy` memo that shares them."""
+    found: dict[int, object] = {}
+    seen: set[int] = set()
+    todo = [root]
+    while todo:
+        x = todo.pop()
+        if id(x) in seen or isinstance(x, (np.ndarray, str, bytes, int, float, bool)):
+            continue
+        seen.add(id(x))
+        if isinstance(x, SHARED_TYPES):
+            found[id(x)] = x
+        elif isinstance(x, dict):
+            todo.extend(x.values())
+        elif isinstance(x, (list, tuple, set, frozenset)):
+            todo.extend(x)
+        elif hasattr(x, "__dict__") and not isinstance(x, type):
+            todo.extend(vars(x).values())
+    return found
 
 
 class StartPoseError(ValueError):
@@ -212,6 +246,7 @@ class Emulator:
         """When set: at the first cycle that starts at or after this time, the loop keeps a
         copy of its whole state in ``snapshot`` (app/runs/uncertainty.py replays from it)."""
         self.snapshot: Emulator | None = None
+        self._shared: dict[int, object] | None = None  # copy_state's, found when first used
         self._load_kernels()
 
     # --- the cycle ------------------------------------------------------------------------
@@ -349,8 +384,11 @@ class Emulator:
             fuse_pair_forces(force_R, pairs)
         if not wrench.contact_estimator:
             return
-        single = [s for s in np.nonzero(near & self._is_carried & alone)[0]
-                  if partner[s] >= 0 and not self._is_carried[partner[s]]]
+        carried, partners = self._is_carried.tolist(), partner.tolist()  # a few bodies
+        single = [s for s, (gate_open, by_itself) in enumerate(zip(near.tolist(),
+                                                                    alone.tolist(), strict=True))
+                  if gate_open and by_itself and carried[s] and partners[s] >= 0
+                  and not carried[partners[s]]]
         contact = self.lab_geometry
         identified = wrench.contact_force == "identified"
         fused = {s for pair in pairs for s in pair} if wrench.fuse_pair_contact else set()
@@ -404,14 +442,19 @@ class Emulator:
         reading can be old."""
         frames = self.lab_geometry.frames
         now = {}
+        v_W, w_W, T_W_C = bodies.v_W, bodies.w_W, bodies.T_W_C
         for a in range(self.n_sat):
             b = int(nearest[a])
             if b <= a or clearance[a] >= 0.0 or (a, b) not in frames:
                 continue
             n, p = frames[(a, b)]
-            v_a = bodies.v_W[a] + cross3(bodies.w_W[a], p - bodies.T_W_C[a][:3, 3])
-            v_b = bodies.v_W[b] + cross3(bodies.w_W[b], p - bodies.T_W_C[b][:3, 3])
-            now[(a, b)] = (-float(clearance[a]), float((v_a - v_b) @ n))
+            p = p.tolist()  # a few 3-vectors: plain floats, the same operations
+            v_a = point_velocity_floats(v_W[a].tolist(), w_W[a].tolist(),
+                                        minus3_floats(p, T_W_C[a][:3, 3].tolist()))
+            v_b = point_velocity_floats(v_W[b].tolist(), w_W[b].tolist(),
+                                        minus3_floats(p, T_W_C[b][:3, 3].tolist()))
+            now[(a, b)] = (-float(clearance[a]),
+                           float(np.array(minus3_floats(v_a, v_b)) @ n))
         history = self._contact_kinematics
         history.append(now)
         if len(history) > self._kinematics_kept:
@@ -571,13 +614,18 @@ class Emulator:
         """A deep copy of the loop's whole state (arms, sensors and their random generators,
         filters, gate, coupling, ODS, hand) that steps on exactly as this one would, with a
         fresh telemetry recorder of ``capacity`` rows instead of this one's (and no
-        snapshot of its own)."""
+        snapshot of its own). What is never written (SHARED_TYPES: the configuration, the
+        kinematic models) is shared, not copied; the list of them is found once per loop
+        copied (a snapshot is copied once per replicate)."""
+        if self._shared is None:
+            self._shared = shared_constants(self)
         recorder = self._recorder(capacity)
-        memo = {id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
-                id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
-                id(self.snapshot): None}
+        memo = dict(self._shared)
+        memo.update({id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
+                     id(self.columns): recorder.buffer.columns,
+                     id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
+                     id(self.snapshot): None, id(self._shared): None})
         twin = copy.deepcopy(self, memo)
-        twin.columns = recorder.buffer.columns
         twin.snapshot_at_s = None
         return twin
 

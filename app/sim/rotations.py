@@ -22,6 +22,24 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def cross3_floats(a: list[float], b: list[float]) -> list[float]:
+    """:func:`cross3` on plain floats (the same products and differences: the same bits),
+    for a few vectors in a cycle, where array calls cost more than the arithmetic."""
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def minus3_floats(a: list[float], b: list[float]) -> list[float]:
+    """a − b of two 3-vectors of plain floats."""
+    return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+
+
+def point_velocity_floats(v: list[float], w: list[float], r: list[float]) -> list[float]:
+    """v + ω × r on plain floats: the velocity of a body's point at offset r from its COM
+    (as ``v + cross3(w, r)`` on arrays, to the bit)."""
+    c = cross3_floats(w, r)
+    return [v[0] + c[0], v[1] + c[1], v[2] + c[2]]
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrix: ``skew(a) @ b == np.cross(a, b)``."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
