@@ -21,12 +21,22 @@ import numpy as np
 
 __all__ = ["solve"]
 
-try:  # the kernel np.linalg.solve itself calls (numpy >= 1.8, also numpy 2)
-    from numpy.linalg import _umath_linalg
+def _kernel():
+    """np.linalg.solve's own kernel (numpy >= 1.8, also numpy 2), if this numpy has it
+    and it answers a known system as the wrapper does; else None (the wrapper is used)."""
+    try:  # a private module: checked here, once, rather than trusted
+        from numpy.linalg import _umath_linalg
 
-    _SOLVE1 = _umath_linalg.solve1
-except (ImportError, AttributeError):  # pragma: no cover - another numpy: its wrapper
-    _SOLVE1 = None
+        kernel = _umath_linalg.solve1
+        a, b = np.array([[4.0, 1.0], [2.0, 3.0]]), np.array([1.0, 2.0])
+        if np.array_equal(kernel(a, b, signature="dd->d"), np.linalg.solve(a, b)):
+            return kernel
+    except Exception:  # noqa: BLE001 - pragma: no cover - another numpy: its wrapper
+        pass
+    return None  # pragma: no cover
+
+
+_SOLVE1 = _kernel()
 
 
 def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
