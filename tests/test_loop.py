@@ -472,7 +472,7 @@ def test_a_copy_of_the_loop_steps_on_alone_and_shares_only_constants():
     before; only the configuration and the kinematic models are shared."""
     import copy as copy_module
 
-    from app.runs.uncertainty import _redraw, configured_noise
+    from app.runs.uncertainty import _draw, _redraw, configured_noise
     from app.sim.loop import SHARED_TYPES
 
     config = merge_overrides(load_scenario("collision"), {
@@ -487,7 +487,8 @@ def test_a_copy_of_the_loop_steps_on_alone_and_shares_only_constants():
     assert twin.arms[0].sensor.rng is not em.arms[0].sensor.rng
     for _ in range(50):  # its own copies of the generators, then fresh ones
         twin.step()
-    _redraw(twin, configured_noise(config), np.random.default_rng(5))
+    noise = configured_noise(config)
+    _redraw(twin, noise, _draw(noise, np.random.default_rng(5)))
     for _ in range(150):
         twin.step()
     assert len(twin.interaction.contact.frames) and twin.contact_fits  # it touched
