@@ -140,7 +140,9 @@ def run_scenario(
     plotter = None
     if out_dir is not None and plots_apart:  # matplotlib imported while the loop runs
         try:
-            plotter = plot_process.prestart(out_dir, em.config, guard=_whole_or_none)
+            plotter = plot_process.prestart(
+                out_dir, em.config, (em.telemetry.capacity, len(em.columns)),
+                guard=_whole_or_none)
         except OSError:  # no process to be had (EAGAIN, ENOMEM): drawn here
             plotter = None
     t0 = time.perf_counter()

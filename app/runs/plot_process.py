@@ -4,8 +4,11 @@ run returns: where a second core is free, most of the plots cost the run no wall
 
 :func:`prestart` forks the process before the loop starts: it imports matplotlib (half a
 second) while the loop runs on the other core. Once the loop has ended,
-:meth:`PlotProcess.begin` sends it the run's telemetry and its metrics as they are then
-(the restitution's interval not yet in them; :func:`start` does both at once). It draws at
+:meth:`PlotProcess.begin` copies the run's telemetry into memory the two processes share
+(mapped before the fork, sized for the run's telemetry buffer: nothing the size of the
+telemetry goes through the pipe, so a process that has stopped answering cannot block the
+run) and sends it the row count and the metrics as they are then (the restitution's
+interval not yet in them; :func:`start` does both at once). It draws at
 once each planned figure that carries no text of metrics (the
 velocities, positions, tracking errors...), then waits for the final metrics
 (:meth:`PlotProcess.finish`), plans again and writes every figure as
@@ -24,6 +27,7 @@ terminal.
 
 from __future__ import annotations
 
+import mmap
 import multiprocessing
 import signal
 import sys
@@ -43,16 +47,23 @@ POLL_S = 0.5
 class PlotProcess:
     """The forked process drawing one run's figures (:func:`start`)."""
 
-    def __init__(self, process, conn) -> None:
+    def __init__(self, process, conn, shared: mmap.mmap, shape: tuple[int, int]) -> None:
         self._process, self._conn = process, conn
+        self._shared, self._shape = shared, shape
         self._answered = False  # (then it exits by itself)
         self._begun = False
 
     def begin(self, rows: np.ndarray, index: dict, metrics: dict, note: str = "") -> None:
-        """Send the run's telemetry and its metrics as they are now (the loop has ended):
-        it draws the figures that carry no text of metrics. Raises the OSError of a
-        process that has died (the caller then draws the figures itself)."""
-        self._conn.send((np.asarray(rows), index, metrics, note))
+        """Hand it the run's telemetry and its metrics as they are now (the loop has ended):
+        it draws the figures that carry no text of metrics. Raises OSError where it cannot
+        take them (more rows or columns than it was started for, or a process that has
+        died: the caller then draws the figures itself)."""
+        rows = np.asarray(rows, dtype=float)
+        if rows.ndim != 2 or rows.shape[0] > self._shape[0] or rows.shape[1] != self._shape[1]:
+            raise OSError(f"telemetry of shape {rows.shape}: the plot process was started "
+                          f"for at most {self._shape}")
+        _view(self._shared, self._shape)[:len(rows)] = rows
+        self._conn.send((len(rows), index, metrics, note))
         self._begun = True
 
     def finish(self, metrics: dict) -> list[Path] | None:
@@ -95,6 +106,7 @@ class PlotProcess:
         :meth:`finish`, else at once (finish not reached: the run failed before its
         figures; or no answer in time)."""
         self._conn.close()
+        self._shared.close()
         if self._answered:
             self._process.join(timeout=5.0)
         if self._process.is_alive():
@@ -105,7 +117,7 @@ class PlotProcess:
 def start(rows: np.ndarray, index: dict, out_dir: str | Path, config, metrics: dict,
           note: str = "", guard=None) -> PlotProcess | None:
     """:func:`prestart` and :meth:`PlotProcess.begin` at once (the loop has ended)."""
-    process = prestart(out_dir, config, guard)
+    process = prestart(out_dir, config, np.shape(rows), guard)
     if process is not None:
         try:
             process.begin(rows, index, metrics, note)
@@ -115,9 +127,11 @@ def start(rows: np.ndarray, index: dict, out_dir: str | Path, config, metrics: d
     return process
 
 
-def prestart(out_dir: str | Path, config, guard=None) -> PlotProcess | None:
+def prestart(out_dir: str | Path, config, shape: tuple[int, int],
+             guard=None) -> PlotProcess | None:
     """Fork the process that draws the run's figures into ``out_dir`` (module doc) before
-    the loop: it imports matplotlib, then waits for :meth:`PlotProcess.begin`.
+    the loop: it imports matplotlib, then waits for :meth:`PlotProcess.begin`. ``shape``:
+    the most telemetry it will be given (the run's buffer: capacity × columns).
     ``guard(write, folder)``: how the files are written (app/runs/headless.py: whole, or
     nothing left in the folder). None where processes cannot be forked (the caller
     draws); raises the OSError of a fork that failed (EAGAIN, ENOMEM)."""
@@ -125,21 +139,30 @@ def prestart(out_dir: str | Path, config, guard=None) -> PlotProcess | None:
         return None
     sys.stdout.flush()  # nothing the run printed is written twice by the child
     sys.stderr.flush()
+    shape = (int(shape[0]), int(shape[1]))
+    shared = mmap.mmap(-1, max(1, 8 * shape[0] * shape[1]))  # anonymous, shared with the fork
     context = multiprocessing.get_context("fork")
     ours, theirs = context.Pipe()
-    process = context.Process(target=_draw, args=(theirs, Path(out_dir), config, guard, ours),
-                              daemon=True)
+    process = context.Process(target=_draw, args=(theirs, shared, shape, Path(out_dir), config,
+                                                  guard, ours), daemon=True)
     try:
         process.start()
     except BaseException:
         ours.close()
+        shared.close()
         raise
     finally:
         theirs.close()
-    return PlotProcess(process, ours)
+    return PlotProcess(process, ours, shared, shape)
 
 
-def _draw(conn, out_dir: Path, config, guard, runs_end=None) -> None:
+def _view(shared: mmap.mmap, shape: tuple[int, int]) -> np.ndarray:
+    """The shared telemetry as rows (shape), no copy."""
+    return np.frombuffer(shared, dtype=float, count=shape[0] * shape[1]).reshape(shape)
+
+
+def _draw(conn, shared: mmap.mmap, shape: tuple[int, int], out_dir: Path, config, guard,
+          runs_end=None) -> None:
     """The process's work (module doc). Whatever it raises is answered as ("died",
     reason) and ends it with exit status 1, quietly (the run then draws the figures).
     ``runs_end``: the run's end of the pipe, closed here (the fork's copy would keep
@@ -152,9 +175,10 @@ def _draw(conn, out_dir: Path, config, guard, runs_end=None) -> None:
 
         pyplot()  # while the run's loop runs
         try:
-            rows, index, metrics, note = conn.recv()
+            count, index, metrics, note = conn.recv()
         except (EOFError, OSError):  # the run ended before its loop did
             return
+        rows = _view(shared, shape)[:count].copy()
         answer = _drawn(conn, rows, index, out_dir, config, metrics, note, guard)
     except BaseException as err:  # noqa: BLE001 - the run draws them; no second traceback
         _send(conn, ("died", f"{type(err).__name__}: {err}"))

@@ -151,12 +151,49 @@ def test_started_before_the_loop_it_waits_for_the_telemetry(both, tmp_path):
     ends before its loop does (its start-up failed) leaves nothing drawn: finish without
     begin is None (the run draws), and the process exits by itself once the pipe is gone."""
     em = both[True][1].emulator
-    process = plot_process.prestart(tmp_path, em.config)
+    process = plot_process.prestart(tmp_path, em.config, (10, 3))
     assert process.finish({}) is None
     assert process._process.exitcode is not None
     assert not any(tmp_path.iterdir())
-    waiting = plot_process.prestart(tmp_path, em.config)
+    waiting = plot_process.prestart(tmp_path, em.config, (10, 3))
     waiting._conn.close()  # the run's process gone before its loop ended
     waiting._process.join(timeout=60.0)
     assert waiting._process.exitcode == 0
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_stopped_process_cannot_block_the_run(both, monkeypatch, tmp_path):
+    """A process that stops answering before the loop ends (SIGSTOP: stuck in an import, a
+    lock) takes the telemetry all the same, far more than a pipe holds, at once; the run
+    then waits for it no longer than FINISH_TIMEOUT_S and draws the figures itself."""
+    import time
+
+    import numpy as np
+
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    monkeypatch.setattr(plot_process, "FINISH_TIMEOUT_S", 1.0)
+    rows = np.tile(em.telemetry.rows(), (20, 1))  # some 30 MB: a pipe holds a few hundred kB
+    process = plot_process.prestart(tmp_path, em.config, rows.shape)
+    os.kill(process._process.pid, signal.SIGSTOP)
+    try:
+        t0 = time.monotonic()
+        process.begin(rows, em.telemetry.index, metrics)
+        assert time.monotonic() - t0 < 1.0
+        assert process.finish(metrics) is None
+        assert time.monotonic() - t0 < 3.0
+    finally:
+        process.close()
+    assert process._process.exitcode == -signal.SIGKILL
+    assert not any(tmp_path.iterdir())
+
+
+def test_more_telemetry_than_it_was_started_for_is_an_oserror(both, tmp_path):
+    em, metrics = both[True][1].emulator, both[True][1].metrics
+    rows = em.telemetry.rows()
+    process = plot_process.prestart(tmp_path, em.config, (len(rows) - 1, rows.shape[1]))
+    try:
+        with pytest.raises(OSError, match="the plot process was started for at most"):
+            process.begin(rows, em.telemetry.index, metrics)
+    finally:
+        process.close()
     assert not any(tmp_path.iterdir())
