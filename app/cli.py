@@ -55,6 +55,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from app.runs.headless import RunFailed, headless_config, run_scenario
     from app.runs.replicate_pool import cores
+    from app.runs.signals import interrupt_on_sigterm
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
@@ -62,6 +63,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                                 duration_s=args.duration, seed=args.seed,
                                 overrides=[assignment_override(a) for a in args.set])
     duration = config.loop.duration_s
+    _check_output_dir(default_out(args), bag=args.bag)  # before the pre-flight, not after
+    interrupt_on_sigterm()  # a scheduler's stop ends the run as Ctrl+C does: files written
     ideal = None
     if config.loop.mode == "hil":  # refused before anything is created or moves
         from app.runs.headless import checked_reference
@@ -198,6 +201,23 @@ def _output_dir(path: str | Path) -> Path:
     if not os.access(out, os.W_OK):
         raise ValueError(f"--out: the directory {str(out)!r} is not writable")
     return out
+
+
+def _check_output_dir(path: str | Path, bag: bool = False) -> None:
+    """What :func:`_output_dir` and the run files' check would refuse, found before the
+    pre-flight (which may take seconds) without creating anything: a refused run leaves no
+    folder behind."""
+    from app.runs.headless import check_run_files
+
+    out = Path(path)
+    if out.is_dir():
+        if not os.access(out, os.W_OK):
+            raise ValueError(f"--out: the directory {str(out)!r} is not writable")
+        check_run_files(out, bag=bag)
+        return
+    ancestor = next((p for p in out.absolute().parents if p.exists()), None)
+    if out.exists() or ancestor is None or not os.access(ancestor, os.W_OK | os.X_OK):
+        _output_dir(out)  # it cannot be created: its error, and nothing made
 
 
 def default_out(args: argparse.Namespace) -> Path:

@@ -35,6 +35,7 @@ from app.campaign.sweep import (
     unresolved_outcome,
 )
 from app.runs.report import write_json
+from app.runs.signals import interrupt_on_sigterm
 
 CONNECT_TIMEOUT_S = 20.0
 """How long joining a cluster may take before the sweep gives up (Ray's own connect
@@ -93,7 +94,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
     from tqdm import tqdm
 
     ray = start_ray(address, workers)
-    _stop_on_sigterm()
+    interrupt_on_sigterm()  # after ray.init, which installs a handler of its own
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         summary["workers"] = min(cpus, workers) if workers else cpus
@@ -227,19 +228,6 @@ def _write_summary(out_dir: Path, table: ResultsTable, summary: dict, wall_s: fl
 
 
 # --- Ray ---------------------------------------------------------------------------------------
-
-
-def _stop_on_sigterm() -> None:
-    """A scheduler's SIGTERM stops the sweep as Ctrl+C does (rows kept, exit 130); set
-    after ray.init, which installs a handler of its own that dumps a stack trace."""
-    import signal
-    import threading
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt
-
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, interrupt)
 
 
 def start_ray(address: str | None, workers: int | None):

@@ -146,9 +146,12 @@ def run_scenario(
         except OSError:  # no process to be had (EAGAIN, ENOMEM): drawn here
             plotter = None
     t0 = time.perf_counter()
-    failure = None
+    failure = interrupted = None
     try:
         failure = _run(em, duration_s, progress)
+    except KeyboardInterrupt as err:  # Ctrl+C (or SIGTERM, app/runs/signals.py) in the loop:
+        interrupted = err             # what it recorded is written, then it goes on up
+        em.status = "interrupted"
     finally:
         wall_s = time.perf_counter() - t0
         if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
@@ -166,8 +169,8 @@ def run_scenario(
                 plotter.close()
                 plotter = None
         try:
-            if failure is None:
-                _add_uncertainty(em, metrics, processes)
+            if failure is None and interrupted is None:
+                interrupted = _add_uncertainty(em, metrics, processes)
             files, unwritten = [], None
             if out_dir is not None:
                 try:
@@ -178,26 +181,34 @@ def run_scenario(
         finally:
             if plotter is not None:
                 plotter.close()
+    if interrupted is not None:
+        raise interrupted
     if failure is not None:
         raise RunFailed(error, RunResult(em, metrics, files, unwritten)) from failure
     return RunResult(em, metrics, files, unwritten)
 
 
-def _add_uncertainty(em: Emulator, metrics: dict, processes: int = 1) -> None:
+def _add_uncertainty(em: Emulator, metrics: dict,
+                     processes: int = 1) -> KeyboardInterrupt | None:
     """The restitution's interval from the replicates of the contact window
-    (app/runs/uncertainty.py); if they fail, the run's record is written all the same, with a
-    warning and no interval."""
+    (app/runs/uncertainty.py); if they fail, or are interrupted (the KeyboardInterrupt is
+    returned, for the caller to raise once the record is written), the run's record is
+    written all the same, with a warning and no interval."""
     coll = metrics.get("collision")
     if coll is None or em.snapshot is None:
-        return
+        return None
     try:
         spread_of_run(em, coll, processes=processes)
         add_systematic(coll, metrics.get("collision_forecast"))
-    except Exception as err:  # noqa: BLE001 - the run's record matters more
+    except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - the record matters more
         coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
         coll["restitution_systematic"] = coll["restitution_bias_noisy"] = None
+        if isinstance(err, KeyboardInterrupt):
+            coll["warnings"].append("the restitution's interval was interrupted: none")
+            return err
         coll["warnings"].append(f"the restitution's interval failed: {type(err).__name__}: "
                                 f"{err}")
+    return None
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:

@@ -4,6 +4,7 @@ one after the other, the heartbeat kept, and a worker that dies costs nothing bu
 from __future__ import annotations
 
 import os
+import signal
 
 import pytest
 
@@ -67,3 +68,73 @@ def test_one_process_or_one_replicate_runs_here():
     assert run_replicates(_square_or_die, (pid,), None, [3, 4], processes=1) == [9, 16]
     assert run_replicates(_square_or_die, (pid,), None, [3], processes=4) == [9]
     assert run_replicates(_square_or_die, (pid,), None, [], processes=2) == []
+
+
+def _children(pid: int) -> set[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    kids = set()
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                kids.add(int(entry))
+    return kids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL])
+def test_a_run_stopped_during_its_replicates_keeps_its_record_and_leaves_no_process(
+        how, tmp_path):
+    """SIGTERM (a scheduler's stop) while the interval's replicates run in their processes:
+    the command exits 130 with the telemetry and metrics written (the interval said to be
+    interrupted). SIGTERM or SIGKILL: neither the replicates' processes nor the plot
+    process outlive it."""
+    import json
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "out"
+    args = [sys.executable, "-m", "app.cli", "run", "collision", "--quiet", "--out", str(out),
+            "--set", "uncertainty.replicates=1000"]
+    for a in ["satellites.0.position_m=[-0.16,0,0]", "satellites.1.position_m=[0.16,0,0]",
+              "loop.duration_s=1.2"]:
+        args += ["--set", a]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240.0
+        seen: set[int] = set()
+        while time.monotonic() < deadline and proc.poll() is None:
+            kids = _children(proc.pid)
+            if len(kids) >= 3:  # the plot process and two replicates' processes
+                seen = kids | {k for kid in kids for k in _children(kid)}
+                break
+            time.sleep(0.05)
+        assert seen, "the replicates never ran in processes of their own"
+        time.sleep(0.5)
+        proc.send_signal(how)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    time.sleep(1.0)
+    assert not [pid for pid in seen if _alive(pid)]
+    if how == signal.SIGKILL:
+        return
+    assert proc.returncode == 130, err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert (out / "telemetry.csv").stat().st_size > 0
+    coll = metrics["collision"]
+    assert coll["restitution"] is not None and coll["restitution_interval_95"] is None
+    assert "the restitution's interval was interrupted: none" in coll["warnings"]
