@@ -319,8 +319,12 @@ class OperatorHand:
 
     def idle(self, t_s: float) -> bool:
         """No pulse, push or gizmo acts at t_s (the hand's wrenches are all zero)."""
-        return not (self._pushes or self._grips
-                    or any(start <= t_s < end for start, end in self._pulse_windows))
+        if self._pushes or self._grips:
+            return False
+        for start, end in self._pulse_windows:  # a loop: any() of a generator costs more
+            if start <= t_s < end:
+                return False
+        return True
 
     def wrenches_W(self, t_s: float, p_W_C: np.ndarray, R_W_C: np.ndarray,
                    v_W: np.ndarray | None = None, w_W: np.ndarray | None = None,
