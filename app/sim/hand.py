@@ -293,6 +293,8 @@ class OperatorHand:
 
     def update(self, t_s: float) -> None:
         """Apply the queued commands at t_s and let go of the pushes that have ended."""
+        if not (self._queue or self._pushes):  # nothing queued, nothing pushing
+            return
         for cmd in self._queue:
             if isinstance(cmd, Push):
                 self._pushes.append((cmd.satellite, np.array(cmd.force_R_N),
