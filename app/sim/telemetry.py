@@ -260,6 +260,19 @@ def record_row(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, 
     return at
 
 
+@njit(cache=True, fastmath=False)
+def record_row_arm(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, n_arms,
+                   data, counters, T_R_W, T_W_C, v_W, q, raw_S, processed):
+    """:func:`record_row`, then the first arm's columns (:func:`record_arm`) in the same
+    call (a loop with arms: one call fewer); -1 as record_row."""
+    at = record_row(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, n_arms,
+                    data, counters)
+    if at >= 0:
+        record_arm(T_R_W, T_W_C, v_W, q, raw_S, processed, data[at],
+                   1 + len(SAT_FIELDS) * y.shape[0])
+    return at
+
+
 class Recorder:
     """Writes the loop's telemetry row of each cycle into a :class:`TelemetryBuffer`."""
 
@@ -288,11 +301,13 @@ class Recorder:
         bad = len(arms) != self.n_arms or (rails is None) == bool(self.n_rails)
         if not bad:
             buffer = self.buffer
+            common = (t_s, y, self.orbit_rate_radps, force_R, torque_B, true_force_R,
+                      self._no_gnc if gnc_wrench is None else gnc_wrench,
+                      self._no_rails if rails is None else rails, self.n_arms,
+                      buffer._data, buffer._counters)
             try:  # claims the row only if every shape fits (-1 if not)
-                at = record_row(t_s, y, self.orbit_rate_radps, force_R, torque_B,
-                                true_force_R, self._no_gnc if gnc_wrench is None else gnc_wrench,
-                                self._no_rails if rails is None else rails, self.n_arms,
-                                buffer._data, buffer._counters)
+                at = (record_row_arm(*common, self.T_R_W, *arms[0]) if arms
+                      else record_row(*common))
             except TypingError:  # an array of another dimension or type
                 at = -1
             bad = at < 0
@@ -306,8 +321,8 @@ class Recorder:
                 f"{'' if rails is None else f', rails {np.shape(rails)}'}"
                 f"{f' (it has {self.n_rails} rails)' if self.n_rails else ''}"
             )
-        if arms:
-            row, k = buffer._data[at], self._arms_at
-            for T_W_C, v_W, q_rad, raw_S, processed in arms:
+        if len(arms) > 1:  # the first arm's columns are written
+            row, k = buffer._data[at], self._arms_at + len(ROBOT_FIELDS)
+            for T_W_C, v_W, q_rad, raw_S, processed in arms[1:]:
                 k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
         buffer.commit()
