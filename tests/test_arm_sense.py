@@ -84,3 +84,56 @@ def test_a_sensor_slower_than_the_loop_or_on_the_body_takes_the_stages():
     body, R_W_R = _calibrated({"sensor": {"placement": "mockup"}})
     assert body.T_C_S is not None
     _drive(body, R_W_R, 40)
+
+
+def test_the_packed_constants_follow_a_new_calibration_and_a_replicates_redraw():
+    # the fused path reads the sensor's and the chain's constants from one buffer each: a
+    # replicate's redraw (app/runs/uncertainty.py) assigns a new noise and a new
+    # calibration, and the next fused cycle must read those, as the stages do
+    from app.runs.uncertainty import SensorNoise, _draw, _redraw
+    from app.sim.loop import Emulator
+
+    em = Emulator(merge_overrides(load_scenario("collision"),
+                                  {"wrench": {"calibration_s": 0.1}}), mode="hil")
+    em.prepare()
+    for _ in range(20):
+        em.step()
+    twin, kept = em.copy_state(), em.copy_state()
+    noise = [SensorNoise(np.array([3.0, 2.0, 4.0, 0.3, 0.2, 0.1]), np.full(6, 0.5))
+             for _ in em.arms]
+    draw = _draw(noise, np.random.default_rng(11))
+    for e in (em, twin):
+        _redraw(e, noise, draw)
+    for arm, (_, bias_error_S) in zip(em.arms, draw, strict=True):
+        np.testing.assert_array_equal(arm.sensor.constants[10:16], noise[0].sd_S)
+        np.testing.assert_array_equal(arm.processor.constants[5:11],
+                                      arm.processor.calibration.bias_S)
+        np.testing.assert_array_equal(
+            arm.processor.calibration.bias_S,
+            kept.arms[arm.index].processor.calibration.bias_S + bias_error_S)
+    wrench = np.array([12.0, -7.0, 30.0, 0.4, -0.2, 0.3])
+    R_W_R, dt_s = em.R_W_R, em.dt_s
+    differs = False
+    for k in range(30):
+        for arm, staged, old in zip(em.arms, twin.arms, kept.arms, strict=True):
+            _, T_W_C, v_W, _ = arm.mockup_state_W()
+            a = arm.sense(wrench, T_W_C, v_W, R_W_R, dt_s, False, k >= 10)
+            b = staged.sense_in_stages(wrench, T_W_C, v_W, R_W_R, dt_s, False, k >= 10)
+            c = old.sense(wrench, T_W_C, v_W, R_W_R, dt_s, False, k >= 10)
+            for x, y in zip(_fields(arm, a), _fields(staged, b), strict=True):
+                np.testing.assert_array_equal(x, y, err_msg=f"cycle {k}")
+            differs |= not np.array_equal(arm.last_raw_S, old.last_raw_S)
+            differs |= not np.array_equal(a.wrench_S, c.wrench_S)
+    assert differs  # the redraw changed what the fused path read
+
+
+def test_a_packed_attribute_refuses_a_value_of_the_wrong_shape_and_keeps_its_own():
+    rig, _ = _calibrated({})
+    before = rig.sensor.constants.copy()
+    with pytest.raises(ValueError, match=r"expected shape \(6,\), got shape \(3,\)"):
+        rig.sensor.noise_std_S = np.ones(3)
+    with pytest.raises(ValueError, match=r"expected a number, got shape \(2,\)"):
+        rig.sensor.mass_kg = [1.0, 2.0]
+    np.testing.assert_array_equal(rig.sensor.constants, before)
+    rig.sensor.range_S = np.arange(1.0, 7.0)  # an assignment writes the buffer
+    np.testing.assert_array_equal(rig.sensor.constants[16:22], np.arange(1.0, 7.0))

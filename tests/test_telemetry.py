@@ -145,6 +145,16 @@ def test_recorder_refuses_a_state_of_the_wrong_shape_and_records_nothing():
     assert rec.buffer.count == 0
 
 
+def test_recorder_refuses_an_array_of_another_dimension_and_records_nothing():
+    """The row's kernel checks the shapes of 2-D arrays: a 1-D state must not get past it."""
+    rec = Recorder(1, 0, 1, np.eye(4), OMEGA)
+    z = np.zeros((1, 3))
+    with pytest.raises(ValueError, match=r"recorder of 1 satellites and 0 arms got a state "
+                                         r"\(13,\)"):
+        rec.record(0.0, np.zeros(13), z, z, [], z)
+    assert rec.buffer.count == 0
+
+
 def test_rail_columns_come_last_and_only_for_the_robots_on_a_rail():
     assert loop_columns(2, 3, ()) == loop_columns(2, 3)  # no rail: the layout of before
     cols = loop_columns(2, 3, [1, 3])

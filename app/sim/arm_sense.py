@@ -11,11 +11,15 @@ mockup into the ODS's input in three stages, each called from Python:
    low-pass (two filters while the contact gate is open), shift to the COM, deadbands,
    rotation into R and B (:func:`process_cycle`).
 
-:func:`arm_sense` runs the three in one call. What stays in Python is the bookkeeping the
+:func:`arm_sense` runs the three in one call; :func:`arm_sense_packed`, which the rig
+calls, takes the sensor's and the chain's constants as one buffer each
+(``VirtualFTSensor.constants``, ``WrenchProcessor.constants``: their attributes are views
+of them, so an assignment such as a new calibration is what the next call reads) and the
+chain's filter states as one more. What stays in Python is the bookkeeping the
 objects do anyway (the noise draws from the sensor's generator, the delay ring's head,
 the ring of poses that aligns a delayed reading, the gate's flags: ``advance`` and
 ``begin``), so the numbers are those of the stages to the last bit; what it saves is the
-Python between them and the unpacking of some thirty arguments.
+Python between them and the unpacking of some forty arguments.
 
 Not fused: a sensor slower than the loop (its held readings) and a sensor on the mockup
 body (its wrench shifted to the face): their rigs take the stages.
@@ -28,7 +32,7 @@ from numba import njit
 
 from app.sim.ft_sensor import ProcessedWrench, process_cycle, sensor_step
 
-__all__ = ["OUT_SIZE", "arm_sense", "sense"]
+__all__ = ["OUT_SIZE", "arm_sense", "arm_sense_packed", "sense"]
 
 OUT_SIZE = 24
 """arm_sense's out: the chain's (12,) output (force in R, torque in B, wrench in S), the
@@ -64,6 +68,22 @@ def arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel,
         out[18 + k] = out[k]
 
 
+@njit(cache=True, fastmath=False)
+def arm_sense_packed(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel,
+                     normals, sc, ring, head, fill, T_W_F_then, T_W_C_then, accel_then,
+                     R_W_R, pc, px, gate_open, reset_slow, db_force, db_torque, out):
+    """:func:`arm_sense` with the sensor's constants in one buffer sc
+    (``VirtualFTSensor.constants``), the chain's in pc (``WrenchProcessor.constants``) and
+    the chain's filter states and scratch in px (``WrenchProcessor._x``): the same
+    kernels on the same numbers, thirteen arguments fewer to unpack per call."""
+    arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel, normals,
+              sc[0], sc[1:4], sc[4:10], sc[10:16], sc[16:22], ring, head, fill,
+              T_W_F_then, T_W_C_then, accel_then, R_W_R, pc[0:3], pc[3] != 0.0,
+              pc[4] != 0.0, pc[5:11], pc[11], pc[12:15], pc[15], pc[16], px[0:6],
+              px[6:12], gate_open, reset_slow, db_force, db_torque, pc[17] != 0.0,
+              px[12:24], out)
+
+
 def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
           R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
           gate_open: bool) -> ProcessedWrench:
@@ -71,7 +91,6 @@ def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
     cycle, in one compiled call; the rig, its sensor and its chain end as after the
     stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included)."""
     sensor, proc = rig.sensor, rig.processor
-    cfg, cal = proc.config, proc.calibration
     T_W_F = rig.mockup_state_W()[0]
     accel = np.empty(3)
     normals, fill, held = sensor.advance()
@@ -80,13 +99,10 @@ def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
     (T_W_F_then, T_W_C_then, accel_then), db_force, db_torque, reset_slow = proc.begin(
         T_W_F, T_W_C, accel, gate_open)
     out = np.empty(OUT_SIZE)
-    arm_sense(np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, v_W, rig.v_W_prev,
-              dt_s, first_cycle, accel, normals, sensor.mass_kg, sensor.gravity_W_mps2,
-              sensor.bias_S, sensor.noise_std_S, sensor.range_S, sensor._ring, sensor._head,
-              fill, T_W_F_then, T_W_C_then, accel_then, R_W_R, proc.gravity_W_mps2,
-              cfg.payload_compensation, cfg.inertial_compensation, cal.bias_S, cal.mass_kg,
-              cal.com_F_m, proc.alpha, proc.contact_alpha, proc._state_S,
-              proc._contact_state_S, gate_open, reset_slow, db_force, db_torque,
-              cfg.deadband_mode == "soft", proc._scratch, out)
+    arm_sense_packed(np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, v_W,
+                     rig.v_W_prev, dt_s, first_cycle, accel, normals, sensor.constants,
+                     sensor._ring, sensor._head, fill, T_W_F_then, T_W_C_then, accel_then,
+                     R_W_R, proc.constants, proc._x, gate_open, reset_slow, db_force,
+                     db_torque, out)
     rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
-    return ProcessedWrench(force_R_N=out[0:3], torque_B_Nm=out[3:6], wrench_S=out[6:12])
+    return ProcessedWrench(out[0:3], out[3:6], out[6:12])

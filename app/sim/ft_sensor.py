@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -48,6 +49,38 @@ __all__ = [
 
 
 _ZERO3 = np.zeros(3)
+
+
+def _packed(slot: slice, doc: str, scalar: bool = False) -> property:
+    """An attribute kept in a slice of the object's ``constants`` buffer: read, a view of
+    it (a float for a scalar); assigned, its values are written into the buffer (an array
+    of the slice's shape, or a number), so that the compiled sensor path, which takes the
+    buffer, always sees what the attribute says."""
+    n = slot.stop - slot.start
+
+    def get(self):
+        return float(self.constants[slot.start]) if scalar else self.constants[slot]
+
+    def put(self, value) -> None:
+        v = np.asarray(value, dtype=float)
+        if v.shape != (() if scalar else (n,)):
+            raise ValueError(f"expected {'a number' if scalar else f'shape ({n},)'}, "
+                             f"got shape {v.shape}")
+        self.constants[slot] = v
+
+    return property(get, put, doc=doc)
+
+
+SENSOR_CONSTANTS = 22
+"""Length of :attr:`VirtualFTSensor.constants`: mass, gravity (3), bias (6), noise standard
+deviation (6), range (6)."""
+PROCESSOR_CONSTANTS = 18
+"""Length of :attr:`WrenchProcessor.constants`: gravity (3), payload and inertial
+compensation (1.0 on, 0.0 off), the calibration's bias (6), mass and COM (3), α, the
+contact's α, soft deadband (1.0 soft)."""
+PROCESSOR_STATE = 24
+"""Length of :attr:`WrenchProcessor._x`: the filter state (6), the contact filter's (6),
+the kernel's scratch (12)."""
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -223,6 +256,12 @@ class VirtualFTSensor:
     call, so the generator's stream is the same whatever the sample rate.
     """
 
+    mass_kg = _packed(slice(0, 1), "What the sensor carries [kg].", scalar=True)
+    gravity_W_mps2 = _packed(slice(1, 4), "(3,) the lab's gravity in W [m/s²].")
+    bias_S = _packed(slice(4, 10), "(6,) the sensor's bias [N, N·m].")
+    noise_std_S = _packed(slice(10, 16), "(6,) the noise's standard deviation per axis.")
+    range_S = _packed(slice(16, 22), "(6,) the range each axis saturates at.")
+
     def __init__(
         self,
         config: SensorConfig,
@@ -237,8 +276,12 @@ class VirtualFTSensor:
         """Loop cycles per new reading (1: every call samples; more: the reading is held
         between samples, the zero-order hold of a sensor slower than the loop; without the
         loop's ``rate_hz``, every call samples)."""
+        self.constants = np.zeros(SENSOR_CONSTANTS)
+        """The sensor's constants in one buffer (the compiled sensor path takes it as one
+        argument): ``mass_kg``, ``gravity_W_mps2``, ``bias_S``, ``noise_std_S`` and
+        ``range_S`` are views of it (:data:`SENSOR_CONSTANTS`)."""
         self.mass_kg = float(mass_kg)
-        self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
+        self.gravity_W_mps2 = gravity_W_mps2
         self.rng = rng
         self.bias_S = np.array([*config.bias_force_N, *config.bias_torque_Nm], dtype=float)
         self.noise_std_S = np.array(
@@ -273,6 +316,11 @@ class VirtualFTSensor:
         the delay ring is to be filled, the held reading handed out when the sensor does
         not sample in this call, else None); the ring's head and ``age_cycles`` move on."""
         normals = self.rng.standard_normal(6)
+        if self.every_cycles == 1.0 and self._head >= 0:
+            # a sensor that samples every call, its ring filled: nothing is ever held
+            # (every _held_for stays 0, age_cycles the delay), only the head moves on
+            self._head = (self._head + 1) % self._ring.shape[0]
+            return normals, False, None
         fill = self._head < 0
         held = None if fill or self.every_cycles == 1.0 else self._ring[self._head].copy()
         self._head = 0 if fill else (self._head + 1) % self._ring.shape[0]
@@ -341,9 +389,9 @@ class Calibration:
     fit (the sensor's torque noise and the lever arm of its force noise), in S."""
 
 
-@dataclass(frozen=True)
-class ProcessedWrench:
-    """Output of one processing cycle."""
+class ProcessedWrench(NamedTuple):
+    """Output of one processing cycle (a named tuple: built every cycle, it costs a
+    third of a frozen dataclass)."""
 
     force_R_N: np.ndarray
     """(3,) external force on the satellite in R: ODS input (the ODS applies its scales)."""
@@ -384,6 +432,43 @@ class WrenchProcessor:
     the noise threshold still reaches the ODS whole.
     """
 
+    gravity_W_mps2 = _packed(slice(0, 3), "(3,) the lab's gravity in W [m/s²].")
+    alpha = _packed(slice(15, 16), "The low-pass's α (:func:`lowpass_alpha`).", scalar=True)
+    contact_alpha = _packed(slice(16, 17), "The contact filter's α (the gate open).",
+                            scalar=True)
+    _state_S = property(lambda self: self._x[0:6],
+                        lambda self, v: self._x.__setitem__(slice(0, 6), v))
+    _contact_state_S = property(lambda self: self._x[6:12],
+                                lambda self, v: self._x.__setitem__(slice(6, 12), v))
+    _scratch = property(lambda self: self._x[12:24])
+
+    @property
+    def config(self) -> WrenchProcessingConfig:
+        return self._config
+
+    @config.setter
+    def config(self, config: WrenchProcessingConfig) -> None:
+        """The configuration, its switches packed into :attr:`constants` too."""
+        self._config = config
+        c = self.constants
+        c[3] = float(config.payload_compensation)
+        c[4] = float(config.inertial_compensation)
+        c[17] = float(config.deadband_mode == "soft")
+
+    @property
+    def calibration(self) -> Calibration:
+        """The payload calibration (:meth:`calibrate`); assigning one (an immutable
+        :class:`Calibration`) packs its bias, mass and COM into :attr:`constants`."""
+        return self._calibration
+
+    @calibration.setter
+    def calibration(self, cal: Calibration) -> None:
+        c = self.constants
+        c[5:11] = cal.bias_S
+        c[11] = cal.mass_kg
+        c[12:15] = cal.com_F_m
+        self._calibration = cal
+
     def __init__(
         self,
         config: WrenchProcessingConfig,
@@ -392,8 +477,15 @@ class WrenchProcessor:
         delay_cycles: int = 0,
         max_age_cycles: int | None = None,
     ) -> None:
+        self.constants = np.zeros(PROCESSOR_CONSTANTS)
+        """The chain's constants in one buffer (:data:`PROCESSOR_CONSTANTS`), which the
+        compiled sensor path takes as one argument: ``gravity_W_mps2``, ``alpha``,
+        ``contact_alpha``, the switches of ``config`` and the ``calibration``'s bias,
+        mass and COM are kept in it."""
+        self._x = np.zeros(PROCESSOR_STATE)
+        """The filters' states and the kernel's scratch (:data:`PROCESSOR_STATE`)."""
         self.config = config
-        self.gravity_W_mps2 = np.asarray(gravity_W_mps2, dtype=float)
+        self.gravity_W_mps2 = gravity_W_mps2
         self.alpha = lowpass_alpha(config.lowpass_hz, rate_hz)
         self.contact_alpha = (self.alpha if config.contact_lowpass_hz is None
                               else lowpass_alpha(config.contact_lowpass_hz, rate_hz))
@@ -412,10 +504,7 @@ class WrenchProcessor:
         self.reading_age_cycles = self.delay_cycles
         """How old the next reading is (set by the rig from the sensor's ``age_cycles``
         before each :meth:`process`; the delay when the sensor samples every cycle)."""
-        self._state_S = np.zeros(6)
-        self._contact_state_S = np.zeros(6)
         self._gate_was_open = False
-        self._scratch = np.empty(12)
         self._ring: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def reset(self) -> None:

@@ -293,6 +293,8 @@ class OperatorHand:
 
     def update(self, t_s: float) -> None:
         """Apply the queued commands at t_s and let go of the pushes that have ended."""
+        if not (self._queue or self._pushes):  # nothing queued, nothing pushing
+            return
         for cmd in self._queue:
             if isinstance(cmd, Push):
                 self._pushes.append((cmd.satellite, np.array(cmd.force_R_N),
@@ -319,8 +321,12 @@ class OperatorHand:
 
     def idle(self, t_s: float) -> bool:
         """No pulse, push or gizmo acts at t_s (the hand's wrenches are all zero)."""
-        return not (self._pushes or self._grips
-                    or any(start <= t_s < end for start, end in self._pulse_windows))
+        if self._pushes or self._grips:
+            return False
+        for start, end in self._pulse_windows:  # a loop: any() of a generator costs more
+            if start <= t_s < end:
+                return False
+        return True
 
     def wrenches_W(self, t_s: float, p_W_C: np.ndarray, R_W_C: np.ndarray,
                    v_W: np.ndarray | None = None, w_W: np.ndarray | None = None,

@@ -37,7 +37,8 @@ def actual_bodies(T_W_R: np.ndarray, ods: OrbitalSimulator, rigs: Sequence) -> B
     a satellite without an arm where the ODS has it, not turning."""
     n = ods.y.shape[0]
     T_W_C, v_W, w_W = np.empty((n, 4, 4)), np.empty((n, 3)), np.zeros((n, 3))
-    ods_states_W(T_W_R, ods.y, T_W_C, v_W)
+    if len(rigs) < n:  # else every satellite is carried (one robot each): all FK below
+        ods_states_W(T_W_R, ods.y, T_W_C, v_W)
     for rig in rigs:
         s = rig.satellite
         _, T_W_C[s], v_W[s], w_W[s] = rig.mockup_state_W()

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from numba import njit
+from numba.core.errors import TypingError
 
 from app.sim.frames import matrix_to_quat_into
 from app.sim.orbital import omega_relative_into
@@ -225,6 +226,53 @@ def record_arm(T_R_W, T_W_C, v_W, q, raw_S, processed, row, k):
     return k + 28
 
 
+@njit(cache=True, fastmath=False)
+def record_row(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, n_arms,
+               data, counters):
+    """Claim the next row of the ring (data, counters: :class:`TelemetryBuffer`'s) and
+    write every column but the arms' (:func:`record_satellites`, then the true forces,
+    the GNC wrenches and the rails after the ``n_arms`` arms' columns); returns the row's
+    index in data, or -1 (nothing claimed, nothing written) if a shape does not fit the
+    row: y (N, 13), force_R, torque_B, true_force_R (N, 3), gnc (N, 6), rails (n, 3)."""
+    n = y.shape[0]
+    width = 1 + (len(SAT_FIELDS) + 9) * n + len(ROBOT_FIELDS) * n_arms + 3 * rails.shape[0]
+    if (y.shape[1] != 13 or force_R.shape[0] != n or force_R.shape[1] != 3
+            or torque_B.shape[0] != n or torque_B.shape[1] != 3
+            or true_force_R.shape[0] != n or true_force_R.shape[1] != 3
+            or gnc.shape[0] != n or gnc.shape[1] != 6 or rails.shape[1] != 3
+            or width != data.shape[1]):
+        return -1
+    claimed = counters[0]
+    counters[0] = claimed + 1
+    at = claimed % data.shape[0]
+    row = data[at]
+    k = record_satellites(t_s, y, orbit_rate, force_R, torque_B, row)
+    k += len(ROBOT_FIELDS) * n_arms
+    for i in range(n):
+        for a in range(3):
+            row[k + 3 * i + a] = true_force_R[i, a]
+        for c in range(6):
+            row[k + 3 * n + 6 * i + c] = gnc[i, c]
+    k += 9 * n
+    for r in range(rails.shape[0]):
+        for c in range(3):
+            row[k + 3 * r + c] = rails[r, c]
+    return at
+
+
+@njit(cache=True, fastmath=False)
+def record_row_arm(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, n_arms,
+                   data, counters, T_R_W, T_W_C, v_W, q, raw_S, processed):
+    """:func:`record_row`, then the first arm's columns (:func:`record_arm`) in the same
+    call (a loop with arms: one call fewer); -1 as record_row."""
+    at = record_row(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, n_arms,
+                    data, counters)
+    if at >= 0:
+        record_arm(T_R_W, T_W_C, v_W, q, raw_S, processed, data[at],
+                   1 + len(SAT_FIELDS) * y.shape[0])
+    return at
+
+
 class Recorder:
     """Writes the loop's telemetry row of each cycle into a :class:`TelemetryBuffer`."""
 
@@ -235,6 +283,9 @@ class Recorder:
         self.n_rails = len(rail_robots)
         self.T_R_W = np.ascontiguousarray(T_R_W, dtype=float)
         self.orbit_rate_radps = float(orbit_rate_radps)
+        self._no_gnc = np.zeros((n_sat, 6))  # the GNC columns without a GNC
+        self._no_rails = np.zeros((0, 3))
+        self._arms_at = 1 + len(SAT_FIELDS) * n_sat  # the first arm's column
 
     def record(self, t_s: float, y: np.ndarray, force_R: np.ndarray, torque_B: np.ndarray,
                arms, true_force_R: np.ndarray, gnc_wrench: np.ndarray | None = None,
@@ -244,31 +295,34 @@ class Recorder:
         mockup (N, 3), each satellite's GNC wrench (N, 6: force in R, torque in body
         axes, orbit units; None: zeros) and each rail's (s, v, set-point) (n_rails, 3).
 
-        The kernels write without bounds checks: the shapes are checked here first, so that
-        a wrong call raises and records nothing."""
-        n = self.n_sat
-        if (y.shape != (n, 13) or force_R.shape != (n, 3) or torque_B.shape != (n, 3)
-                or true_force_R.shape != (n, 3) or len(arms) != self.n_arms
-                or (gnc_wrench is not None and gnc_wrench.shape != (n, 6))
-                or (rails is None if self.n_rails else rails is not None)
-                or (self.n_rails and np.shape(rails) != (self.n_rails, 3))):
+        The kernels write without bounds checks: the shapes are checked first (the row's
+        kernel checks them before it claims the row), so that a wrong call raises and
+        records nothing."""
+        bad = len(arms) != self.n_arms or (rails is None) == bool(self.n_rails)
+        if not bad:
+            buffer = self.buffer
+            common = (t_s, y, self.orbit_rate_radps, force_R, torque_B, true_force_R,
+                      self._no_gnc if gnc_wrench is None else gnc_wrench,
+                      self._no_rails if rails is None else rails, self.n_arms,
+                      buffer._data, buffer._counters)
+            try:  # claims the row only if every shape fits (-1 if not)
+                at = (record_row_arm(*common, self.T_R_W, *arms[0]) if arms
+                      else record_row(*common))
+            except TypingError:  # an array of another dimension or type
+                at = -1
+            bad = at < 0
+        if bad:
+            n = self.n_sat
             raise ValueError(
                 f"recorder of {n} satellites and {self.n_arms} arms got a state {y.shape}, "
-                f"wrenches {force_R.shape} {torque_B.shape} {true_force_R.shape}"
-                f"{'' if gnc_wrench is None else f' {gnc_wrench.shape}'}, "
+                f"wrenches {np.shape(force_R)} {np.shape(torque_B)} {np.shape(true_force_R)}"
+                f"{'' if gnc_wrench is None else f' {np.shape(gnc_wrench)}'}, "
                 f"{len(arms)} arms"
                 f"{'' if rails is None else f', rails {np.shape(rails)}'}"
                 f"{f' (it has {self.n_rails} rails)' if self.n_rails else ''}"
             )
-        row = self.buffer.next_row()
-        k = record_satellites(t_s, y, self.orbit_rate_radps, force_R, torque_B, row)
-        for T_W_C, v_W, q_rad, raw_S, processed in arms:
-            k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
-        row[k:k + 3 * n] = true_force_R.ravel()
-        if gnc_wrench is None:
-            row[k + 3 * n:k + 9 * n] = 0.0
-        else:
-            row[k + 3 * n:k + 9 * n] = gnc_wrench.ravel()
-        if self.n_rails:
-            row[k + 9 * n:] = rails.ravel()
-        self.buffer.commit()
+        if len(arms) > 1:  # the first arm's columns are written
+            row, k = buffer._data[at], self._arms_at + len(ROBOT_FIELDS)
+            for T_W_C, v_W, q_rad, raw_S, processed in arms[1:]:
+                k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
+        buffer.commit()
