@@ -104,7 +104,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         run_task = ray.remote(num_cpus=1, max_retries=1)(execute_run)
         ideal_task = ray.remote(num_cpus=1, max_retries=1)(compute_ideal)
         ideals: OrderedDict = OrderedDict()
-        finished: set = set()  # ideal references known to be done
+        ahead: set = set()  # configurations whose ideal started before their runs
         in_flight: dict = {}
         upcoming = _Lookahead(first, pending)
         bar = tqdm(total=plan.count - summary["skipped"], unit="run", file=sys.stderr,
@@ -112,7 +112,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         counts = status_counts([])
         try:
             while True:
-                _prefetch_ideals(ray, upcoming, ideals, finished, ideal_task, summary)
+                _prefetch_ideals(upcoming, ideals, ahead, ideal_task, summary)
                 while len(in_flight) < window:
                     run = upcoming.pop()
                     if run is None:
@@ -125,6 +125,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
                     ideal = None
                     if run.ideal_id is not None:
                         ideal = _ideal_ref(ideals, run, ideal_task, summary)
+                        ahead.discard(run.ideal_id)
                     ref = run_task.remote(run.config, ideal, keep,
                                           str(out_dir / "runs" / run.run_id))
                     in_flight[ref] = run
@@ -175,23 +176,22 @@ class _Lookahead:
         return iter(self._buffer)
 
 
-def _prefetch_ideals(ray, upcoming: _Lookahead, ideals: OrderedDict, finished: set,
-                     ideal_task, summary: dict) -> None:
-    """Start the ideal runs of the configurations to come, nearest first, while fewer than
-    one per worker are unfinished: the runs that wait for an ideal hold no worker, so
-    without this a worker idles while the next configuration's ideal runs alone.
-    ``finished``: the ideal references known to be done (kept up to date here)."""
-    unfinished = [ref for ref in ideals.values() if ref not in finished]
-    if unfinished:
-        ready, unfinished = ray.wait(unfinished, num_returns=len(unfinished), timeout=0)
-        finished.update(ready)
-    finished.intersection_update(ideals.values())  # not those the cache let go
-    room = min(summary["workers"], IDEAL_CACHE // 2) - len(unfinished)
+def _prefetch_ideals(upcoming: _Lookahead, ideals: OrderedDict, ahead: set, ideal_task,
+                     summary: dict) -> None:
+    """Start the ideal runs of the configurations to come, nearest first, so that one per
+    worker is started ahead of its runs: the runs that wait for an ideal hold no worker,
+    so without this a worker idles while the next configuration's ideal runs alone.
+    ``ahead``: the configurations whose ideal was started ahead and none of whose runs
+    has been submitted yet (kept up to date here and by the caller); bounding them, not
+    the unfinished ideals, keeps the look-ahead from running away once ideals finish
+    fast, and from evicting from the cache an ideal its runs still need."""
+    room = min(summary["workers"], IDEAL_CACHE // 2) - len(ahead)
     for run in upcoming.ahead():
         if room <= 0:
             break
         if run.config is not None and run.ideal_id is not None and run.ideal_id not in ideals:
             _ideal_ref(ideals, run, ideal_task, summary)
+            ahead.add(run.ideal_id)
             summary["ideal_runs_ahead"] += 1
             room -= 1
 

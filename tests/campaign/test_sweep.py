@@ -517,3 +517,42 @@ def test_a_swept_list_index_is_a_short_ascii_number(key, shown, tmp_path):
     quoted = json.dumps(key)  # (the spec's key as the message quotes it)
     assert str(err.value) == (f'spec.toml: grid.{quoted}: unknown key (satellites is a list of '
                               f"2: {shown} is not an index of it (1 to 6 ASCII digits))")
+
+
+def test_the_ideal_runs_started_ahead_are_each_started_once_one_per_worker_at_most():
+    """The sweep's look-ahead (app/campaign/sweep_ray.py) over 150 configurations of one seed
+    each, the next run submitted after each look: every configuration's ideal run is started
+    exactly once, and never more than one per worker ahead of its runs, however fast the
+    ideals finish (none is evicted from the cache before its runs took it)."""
+    from collections import OrderedDict
+
+    from app.campaign import sweep_ray
+    from app.campaign.sweep import Run
+    from app.config import EmulatorConfig
+
+    started = []
+
+    class IdealTask:  # what ray.remote(compute_ideal) is to the loop: .remote(config) -> ref
+        @staticmethod
+        def remote(config):
+            started.append(config)
+            return object()
+
+    config = EmulatorConfig()
+    runs = [Run(index=k, seed=0, params={}, config=config, run_id=f"r{k}", ideal_id=f"c{k}")
+            for k in range(150)]
+    upcoming = sweep_ray._Lookahead([], iter(runs))
+    ideals, ahead = OrderedDict(), set()
+    summary = {"workers": 2, "ideal_runs": 0, "ideal_runs_ahead": 0}
+    most_ahead = 0
+    while True:
+        sweep_ray._prefetch_ideals(upcoming, ideals, ahead, IdealTask, summary)
+        most_ahead = max(most_ahead, len(ahead))
+        run = upcoming.pop()
+        if run is None:
+            break
+        sweep_ray._ideal_ref(ideals, run, IdealTask, summary)
+        ahead.discard(run.ideal_id)
+    assert len(started) == summary["ideal_runs"] == 150
+    assert summary["ideal_runs_ahead"] == 150  # (each one started before its run)
+    assert most_ahead == 2
