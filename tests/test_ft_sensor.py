@@ -482,3 +482,23 @@ def test_the_deadbands_are_six_sigma_of_the_filtered_noise_the_calibration_measu
     proc = WrenchProcessor(WrenchProcessingConfig(deadband_noise_sigmas=0.0), RATE_HZ, G_W)
     proc.calibrate(rest, T_W_F[:3, :3], mass_kg=MASS_KG, com_F_m=COM_F_M)
     assert (proc.deadband_force_N, proc.deadband_torque_Nm) == (4.0, 0.25)
+
+
+def test_a_calibration_is_changed_whole_never_in_place():
+    """The chain keeps its calibration's arrays read-only (the compiled path reads a packed
+    copy, so an in-place change would reach only the stages): changing one in place is
+    refused; a new Calibration is what the packed buffer follows; one of the wrong shape
+    is refused and changes nothing."""
+    proc = _calibrated(_sensor(NOISELESS))
+    cal = proc.calibration
+    packed = proc.constants.copy()
+    with pytest.raises(ValueError, match="read-only"):
+        proc.calibration.bias_S[:] += 5.0
+    with pytest.raises(ValueError, match="read-only"):
+        proc.calibration.com_F_m[0] = 0.1
+    with pytest.raises(ValueError, match=r"expected shape \(3,\), got shape \(2,\)"):
+        proc.calibration = Calibration(np.zeros(6), 1.0, np.zeros(2))
+    assert proc.calibration is cal and np.array_equal(proc.constants, packed)
+    proc.calibration = Calibration(cal.bias_S + 1.0, 2.0, cal.com_F_m)
+    assert np.array_equal(proc.constants[5:11], cal.bias_S + 1.0)
+    assert proc.constants[11] == 2.0

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import shutil
+import signal
 import stat
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -308,24 +311,59 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
         writers.append(("bag", lambda d: [write_bag(
             replace_bag_dir(d / "bag"), em.config, rows, em.telemetry.index, bag_rate_hz)]))
     files, problems, fallback = [], [], None
-    for what, write in writers:
+
+    def write_one(what: str, write) -> None:
+        nonlocal fallback
         try:
-            files += _whole_or_none(write, out)
-            continue
+            files.extend(_whole_or_none(write, out))
+            return
         except (OSError, ValueError) as err:
             problem = f"{out / what}: could not be written ({_reason(err)})"
         try:
             if fallback is None:
                 fallback = Path(tempfile.mkdtemp(prefix="orbit-emulator-run-"))
-            files += _whole_or_none(write, fallback)
+            files.extend(_whole_or_none(write, fallback))
             problems.append(f"{problem}; written to {fallback / what} instead")
         except (OSError, ValueError) as err:
             problems.append(f"{problem}, nor in {fallback}: {_reason(err)}")
+
+    with _interrupts_held():  # the record itself whole before an interrupt acts
+        for what, write in writers:
+            if what in RECORD_FILES:
+                write_one(what, write)
+    for what, write in writers:  # then what is drawn from it
+        if what not in RECORD_FILES:
+            write_one(what, write)
     if fallback is not None and not any(fallback.iterdir()):  # nothing went there either
         shutil.rmtree(fallback, ignore_errors=True)
     if problems:
         raise RunFilesNotWritten(problems, files, fallback)
     return files
+
+
+RECORD_FILES = ("metrics.json", "telemetry.csv")
+"""What a run recorded: Ctrl+C or SIGTERM waits until each is whole (a fraction of a
+second); the figures and the bag, drawn from them, may be cut short."""
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """SIGINT and SIGTERM held off for the block (only the main thread sets handlers; the
+    signal is noted, not acted on): an interrupt that arrives meanwhile raises
+    KeyboardInterrupt as the block ends."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    noted = []
+    held = {sig: signal.signal(sig, lambda signum, frame: noted.append(signum))
+            for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in held.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+    if noted:
+        raise KeyboardInterrupt
 
 
 def _entries(folder: Path) -> dict[str, tuple[int, int, int]]:

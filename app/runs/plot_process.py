@@ -168,6 +168,7 @@ def _draw(conn, shared: mmap.mmap, shape: tuple[int, int], out_dir: Path, config
     ``runs_end``: the run's end of the pipe, closed here (the fork's copy would keep
     the run's going away from being seen)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # an interrupt is the run's to handle
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (not the run's "SIGTERM as Ctrl+C")
     if runs_end is not None:
         runs_end.close()
     try:

@@ -97,10 +97,12 @@ def _in_processes(fn, args: tuple, noise, draws: list, processes: int, tick) -> 
 
 def _adopt(fn, args: tuple, noise, parent_pid: int) -> None:
     """A forked worker's start: the job it runs (inherited, never pickled). Ctrl+C is the
-    run's to handle (it stops the pool), and the worker dies with the run's process
-    however that ends (killed: it would otherwise wait for work for ever)."""
+    run's to handle (it stops the pool); SIGTERM ends the worker alone (the run then
+    computes its replicates itself); and the worker dies with the run's process however
+    that ends (killed: it would otherwise wait for work for ever)."""
     global _job
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the run's "SIGTERM as Ctrl+C"
     _die_with(parent_pid)
     _job = (fn, args, noise)
 

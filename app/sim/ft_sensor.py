@@ -26,7 +26,7 @@ chain one call of :func:`process_step` (numba); the calibration, run once at res
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -81,6 +81,15 @@ contact's α, soft deadband (1.0 soft)."""
 PROCESSOR_STATE = 24
 """Length of :attr:`WrenchProcessor._x`: the filter state (6), the contact filter's (6),
 the kernel's scratch (12)."""
+
+
+def _frozen(value, shape: tuple[int, ...]) -> np.ndarray:
+    """A read-only float copy of ``value``, which must have ``shape`` (ValueError)."""
+    v = np.array(value, dtype=float)
+    if v.shape != shape:
+        raise ValueError(f"expected shape {shape}, got shape {v.shape}")
+    v.setflags(write=False)
+    return v
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -463,10 +472,14 @@ class WrenchProcessor:
 
     @calibration.setter
     def calibration(self, cal: Calibration) -> None:
+        """Its arrays are kept as read-only copies: an in-place change would reach the
+        stages but not the packed buffer (a new Calibration is the way to change one)."""
+        bias_S, com_F_m = _frozen(cal.bias_S, (6,)), _frozen(cal.com_F_m, (3,))
+        cal = replace(cal, bias_S=bias_S, com_F_m=com_F_m, mass_kg=float(cal.mass_kg))
         c = self.constants
-        c[5:11] = cal.bias_S
+        c[5:11] = bias_S
         c[11] = cal.mass_kg
-        c[12:15] = cal.com_F_m
+        c[12:15] = com_F_m
         self._calibration = cal
 
     def __init__(
