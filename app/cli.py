@@ -99,6 +99,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         bar.update(bar.total - bar.n)
     except RunFailed as failed:
         result = failed.result
+    except KeyboardInterrupt:  # (run_scenario wrote what it had recorded first)
+        bar.close()
+        kept = [name for name in ("metrics.json", "telemetry.csv") if (out_dir / name).is_file()]
+        print(f"interrupted: {', '.join(kept) or 'nothing'} written in {out_dir}",
+              file=sys.stderr)
+        return 130
     finally:
         bar.close()
     return _report_run(result)

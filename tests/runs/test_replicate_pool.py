@@ -139,6 +139,7 @@ def test_a_run_stopped_during_its_replicates_keeps_its_record_and_leaves_no_proc
     if how == "SIGKILL":
         return
     assert proc.returncode == 130, err
+    assert f"interrupted: metrics.json, telemetry.csv written in {out}" in err
     metrics = json.loads((out / "metrics.json").read_text())
     lines = (out / "telemetry.csv").read_text().splitlines()
     assert float(lines[-1].split(",")[0]) == pytest.approx(1.2)  # to the run's end, whole
