@@ -31,31 +31,14 @@ from numba import njit
 
 from app.sim.frames import satellite_pose
 from app.sim.servo import UR10eServo, servo_constants, servo_step
-from app.sim.ur10e import TcpChain, mockup_state
+from app.sim.ur10e import TcpChain, chain_constants, chain_views, mockup_state
 from app.sim.vfdm import Vfdm, vfdm_constants, vfdm_cycle_packed
 
-__all__ = ["ArmCommand", "arm_command", "arm_command_towards", "chain_constants",
-           "chain_views"]
+__all__ = ["ArmCommand", "arm_command", "arm_command_towards"]
 
 OUT_SIZE = 62
 """arm_command's out: the servo's new q, q̇, q̈ (18), the VFDM's last pose error (6), the
 forward kinematics of the new joint state: T_W_F (16), T_W_C (16), v_W (3), ω_W (3)."""
-CHAIN_SIZE = 116
-"""A TCP chain in one buffer: pR (54), pp (18), fR (9), fp (3), T_W_B (16), T_F_C (16)."""
-
-
-def chain_constants(chain: TcpChain) -> np.ndarray:
-    """(CHAIN_SIZE,) the chain's arrays, one after the other (:func:`chain_views`)."""
-    c = np.concatenate([np.ravel(a) for a in chain]).astype(float)
-    assert c.shape == (CHAIN_SIZE,)
-    return c
-
-
-@njit(cache=True, fastmath=False, inline="always")
-def chain_views(c):
-    """(pR, pp, fR, fp, T_W_B, T_F_C) of a :func:`chain_constants` buffer."""
-    return (c[0:54].reshape((6, 3, 3)), c[54:72].reshape((6, 3)), c[72:81].reshape((3, 3)),
-            c[81:84], c[84:100].reshape((4, 4)), c[100:116].reshape((4, 4)))
 
 
 @njit(cache=True, fastmath=False, inline="always")

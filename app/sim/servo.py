@@ -31,10 +31,13 @@ from numba import njit
 
 from app.config import RobotConfig, ServoConfig
 from app.sim.ur10e import (
+    CHAIN_SIZE,
     N_JOINTS,
     T_F_C_from_config,
     T_W_B_from_config,
     TcpChain,
+    chain_constants,
+    chain_views,
     tcp_chain,
     tcp_position_W,
 )
@@ -309,7 +312,7 @@ class UR10eServo:
         c = np.concatenate([
             [self.dt_s, self._w2, self._2zw, self.accel_limit_radps2,
              self.cfg.position_limit_rad, float(box is not None)],
-            lo, hi, self.speed_limits_radps, *(np.ravel(a) for a in chain)]).astype(float)
+            lo, hi, self.speed_limits_radps, chain_constants(chain)]).astype(float)
         assert c.shape == (N_SERVO_CONSTANTS,)
         return c
 
@@ -324,6 +327,5 @@ def servo_constants(c):
     """The arguments of :func:`servo_step` after ``stopped`` from a
     :meth:`UR10eServo.constants` buffer: (dt, w2, two_zw, accel, pos_lim, speed_lim,
     use_box, box_min, box_max, pR, pp, fR, fp, T_W_B, T_F_C)."""
-    return (c[0], c[1], c[2], c[3], c[4], c[12:18], c[5] > 0.5, c[6:9], c[9:12],
-            c[18:72].reshape((6, 3, 3)), c[72:90].reshape((6, 3)), c[90:99].reshape((3, 3)),
-            c[99:102], c[102:118].reshape((4, 4)), c[118:134].reshape((4, 4)))
+    return (c[0], c[1], c[2], c[3], c[4], c[12:18], c[5] > 0.5, c[6:9],
+            c[9:12]) + chain_views(c[18:18 + CHAIN_SIZE])

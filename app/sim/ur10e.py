@@ -29,6 +29,7 @@ from app.config import UR10E_SPEED_LIMITS_RADPS, RobotConfig
 from app.sim.rotations import make_transform, quat_to_matrix
 
 __all__ = [
+    "CHAIN_SIZE",
     "DH_A_M",
     "DH_ALPHA_RAD",
     "DH_D_M",
@@ -38,6 +39,8 @@ __all__ = [
     "POSITION_LIMIT_RAD",
     "SPEED_LIMITS_RADPS",
     "TcpChain",
+    "chain_constants",
+    "chain_views",
     "T_F_C_from_config",
     "T_J6_F",
     "T_W_B_from_config",
@@ -130,7 +133,25 @@ def tcp_chain(T_W_B: np.ndarray | None = None, T_F_C: np.ndarray | None = None) 
     )
 
 
+CHAIN_SIZE = 116
+"""A TCP chain in one buffer: pR (54), pp (18), fR (9), fp (3), T_W_B (16), T_F_C (16)."""
+
+
+def chain_constants(chain: TcpChain) -> np.ndarray:
+    """(CHAIN_SIZE,) the chain's arrays, one after the other (:func:`chain_views`)."""
+    c = np.concatenate([np.ravel(a) for a in chain]).astype(float)
+    assert c.shape == (CHAIN_SIZE,)
+    return c
+
+
 # --- kernels ------------------------------------------------------------------------------
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def chain_views(c):
+    """(pR, pp, fR, fp, T_W_B, T_F_C) of a :func:`chain_constants` buffer."""
+    return (c[0:54].reshape((6, 3, 3)), c[54:72].reshape((6, 3)), c[72:81].reshape((3, 3)),
+            c[81:84], c[84:100].reshape((4, 4)), c[100:116].reshape((4, 4)))
 
 
 @njit(cache=True, fastmath=False)
