@@ -31,6 +31,7 @@ import pytest
 
 from app.cli import main as cli_main
 from app.runs.store import read_telemetry
+from app.scenarios import load_scenario
 from tests.live_server import LiveServer, free_port
 from tests.test_backend_rest import _recording_duration_s
 from tests.test_cli import EXE
@@ -449,7 +450,11 @@ def test_a_dead_loop_s_run_keeps_its_rows(live, runs_dir, caplog):
                    "the dead loop's run was not ended")
     assert record["status"] == "fault" and "killed by SIGKILL" in record["reason"]
     rows = read_telemetry(runs_dir / run_id / "telemetry.csv")[1]
-    assert rows[-1, 0] >= s["t_s"] - 1e-9  # (the CSV's 12 digits against the state's float)
+    # the state's t_s is the ODS's after its last step; that step's row is one cycle
+    # earlier, and the kill may come before another cycle ran (the CSV's 12 digits
+    # against the state's float)
+    dt_s = 1.0 / load_scenario("collision").loop.rate_hz
+    assert rows[-1, 0] >= s["t_s"] - dt_s - 1e-9
     assert json.loads((runs_dir / run_id / "metrics.json").read_text())["status"] == "fault"
     assert any(r.getMessage().startswith("the loop process exited (code -9), killed by "
                                          "SIGKILL: the run ends here") for r in caplog.records)
