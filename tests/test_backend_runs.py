@@ -627,6 +627,10 @@ def test_a_runs_dir_gone_or_unwritable_while_serving_never_fails_a_start(live, r
         assert (runs_dir / run_id / "run.json").is_file()  # the folder made again
         live.wait_for(lambda s: s["status"] not in ("running", "starting"))
         _wait(lambda: "telemetry_rows" in _runs(live)[run_id], 10.0, "the run did not end")
+        # its figures are drawn after it ended, by the recorder's worker: done before the
+        # folder is removed (else they land in it while it goes)
+        _wait(lambda: _runs(live)[run_id].get("plots") != "pending", 60.0,
+              "the run's figures were not drawn")
     finally:
         if runs_dir.is_dir():
             shutil.rmtree(runs_dir)
