@@ -7,7 +7,8 @@ its row's outcome (the metrics), never its telemetry; a hil run of two or more s
 gets its ideal reference from a task computed once per configuration (apart from the seed)
 and shared by the runs of every seed; the next configurations' ideal runs start while the
 runs of the one before them are under way (a worker never idles waiting for one while
-another could be computed). Rows are appended to results.csv as runs end; Ctrl+C
+another could be computed; a local Ray's first one is computed while Ray starts, in a
+process forked from the driver). Rows are appended to results.csv as runs end; Ctrl+C
 cancels what is under way and keeps them.
 """
 
@@ -34,6 +35,7 @@ from app.campaign.sweep import (
     status_counts,
     unresolved_outcome,
 )
+from app.runs.replicate_pool import Apart, apart
 from app.runs.report import write_json
 from app.runs.signals import interrupt_on_sigterm
 
@@ -59,7 +61,7 @@ def run_sweep(plan: SweepPlan, out_dir: Path, *, address: str | None = None,
     table = ResultsTable(out_dir / "results.csv", plan.columns(), resume)
     t0 = time.perf_counter()
     summary = {"runs_planned": plan.count, "skipped": 0, "ran": 0, "ideal_runs": 0,
-               "ideal_runs_ahead": 0,
+               "ideal_runs_ahead": 0, "ideal_runs_apart": 0,
                "address": address or "local", "workers": None, "interrupted": False}
     pending = _pending(plan, table, summary)
     first = next(pending, None)
@@ -93,7 +95,12 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
              keep, quiet) -> None:
     from tqdm import tqdm
 
-    ray = start_ray(address, workers)
+    early = None if address else _ideal_apart(first[0])  # while a local Ray starts
+    try:
+        ray = start_ray(address, workers)
+    except BaseException:
+        _drop(early)
+        raise
     interrupt_on_sigterm()  # after ray.init, which installs a handler of its own
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
@@ -104,6 +111,8 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         run_task = ray.remote(num_cpus=1, max_retries=1)(execute_run)
         ideal_task = ray.remote(num_cpus=1, max_retries=1)(compute_ideal)
         ideals: OrderedDict = OrderedDict()
+        if early is not None:  # resolved (ray.put) when its first run is submitted
+            ideals[first[0].ideal_id] = early
         ahead: set = set()  # configurations whose ideal started before their runs
         in_flight: dict = {}
         upcoming = _Lookahead(first, pending)
@@ -124,6 +133,8 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
                         continue
                     ideal = None
                     if run.ideal_id is not None:
+                        if isinstance(ideals.get(run.ideal_id), Apart):
+                            _resolve_apart(ideals, run, ideal_task, ray, summary)
                         ideal = _ideal_ref(ideals, run, ideal_task, summary)
                         ahead.discard(run.ideal_id)
                     ref = run_task.remote(run.config, ideal, keep,
@@ -152,6 +163,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         finally:
             bar.close()
     finally:
+        _drop(early)
         ray.shutdown()
 
 
@@ -194,6 +206,39 @@ def _prefetch_ideals(upcoming: _Lookahead, ideals: OrderedDict, ahead: set, idea
             ahead.add(run.ideal_id)
             summary["ideal_runs_ahead"] += 1
             room -= 1
+
+
+def _ideal_apart(run: Run) -> Apart | None:
+    """The first configuration's ideal run (``compute_ideal``), started in a process
+    forked from this one before a local Ray starts: Ray's start takes seconds in which no
+    worker can take a task. None where the run needs none or no process can be had."""
+    if run.config is None or run.ideal_id is None:
+        return None
+    try:
+        return apart(compute_ideal, run.config)
+    except OSError:
+        return None
+
+
+def _resolve_apart(ideals: OrderedDict, run: Run, ideal_task, ray, summary: dict) -> None:
+    """The ideal run computed apart (:func:`_ideal_apart`), waited for and put into Ray's
+    object store for the runs that need it; if its process died, a Ray task as any
+    other's."""
+    computing = ideals.pop(run.ideal_id)
+    try:
+        ideals[run.ideal_id] = ray.put(computing.result.recv())
+        summary["ideal_runs"] += 1
+        summary["ideal_runs_apart"] += 1
+    except (EOFError, OSError):
+        _ideal_ref(ideals, run, ideal_task, summary)
+    finally:
+        computing.stop()
+
+
+def _drop(computing: Apart | None) -> None:
+    """Stop an ideal run computed apart, if it is still under way."""
+    if computing is not None:
+        computing.stop()
 
 
 def _ideal_ref(ideals: OrderedDict, run: Run, ideal_task, summary: dict):

@@ -8,7 +8,9 @@ between them; each replicate runs the very same code on the very same state as i
 here, so the results are the same bit for bit (tests/runs/test_replicate_pool.py).
 
 Only the headless ``run`` command asks for more than one process: a sweep's Ray workers
-already fill the cores, and the web app's loop process must keep its core to itself.
+already fill the cores, and the web app's loop process must keep its core to itself. (A
+local sweep forks one process of the same kind, :func:`apart`, for its first ideal run
+while Ray starts: app/campaign/sweep_ray.py.)
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import os
 import signal
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.connection import Connection
+from typing import NamedTuple
 
 PR_SET_PDEATHSIG = 1
 """prctl's option: the signal a process gets when its parent ends (linux/prctl.h)."""
@@ -93,6 +97,43 @@ def _in_processes(fn, args: tuple, noise, draws: list, processes: int, tick) -> 
         raise
     pool.shutdown()
     return results
+
+
+class Apart(NamedTuple):
+    """A call under way in a process of its own (:func:`apart`)."""
+
+    process: multiprocessing.Process
+    result: Connection
+    """Where its result arrives (EOFError if the process died first)."""
+
+    def stop(self) -> None:
+        """End the process now if it is still under way (its result is dropped)."""
+        if self.process.is_alive():
+            self.process.terminate()
+        self.process.join(timeout=5.0)
+        self.result.close()
+
+
+def apart(fn, *args) -> Apart:
+    """``fn(*args)`` in a process forked from this one, which ignores Ctrl+C (the caller's
+    to handle: :meth:`Apart.stop`), ends on SIGTERM and dies with this process. OSError
+    where no process can be had (or the system cannot fork)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        raise OSError("this system cannot fork")
+    context = multiprocessing.get_context("fork")
+    receive, send = context.Pipe(duplex=False)
+    process = context.Process(target=_answer, args=(fn, args, send, os.getpid()),
+                              daemon=True)
+    process.start()
+    send.close()
+    return Apart(process, receive)
+
+
+def _answer(fn, args: tuple, send: Connection, parent_pid: int) -> None:
+    """:func:`apart`'s process: set up as a pool's worker, it sends ``fn(*args)``."""
+    _adopt(None, (), None, parent_pid)
+    send.send(fn(*args))
+    send.close()
 
 
 def _adopt(fn, args: tuple, noise, parent_pid: int) -> None:

@@ -556,3 +556,45 @@ def test_the_ideal_runs_started_ahead_are_each_started_once_one_per_worker_at_mo
     assert len(started) == summary["ideal_runs"] == 150
     assert summary["ideal_runs_ahead"] == 150  # (each one started before its run)
     assert most_ahead == 2
+
+
+def test_the_first_ideal_run_computed_apart_while_ray_starts_is_the_one_a_worker_computes():
+    """A local sweep starts its first configuration's ideal run in a forked process before
+    Ray starts (app/campaign/sweep_ray.py ``_ideal_apart``): what it hands the runs is
+    compute_ideal's own result, to the last bit; and where that process died, the ideal
+    is a Ray task like any other (here: what ray.remote(compute_ideal) is to the loop)."""
+    import signal
+    from collections import OrderedDict
+
+    from app.campaign import sweep_ray
+    from app.campaign.sweep import Run, compute_ideal
+
+    config = resolve_run_config("collision", mode="hil", duration_s=3.5,
+                                overrides=[assignment_override("uncertainty.enabled=false")])
+    run = Run(index=0, seed=0, params={}, config=config, run_id="r0", ideal_id="c0")
+    submitted = []
+
+    class IdealTask:
+        @staticmethod
+        def remote(config):
+            submitted.append(config)
+            return "a Ray task's ref"
+
+    class Ray:  # ray.put: the object store keeps the value as it is
+        @staticmethod
+        def put(value):
+            return ("put", value)
+
+    summary = {"ideal_runs": 0, "ideal_runs_apart": 0}
+    ideals = OrderedDict(c0=sweep_ray._ideal_apart(run))
+    sweep_ray._resolve_apart(ideals, run, IdealTask, Ray, summary)
+    assert ideals["c0"] == ("put", compute_ideal(config))
+    assert ideals["c0"][1][0] == "ok" and ideals["c0"][1][1]["restitution"] > 0
+    assert summary == {"ideal_runs": 1, "ideal_runs_apart": 1} and not submitted
+
+    computing = sweep_ray._ideal_apart(run)  # its process killed before it answers
+    os.kill(computing.process.pid, signal.SIGKILL)
+    ideals = OrderedDict(c0=computing)
+    sweep_ray._resolve_apart(ideals, run, IdealTask, Ray, summary)
+    assert ideals["c0"] == "a Ray task's ref" and submitted == [config]
+    assert summary == {"ideal_runs": 2, "ideal_runs_apart": 1}

@@ -186,3 +186,23 @@ def test_an_interrupt_while_the_record_is_written_acts_once_it_is_whole():
             time.sleep(0.05)  # (an unheld SIGINT would have raised by now)
             reached_end = True
     assert reached_end
+
+
+def test_a_call_apart_answers_ignores_ctrl_c_and_stops_at_once():
+    """``apart``: the call's result comes back through the pipe; the process ignores a
+    Ctrl+C (SIGINT) meant for its parent; ``stop`` ends one still under way at once (a
+    sweep interrupted while Ray starts does not wait for its first ideal run)."""
+    import time
+
+    from app.runs.replicate_pool import apart
+
+    assert apart(divmod, 17, 5).result.recv() == (3, 2)
+    slow = apart(time.sleep, 60.0)
+    time.sleep(0.5)  # (its handlers are set)
+    os.kill(slow.process.pid, signal.SIGINT)
+    time.sleep(0.2)
+    assert slow.process.is_alive()
+    t0 = time.perf_counter()
+    slow.stop()
+    assert not slow.process.is_alive() and time.perf_counter() - t0 < 2.0
+    assert slow.process.exitcode == -signal.SIGTERM
