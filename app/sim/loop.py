@@ -475,7 +475,9 @@ class Emulator:
         history = self._contact_kinematics
         depth, rate = (history[-1 - age].get((a, b), (0.0, 0.0))
                        if len(history) > age else (0.0, 0.0))
-        fit = self.contact_fits.setdefault((a, b), HuntCrossleyFit())
+        fit = self.contact_fits.get((a, b))
+        if fit is None:  # the pair's first sample (not a new fit built every cycle)
+            fit = self.contact_fits[(a, b)] = HuntCrossleyFit()
         fit.update(depth, rate, f_n)
         return fit.predict(depth, rate)
 
