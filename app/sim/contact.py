@@ -239,41 +239,20 @@ class BoxContactModel:
         """μ of the pair (a, b) (its materials' setting: configuration, not measurement)."""
         return self._mu[(min(a, b), max(a, b))]
 
-    def _set_pose(self, i: int, R_W_C: np.ndarray, p_W_m: np.ndarray) -> None:
-        """Box i's coal pose: rotation and position (C-ordered arrays are taken several
-        times faster than strided views, with the same values)."""
-        tf = self._tf[i]
-        tf.setRotation(R_W_C)
-        tf.setTranslation(p_W_m)
-
-    @staticmethod
-    def _positions(T_W_C: Sequence[np.ndarray]) -> np.ndarray:
-        """(N, 3) the poses' positions, a C-ordered copy (one call for every body)."""
-        return np.asarray(T_W_C)[:, :3, 3].copy()
-
-    @staticmethod
-    def _rotations(T_W_C: Sequence[np.ndarray]) -> np.ndarray:
-        """(N, 3, 3) the poses' rotations, a C-ordered copy."""
-        return np.asarray(T_W_C)[:, :3, :3].copy()
+    def _set_pose(self, i: int, T_W_C: np.ndarray) -> None:
+        self._tf[i].setRotation(T_W_C[:3, :3])
+        self._tf[i].setTranslation(T_W_C[:3, 3])
 
     def geometry(
         self, a: int, b: int, T_W_Ca: np.ndarray, T_W_Cb: np.ndarray
     ) -> ContactGeometry | None:
         """Penetration of boxes a < b at the given COM poses; None when apart."""
-        return self._geometry(a, b, T_W_Ca[:3, 3], T_W_Cb[:3, 3],
-                              lambda: (T_W_Ca[:3, :3], T_W_Cb[:3, :3]))
-
-    def _geometry(self, a: int, b: int, p_a: np.ndarray, p_b: np.ndarray,
-                  rotations) -> ContactGeometry | None:
-        """:meth:`geometry` from the COM positions and ``rotations()``, (R_W_Ca, R_W_Cb),
-        asked only if the bounding spheres meet."""
-        d_ab = p_b - p_a
+        d_ab = T_W_Cb[:3, 3] - T_W_Ca[:3, 3]
         reach = self._radii[a] + self._radii[b]
         if float(d_ab.dot(d_ab)) > reach * reach:  # bounding spheres apart: cheap early-out
             return None
-        R_a, R_b = rotations()
-        self._set_pose(a, R_a, p_a)
-        self._set_pose(b, R_b, p_b)
+        self._set_pose(a, T_W_Ca)
+        self._set_pose(b, T_W_Cb)
         res = self._result
         res.clear()
         if not self._solvers[(a, b)](self._tf[a], self._tf[b], self._request, res):
@@ -284,25 +263,10 @@ class BoxContactModel:
             return None
         return ContactGeometry(depth, np.array(c.normal, dtype=float), np.array(c.pos))
 
-    def _pairs_geometry(self, T_W_C: Sequence[np.ndarray]):
-        """Each pair that may touch with its :meth:`geometry` at the COM poses T_W_C, (a,
-        b, geometry or None), and the (N, 3) positions; the poses split once for all."""
-        positions, rotations = self._positions(T_W_C), None
-
-        def pair_rotations(a: int, b: int):
-            nonlocal rotations
-            if rotations is None:  # only once some bounding spheres meet
-                rotations = self._rotations(T_W_C)
-            return rotations[a], rotations[b]
-
-        return positions, [(a, b, self._geometry(a, b, positions[a], positions[b],
-                                                 lambda a=a, b=b: pair_rotations(a, b)))
-                           for a, b in self.pairs]
-
     def overlapping(self, T_W_C: Sequence[np.ndarray]) -> bool:
         """Whether any pair that may touch overlaps at the COM poses T_W_C: whether
         :meth:`compute` there would report a contact (the same geometry, no velocities)."""
-        return any(geo is not None for _, _, geo in self._pairs_geometry(T_W_C)[1])
+        return any(self.geometry(a, b, T_W_C[a], T_W_C[b]) is not None for a, b in self.pairs)
 
     def clearances(self, T_W_C: Sequence[np.ndarray],
                    within_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -315,23 +279,19 @@ class BoxContactModel:
         n = self.n
         out, nearest, crowd = [math.inf] * n, [-1] * n, [0] * n  # lists: a few bodies
         radii = self._radii
-        positions, rotations = self._positions(T_W_C), None
         for a, b in self.pairs:
-            d_ab = positions[b] - positions[a]
+            d_ab = T_W_C[b][:3, 3] - T_W_C[a][:3, 3]
             reach = radii[a] + radii[b] + within_m
             if float(d_ab.dot(d_ab)) > reach * reach:
                 continue
-            if rotations is None:  # only once some bounding spheres meet
-                rotations = self._rotations(T_W_C)
-            self._set_pose(a, rotations[a], positions[a])
-            self._set_pose(b, rotations[b], positions[b])
+            self._set_pose(a, T_W_C[a])
+            self._set_pose(b, T_W_C[b])
             res = self._distance_result
             res.clear()
             d = float(self._distance[(a, b)](self._tf[a], self._tf[b],
                                               self._distance_request, res))
             if d < within_m:
-                self.frames[(a, b)] = self._frame(positions[a].tolist(),
-                                                  positions[b].tolist(), res)
+                self.frames[(a, b)] = self._frame(a, b, T_W_C, res)
                 crowd[a] += 1
                 crowd[b] += 1
                 if d < out[a]:
@@ -341,19 +301,20 @@ class BoxContactModel:
         return (np.array(out), np.array(nearest, dtype=np.int64),
                 np.array(crowd, dtype=np.int64))
 
-    @staticmethod
-    def _frame(c_a: list[float], c_b: list[float], res) -> tuple[np.ndarray, np.ndarray]:
-        """(normal a → b, contact point) of a pair within the margin, from its COMs c_a,
-        c_b (W) and the signed-distance query's result. The normal is the query's; the
-        point lies on the contact plane (through the midpoint of the query's two nearest
-        points) under the midpoint of the two COMs: the centre of the overlap of two equal
-        faces, however they are offset. (The query's own points are any of the face's:
-        for two parallel faces GJK and EPA return a corner, a lever arm of half the face
-        the contact does not have.) The sums and products on plain floats (the same
-        operations as on arrays); the projection's dot product is the arrays'."""
+    def _frame(self, a: int, b: int, T_W_C: Sequence[np.ndarray],
+               res) -> tuple[np.ndarray, np.ndarray]:
+        """(normal a → b, contact point) of a pair within the margin. The normal is the
+        signed-distance query's; the point lies on the contact plane (through the
+        midpoint of the query's two nearest points) under the midpoint of the two COMs:
+        the centre of the overlap of two equal faces, however they are offset. (The
+        query's own points are any of the face's: for two parallel faces GJK and EPA
+        return a corner, a lever arm of half the face the contact does not have.) The
+        sums and products on plain floats (the same operations as on arrays); the
+        projection's dot product is the arrays'."""
         normal = np.array(res.normal, dtype=float)
         n = normal.tolist()
         p1, p2 = res.getNearestPoint1().tolist(), res.getNearestPoint2().tolist()
+        c_a, c_b = T_W_C[a][:3, 3].tolist(), T_W_C[b][:3, 3].tolist()
         mid = [0.5 * (c_a[k] + c_b[k]) for k in range(3)]
         off = np.array([0.5 * (p1[k] + p2[k]) - mid[k] for k in range(3)])
         along = float(off.dot(normal))
@@ -377,13 +338,13 @@ class BoxContactModel:
              else np.asarray(omega_W_radps, dtype=float))
         wrench = None  # per body [f, τ] as plain floats (a few of them: list arithmetic,
         contacts = []  # the same IEEE operations as the arrays' in the same order)
-        positions, pairs = self._pairs_geometry(T_W_C)
-        for a, b, geo in pairs:
+        for a, b in self.pairs:
+            geo = self.geometry(a, b, T_W_C[a], T_W_C[b])
             if geo is None:
                 continue
             p, n = geo.point_W_m.tolist(), geo.normal_W
-            r_a = minus3_floats(p, positions[a].tolist())
-            r_b = minus3_floats(p, positions[b].tolist())
+            r_a = minus3_floats(p, T_W_C[a][:3, 3].tolist())
+            r_b = minus3_floats(p, T_W_C[b][:3, 3].tolist())
             v_a = point_velocity_floats(v[a].tolist(), w[a].tolist(), r_a)
             v_b = point_velocity_floats(v[b].tolist(), w[b].tolist(), r_b)
             v_rel = np.array(minus3_floats(v_a, v_b))
