@@ -338,15 +338,18 @@ class BoxContactModel:
              else np.asarray(omega_W_radps, dtype=float))
         wrench = None  # per body [f, τ] as plain floats (a few of them: list arithmetic,
         contacts = []  # the same IEEE operations as the arrays' in the same order)
+        v_l = w_l = None  # the velocities as floats, once a pair overlaps
         for a, b in self.pairs:
             geo = self.geometry(a, b, T_W_C[a], T_W_C[b])
             if geo is None:
                 continue
+            if v_l is None:
+                v_l, w_l = v.tolist(), w.tolist()
             p, n = geo.point_W_m.tolist(), geo.normal_W
             r_a = minus3_floats(p, T_W_C[a][:3, 3].tolist())
             r_b = minus3_floats(p, T_W_C[b][:3, 3].tolist())
-            v_a = point_velocity_floats(v[a].tolist(), w[a].tolist(), r_a)
-            v_b = point_velocity_floats(v[b].tolist(), w[b].tolist(), r_b)
+            v_a = point_velocity_floats(v_l[a], w_l[a], r_a)
+            v_b = point_velocity_floats(v_l[b], w_l[b], r_b)
             v_rel = np.array(minus3_floats(v_a, v_b))
             depth_rate = float(v_rel.dot(n))  # > 0 while approaching
             f_n = hunt_crossley_force(geo.depth_m, depth_rate, *self._law[(a, b)],

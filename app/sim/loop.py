@@ -450,15 +450,18 @@ class Emulator:
         now = {}
         v_W, w_W, T_W_C = bodies.v_W, bodies.w_W, bodies.T_W_C
         clear, near = clearance.tolist(), nearest.tolist()  # a few bodies: plain values
+        v_l = w_l = None  # the velocities as floats, once a pair overlaps
         for a in range(self.n_sat):
             b = near[a]
             if b <= a or clear[a] >= 0.0 or (a, b) not in frames:
                 continue
+            if v_l is None:
+                v_l, w_l = v_W.tolist(), w_W.tolist()
             n, p = frames[(a, b)]
             p = p.tolist()  # a few 3-vectors: plain floats, the same operations
-            v_a = point_velocity_floats(v_W[a].tolist(), w_W[a].tolist(),
+            v_a = point_velocity_floats(v_l[a], w_l[a],
                                         minus3_floats(p, T_W_C[a][:3, 3].tolist()))
-            v_b = point_velocity_floats(v_W[b].tolist(), w_W[b].tolist(),
+            v_b = point_velocity_floats(v_l[b], w_l[b],
                                         minus3_floats(p, T_W_C[b][:3, 3].tolist()))
             now[(a, b)] = (-clear[a], float(np.array(minus3_floats(v_a, v_b)).dot(n)))
         history = self._contact_kinematics
