@@ -254,3 +254,36 @@ def test_compute_gives_the_array_arithmetic_bit_for_bit(friction):
         touched += len(got.contacts)
         assert got.wrench_W.tobytes() == _wrenches_by_arrays(model, T_W_C, v, w).tobytes()
     assert touched > 100
+
+
+def test_clearance_frames_are_the_array_formulas_on_coal_s_own_answer():
+    """The contact frames of clearances() (poses handed to coal as C-ordered copies, the
+    frame's sums on floats) are, bit for bit, the array formulas on coal's answer for the
+    poses handed over as views of the 4 × 4 matrices."""
+    import coal
+
+    model = BoxContactModel([SIZE] * 3, [RIGID] * 3)
+    shapes = [coal.Box(*SIZE) for _ in range(3)]
+    rng = np.random.default_rng(5)
+    framed = 0
+    for _ in range(200):
+        T_W_C = np.array([_pose(rng.normal(0.0, 0.06, 3) + [0.19 * i, 0, 0],
+                                rng.normal(0.0, 0.3, 3)) for i in range(3)])
+        model.frames.clear()
+        clearance, _, _ = model.clearances(T_W_C, 0.02)
+        for (a, b), (normal, point) in model.frames.items():
+            tf = [coal.Transform3s() for _ in range(2)]
+            for t, i in zip(tf, (a, b), strict=True):
+                t.setRotation(T_W_C[i][:3, :3])
+                t.setTranslation(T_W_C[i][:3, 3])
+            res = coal.DistanceResult()
+            d = coal.ComputeDistance(shapes[a], shapes[b])(tf[0], tf[1],
+                                                           coal.DistanceRequest(), res)
+            n = np.array(res.normal, dtype=float)
+            on_plane = 0.5 * (res.getNearestPoint1() + res.getNearestPoint2())
+            mid = 0.5 * (T_W_C[a][:3, 3] + T_W_C[b][:3, 3])
+            assert normal.tobytes() == n.tobytes()
+            assert point.tobytes() == (mid + float((on_plane - mid) @ n) * n).tobytes()
+            assert min(clearance[a], clearance[b]) <= d
+            framed += 1
+    assert framed > 100

@@ -128,3 +128,33 @@ def test_the_collision_identifies_its_contact_law_from_the_lab_s_measurements():
     got = np.array([fit.stiffness_Npm, fit.stiffness_Npm * fit.damping_spm])
     assert np.all(np.abs(got - [k, k * c]) < 4.0 * sd)
     assert abs(collision_of(em)["restitution"] - restitution) < 0.5 * restitution
+
+
+def test_the_float_sums_are_the_array_arithmetic_bit_for_bit():
+    """The fit's sums on plain floats give the arrays' A += φ φᵀ, b += φ F and
+    θ = solve(A + ε I, b) to the bit, over random samples (zero rates and forces, pulls,
+    apart samples among them); a copy of the fit (a replicate's, copy_state) learns
+    alone."""
+    from copy import deepcopy
+
+    from app.sim.contact_identification import RIDGE
+
+    rng = np.random.default_rng(7)
+    fit = HuntCrossleyFit()
+    A, b = np.zeros((2, 2)), np.zeros(2)
+    for k in range(400):
+        d = float(rng.uniform(-0.002, 0.01))
+        rate = 0.0 if k % 7 == 0 else float(rng.normal(0.0, 0.2))
+        f = 0.0 if k % 11 == 0 else float(rng.normal(3.0, 2.0))
+        fit.update(d, rate, f)
+        if d > 0.0:
+            phi = fit.regressor(d, rate)
+            A += phi[:, None] * phi[None, :]
+            b += phi * f
+            theta = np.linalg.solve(A + RIDGE * np.eye(2), b)
+            assert fit._theta.tobytes() == theta.tobytes()
+            assert fit.predict(d, rate) == max(0.0, float(theta @ phi))
+    assert fit.A.tobytes() == A.tobytes() and fit.b.tobytes() == b.tobytes()
+    twin = deepcopy(fit)
+    twin.update(0.004, 0.1, 2.0)
+    assert fit.A.tobytes() == A.tobytes() and fit.samples == twin.samples - 1

@@ -505,3 +505,19 @@ def test_a_copy_of_the_loop_steps_on_alone_and_shares_only_constants():
             loop.step()
     assert np.array_equal(em.telemetry.rows(), before.telemetry.rows())
     assert len(em.telemetry.rows()) > 400
+
+
+def test_the_contact_estimate_s_dot_forms_give_matmul_s_bits():
+    """The contact cycle calls ndarray.dot where `@` was (less overhead): for the layouts
+    it uses (3-vectors; the rotation R_W_R, a view of a 4 × 4, as a C-ordered copy; its
+    transpose; a pose's rotation view) NumPy hands BLAS the same call, so the bits are
+    `@`'s, as random draws show. (Not every layout: R.T @ v and the copy's R.T.dot(v) go
+    to two different gemv kernels, which is why the loop keeps `@` there.)"""
+    rng = np.random.default_rng(11)
+    for _ in range(3000):
+        T = rng.standard_normal((4, 4)) * 10.0 ** rng.uniform(-3, 3)
+        R, v, w = T[:3, :3], rng.standard_normal(3), rng.standard_normal(3)
+        R_c = np.ascontiguousarray(R)
+        for matmul, dot in ((v @ w, v.dot(w)), (R @ v, R_c.dot(v)), (v @ R, v.dot(R_c)),
+                            (v @ R, v.dot(R)), (R.T @ T[1:, 1:], R.T.dot(T[1:, 1:]))):
+            assert np.asarray(matmul).tobytes() == np.asarray(dot).tobytes()

@@ -78,7 +78,7 @@ def coulomb_friction(normal_force_N: float, slip_W_mps: np.ndarray, mu: float) -
     the contact point): μ F_n along the slip, faded out below FRICTION_SLIP_MPS."""
     if mu == 0.0 or normal_force_N == 0.0:
         return np.zeros(3)
-    speed_sq = float(slip_W_mps @ slip_W_mps)
+    speed_sq = float(slip_W_mps.dot(slip_W_mps))
     return (mu * normal_force_N / math.sqrt(speed_sq + FRICTION_SLIP_MPS**2)) * slip_W_mps
 
 
@@ -249,7 +249,7 @@ class BoxContactModel:
         """Penetration of boxes a < b at the given COM poses; None when apart."""
         d_ab = T_W_Cb[:3, 3] - T_W_Ca[:3, 3]
         reach = self._radii[a] + self._radii[b]
-        if float(d_ab @ d_ab) > reach * reach:  # bounding spheres apart: cheap early-out
+        if float(d_ab.dot(d_ab)) > reach * reach:  # bounding spheres apart: cheap early-out
             return None
         self._set_pose(a, T_W_Ca)
         self._set_pose(b, T_W_Cb)
@@ -282,7 +282,7 @@ class BoxContactModel:
         for a, b in self.pairs:
             d_ab = T_W_C[b][:3, 3] - T_W_C[a][:3, 3]
             reach = radii[a] + radii[b] + within_m
-            if float(d_ab @ d_ab) > reach * reach:
+            if float(d_ab.dot(d_ab)) > reach * reach:
                 continue
             self._set_pose(a, T_W_C[a])
             self._set_pose(b, T_W_C[b])
@@ -291,7 +291,7 @@ class BoxContactModel:
             d = float(self._distance[(a, b)](self._tf[a], self._tf[b],
                                               self._distance_request, res))
             if d < within_m:
-                self.frames[(a, b)] = self._frame(a, b, T_W_C, d, res)
+                self.frames[(a, b)] = self._frame(a, b, T_W_C, res)
                 crowd[a] += 1
                 crowd[b] += 1
                 if d < out[a]:
@@ -301,18 +301,24 @@ class BoxContactModel:
         return (np.array(out), np.array(nearest, dtype=np.int64),
                 np.array(crowd, dtype=np.int64))
 
-    def _frame(self, a: int, b: int, T_W_C: Sequence[np.ndarray], distance_m: float,
+    def _frame(self, a: int, b: int, T_W_C: Sequence[np.ndarray],
                res) -> tuple[np.ndarray, np.ndarray]:
         """(normal a → b, contact point) of a pair within the margin. The normal is the
         signed-distance query's; the point lies on the contact plane (through the
         midpoint of the query's two nearest points) under the midpoint of the two COMs:
         the centre of the overlap of two equal faces, however they are offset. (The
         query's own points are any of the face's: for two parallel faces GJK and EPA
-        return a corner, a lever arm of half the face the contact does not have.)"""
+        return a corner, a lever arm of half the face the contact does not have.) The
+        sums and products on plain floats (the same operations as on arrays); the
+        projection's dot product is the arrays'."""
         normal = np.array(res.normal, dtype=float)
-        on_plane = 0.5 * (res.getNearestPoint1() + res.getNearestPoint2())
-        mid = 0.5 * (T_W_C[a][:3, 3] + T_W_C[b][:3, 3])
-        return normal, mid + float((on_plane - mid) @ normal) * normal
+        n = normal.tolist()
+        p1, p2 = res.getNearestPoint1().tolist(), res.getNearestPoint2().tolist()
+        c_a, c_b = T_W_C[a][:3, 3].tolist(), T_W_C[b][:3, 3].tolist()
+        mid = [0.5 * (c_a[k] + c_b[k]) for k in range(3)]
+        off = np.array([0.5 * (p1[k] + p2[k]) - mid[k] for k in range(3)])
+        along = float(off.dot(normal))
+        return normal, np.array([mid[k] + along * n[k] for k in range(3)])
 
     def compute(
         self,
@@ -326,22 +332,26 @@ class BoxContactModel:
         (N, 3) angular velocities in W axes (None: zero). Returns per-body force in W and its
         moment about the body's COM; forces within a pair are exactly equal and opposite.
         """
-        zeros = np.zeros((self.n, 3))
-        v = zeros if v_W_mps is None else np.asarray(v_W_mps, dtype=float)
-        w = zeros if omega_W_radps is None else np.asarray(omega_W_radps, dtype=float)
+        v = (np.zeros((self.n, 3)) if v_W_mps is None
+             else np.asarray(v_W_mps, dtype=float))
+        w = (np.zeros((self.n, 3)) if omega_W_radps is None
+             else np.asarray(omega_W_radps, dtype=float))
         wrench = None  # per body [f, τ] as plain floats (a few of them: list arithmetic,
         contacts = []  # the same IEEE operations as the arrays' in the same order)
+        v_l = w_l = None  # the velocities as floats, once a pair overlaps
         for a, b in self.pairs:
             geo = self.geometry(a, b, T_W_C[a], T_W_C[b])
             if geo is None:
                 continue
+            if v_l is None:
+                v_l, w_l = v.tolist(), w.tolist()
             p, n = geo.point_W_m.tolist(), geo.normal_W
             r_a = minus3_floats(p, T_W_C[a][:3, 3].tolist())
             r_b = minus3_floats(p, T_W_C[b][:3, 3].tolist())
-            v_a = point_velocity_floats(v[a].tolist(), w[a].tolist(), r_a)
-            v_b = point_velocity_floats(v[b].tolist(), w[b].tolist(), r_b)
+            v_a = point_velocity_floats(v_l[a], w_l[a], r_a)
+            v_b = point_velocity_floats(v_l[b], w_l[b], r_b)
             v_rel = np.array(minus3_floats(v_a, v_b))
-            depth_rate = float(v_rel @ n)  # > 0 while approaching
+            depth_rate = float(v_rel.dot(n))  # > 0 while approaching
             f_n = hunt_crossley_force(geo.depth_m, depth_rate, *self._law[(a, b)],
                                       self._exponent[(a, b)])
             mu = self._mu[(a, b)]

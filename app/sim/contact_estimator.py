@@ -55,11 +55,11 @@ def cone_projection(force_W: np.ndarray, normal_W: np.ndarray, mu: float,
     contact pushes the body): its normal part kept if it pushes (with ``no_pull``, zero
     if it would pull; without, kept as measured), its tangential part clamped to μ times
     the normal part's magnitude (module doc, cone)."""
-    f_n = float(force_W @ normal_W)
+    f_n = float(force_W.dot(normal_W))  # ndarray.dot: `@`'s dot kernel, less overhead
     if f_n <= 0.0 and no_pull:
         return np.zeros(3)
     tangential = force_W - f_n * normal_W
-    t = math.sqrt(float(tangential @ tangential))
+    t = math.sqrt(float(tangential.dot(tangential)))
     limit = mu * abs(f_n)
     if t > limit:
         tangential = tangential * (limit / t) if t > 0.0 else tangential

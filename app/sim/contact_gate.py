@@ -118,7 +118,7 @@ def newton_consistent(force_a: np.ndarray, force_b: np.ndarray,
     """Whether two measured forces are equal and opposite within the noise (module doc,
     Newton); noise_cov_sum: Σ_a + Σ_b (3, 3), in the forces' axes."""
     s = force_a + force_b
-    chi2 = float(s @ solve(noise_cov_sum + _FLOOR_N2, s))
+    chi2 = float(s.dot(solve(noise_cov_sum + _FLOOR_N2, s)))  # `@`'s dot kernel, less overhead
     return chi2 <= CHI2_THRESHOLD
 
 

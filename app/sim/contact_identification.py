@@ -61,18 +61,31 @@ RATE_SCALE_MPS = 0.1
 """ḋ is regressed in units of 0.1 m/s."""
 RIDGE = 1e-9
 """ε of (LS), in the scaled units."""
-_RIDGE_I = RIDGE * np.eye(2)
-_RIDGE_I.flags.writeable = False
 
 
 class HuntCrossleyFit:
-    """The least-squares Hunt–Crossley law (module doc, LS) of one pair's contact."""
+    """The least-squares Hunt–Crossley law (module doc, LS) of one pair's contact.
+
+    A (symmetric) and b are kept as plain floats: a sample's update is a few products
+    and sums, the same IEEE operations the arrays' elementwise ``A += φ φᵀ``,
+    ``b += φ F`` and ``A + ε I`` make, without an array call each."""
 
     def __init__(self) -> None:
-        self.A = np.zeros((2, 2))
-        self.b = np.zeros(2)
+        self._a = [0.0, 0.0, 0.0]  # A's (0, 0), (0, 1) = (1, 0) and (1, 1)
+        self._b = [0.0, 0.0]
         self.samples = 0
         self._theta = np.zeros(2)
+
+    @property
+    def A(self) -> np.ndarray:
+        """(2, 2) Σ φ φᵀ of the samples so far (a copy)."""
+        a00, a01, a11 = self._a
+        return np.array([[a00, a01], [a01, a11]])
+
+    @property
+    def b(self) -> np.ndarray:
+        """(2,) Σ φ F of the samples so far (a copy)."""
+        return np.array(self._b)
 
     @staticmethod
     def regressor(depth_m: float, depth_rate_mps: float) -> np.ndarray:
@@ -84,17 +97,25 @@ class HuntCrossleyFit:
         """Add one cycle's measured normal force at its depth and rate (d > 0 only)."""
         if depth_m <= 0.0:
             return
-        phi = self.regressor(depth_m, depth_rate_mps)
-        self.A += phi[:, None] * phi[None, :]  # np.outer(φ, φ), without its wrapper
-        self.b += phi * force_N
+        d = depth_m / DEPTH_SCALE_M  # φ = (p0, p1), as regressor() has it
+        p0, p1 = d, d * depth_rate_mps / RATE_SCALE_MPS
+        a, b = self._a, self._b
+        a[0] += p0 * p0
+        a[1] += p0 * p1  # = p1 p0: A's (1, 0), the same product
+        a[2] += p1 * p1
+        b[0] += p0 * force_N
+        b[1] += p1 * force_N
         self.samples += 1
-        self._theta = solve(self.A + _RIDGE_I, self.b)
+        # A + ε I: ε on the diagonal, + 0.0 off it (what the array sum adds there)
+        self._theta = solve(np.array([[a[0] + RIDGE, a[1] + 0.0], [a[1] + 0.0, a[2] + RIDGE]]),
+                            np.array(b))
 
     def predict(self, depth_m: float, depth_rate_mps: float) -> float:
         """F̂_n (N, ≥ 0) of the identified law (module doc, model); 0 apart."""
         if depth_m <= 0.0 or self.samples == 0:
             return 0.0
-        return max(0.0, float(self._theta @ self.regressor(depth_m, depth_rate_mps)))
+        # ndarray.dot of two vectors: the very dot kernel that `@` calls, less overhead
+        return max(0.0, float(self._theta.dot(self.regressor(depth_m, depth_rate_mps))))
 
     @property
     def stiffness_Npm(self) -> float:

@@ -380,7 +380,8 @@ class Emulator:
                  if newton_consistent(force_R[a], force_R[b],
                                       self._force_cov_R(a) + self._force_cov_R(b))]
         self.consistent_pairs = pairs
-        if wrench.fuse_pair_contact:
+        fuse = wrench.fuse_pair_contact
+        if fuse:
             fuse_pair_forces(force_R, pairs)
         if not wrench.contact_estimator:
             return
@@ -390,36 +391,41 @@ class Emulator:
                   if gate_open and by_itself and carried[s] and partners[s] >= 0
                   and not carried[partners[s]]]
         contact = self.lab_geometry
+        frames, no_pull = contact.frames, wrench.contact_no_pull
         identified = wrench.contact_force == "identified"
-        fused = {s for pair in pairs for s in pair} if wrench.fuse_pair_contact else set()
+        # each mockup with whether the identified law may replace its normal force: a
+        # fused pair's members (one sample, one law per pair) and the single contacts
+        mockups = [(s, fuse) for pair in pairs for s in pair] + [(s, True) for s in single]
+        # ndarray.dot instead of `@`: the same BLAS call (dot kernel, gemv) with less
+        # overhead; on a C-ordered copy of the rotation (`@` reads the view in place)
+        R_W_R = np.ascontiguousarray(self.R_W_R)
         model_N: dict[tuple[int, int], float] = {}
-        for s in [s for pair in pairs for s in pair] + single:
-            p = int(partner[s])
-            a, b = min(s, p), max(s, p)
-            frame = contact.frames.get((a, b))
+        for s, may_identify in mockups:
+            p = partners[s]
+            a, b = (s, p) if s < p else (p, s)
+            frame = frames.get((a, b))
             if frame is None:
                 continue
             normal_W, point_W = frame
             if s == a:
                 normal_W = -normal_W  # the contact pushes a along −n, b along +n
             T_W_C = bodies.T_W_C[s]
-            force_W = self.R_W_R @ force_R[s]
-            if identified and (s in fused or s in single):
-                f_n = float(force_W @ normal_W)
+            force_W = R_W_R.dot(force_R[s])
+            if identified and may_identify:
+                f_n = float(force_W.dot(normal_W))
                 if (a, b) not in model_N:  # a fused pair: one sample, one law
                     model_N[(a, b)] = self._identified_normal_force(a, b, s, f_n)
                 force_W = force_W + (model_N[(a, b)] - f_n) * normal_W
             f_W, t_W = contact_wrench_W(force_W, normal_W, point_W,
-                                        T_W_C[:3, 3], contact.friction(a, b),
-                                        wrench.contact_no_pull)
-            force_R[s] = f_W @ self.R_W_R
-            torque_B[s] = t_W @ T_W_C[:3, :3]
+                                        T_W_C[:3, 3], contact.friction(a, b), no_pull)
+            force_R[s] = f_W.dot(R_W_R)
+            torque_B[s] = t_W.dot(T_W_C[:3, :3])
 
     def _force_cov_R(self, s: int) -> np.ndarray:
         """(3, 3) the filtered force noise covariance of satellite s's chain, in R (the
         calibration's estimate)."""
         arm = self.arms[self._arm_of[s]]
-        R_R_S = self.R_W_R.T @ arm.mockup_state_W()[0][:3, :3]
+        R_R_S = self.R_W_R.T.dot(arm.mockup_state_W()[0][:3, :3])  # `@`'s gemm, less overhead
         return arm.processor.filtered_force_cov(R_R_S)
 
     def _gate_open(self, bodies: Bodies) -> tuple[np.ndarray, np.ndarray]:
@@ -443,18 +449,21 @@ class Emulator:
         frames = self.lab_geometry.frames
         now = {}
         v_W, w_W, T_W_C = bodies.v_W, bodies.w_W, bodies.T_W_C
+        clear, near = clearance.tolist(), nearest.tolist()  # a few bodies: plain values
+        v_l = w_l = None  # the velocities as floats, once a pair overlaps
         for a in range(self.n_sat):
-            b = int(nearest[a])
-            if b <= a or clearance[a] >= 0.0 or (a, b) not in frames:
+            b = near[a]
+            if b <= a or clear[a] >= 0.0 or (a, b) not in frames:
                 continue
+            if v_l is None:
+                v_l, w_l = v_W.tolist(), w_W.tolist()
             n, p = frames[(a, b)]
             p = p.tolist()  # a few 3-vectors: plain floats, the same operations
-            v_a = point_velocity_floats(v_W[a].tolist(), w_W[a].tolist(),
+            v_a = point_velocity_floats(v_l[a], w_l[a],
                                         minus3_floats(p, T_W_C[a][:3, 3].tolist()))
-            v_b = point_velocity_floats(v_W[b].tolist(), w_W[b].tolist(),
+            v_b = point_velocity_floats(v_l[b], w_l[b],
                                         minus3_floats(p, T_W_C[b][:3, 3].tolist()))
-            now[(a, b)] = (-float(clearance[a]),
-                           float(np.array(minus3_floats(v_a, v_b)) @ n))
+            now[(a, b)] = (-clear[a], float(np.array(minus3_floats(v_a, v_b)).dot(n)))
         history = self._contact_kinematics
         history.append(now)
         if len(history) > self._kinematics_kept:
@@ -469,7 +478,9 @@ class Emulator:
         history = self._contact_kinematics
         depth, rate = (history[-1 - age].get((a, b), (0.0, 0.0))
                        if len(history) > age else (0.0, 0.0))
-        fit = self.contact_fits.setdefault((a, b), HuntCrossleyFit())
+        fit = self.contact_fits.get((a, b))
+        if fit is None:  # the pair's first sample (not a new fit built every cycle)
+            fit = self.contact_fits[(a, b)] = HuntCrossleyFit()
         fit.update(depth, rate, f_n)
         return fit.predict(depth, rate)
 

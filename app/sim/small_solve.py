@@ -6,8 +6,8 @@ the contact's estimate solves two such systems per cycle in contact (the pair's 
 check, app/sim/contact_gate.py, and the identified contact law's least squares,
 app/sim/contact_identification.py). :func:`solve` calls the very kernel
 ``np.linalg.solve`` calls (its gufunc, LAPACK ``gesv``, signature ``dd->d``) on float64
-arrays, so that its result is the same to the bit; where that result is not finite (a
-singular or non-finite system) it hands the system to ``np.linalg.solve``, which raises
+arrays, so that its result is the same to the bit; where any of its unknowns is not
+finite (a singular or non-finite system) it hands the system to ``np.linalg.solve``, which raises
 ``LinAlgError`` for a singular one as before (after the kernel's own RuntimeWarning,
 "invalid value encountered", which the wrapper's error context would have turned into
 that error).
@@ -46,6 +46,7 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             or b.ndim != 1 or a.shape != (len(b), len(b))):
         return np.linalg.solve(a, b)
     x = _SOLVE1(a, b, signature="dd->d")
-    if not math.isfinite(float(x.sum())):
-        return np.linalg.solve(a, b)
+    for value in x.tolist():  # a few unknowns: plain floats beat an array reduction
+        if not math.isfinite(value):
+            return np.linalg.solve(a, b)
     return x
