@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import mmap
 import multiprocessing
+import os
 import signal
 import sys
 import time
@@ -200,6 +201,9 @@ def _drawn(conn, rows, index, out_dir: Path, config, metrics: dict, note: str, g
         final = conn.recv()
     except (EOFError, OSError):  # the run ended without its figures
         return None
+    plan = plan_figures(rows, index, config, final) if len(rows) else []
+    rendered.update(_side_by_side([f for f in plan if rendered.get(f.name, (None,))[0]
+                                   != signature(f, note)], note))
     try:
         paths = guard(lambda d: plot_run(rows, index, d, config, final, note,
                                          rendered=rendered), out_dir)
@@ -207,6 +211,106 @@ def _drawn(conn, rows, index, out_dir: Path, config, metrics: dict, note: str, g
         message = str(err) if not isinstance(err, OSError) else (err.strerror or str(err))
         return ("error", "OSError" if isinstance(err, OSError) else "ValueError", message)
     return ("ok", [str(p) for p in paths])
+
+
+CHILD_TIMEOUT_S = 60.0
+"""How long the figures' second drawer (:func:`_side_by_side`) is waited for before this
+process draws its figures itself."""
+
+
+def _side_by_side(figures: list, note: str) -> dict:
+    """``figures`` drawn on two cores (the run's replicates are done: both are free):
+    name -> (signature, PNG). The largest ones here, the others in a process forked from
+    this one (matplotlib already imported), its PNGs sent back through a pipe; what it
+    does not deliver (it failed, died, or took longer than :data:`CHILD_TIMEOUT_S`) is
+    drawn here. The same bytes either way."""
+    from app.runs.plots import render, signature
+
+    here, there = _shares(figures)
+    out = {}
+    pid = reader = None
+    if there:
+        reader, writer = os.pipe()
+        try:
+            pid = os.fork()
+        except OSError:  # no second process: all drawn here
+            os.close(reader)
+            os.close(writer)
+            here, there, reader = figures, [], None
+        if pid == 0:  # the child: draws its share, sends it, ends
+            os.close(reader)
+            _draw_share(writer, there, note)
+        elif reader is not None:
+            os.close(writer)
+    for figure in here:
+        out[figure.name] = (signature(figure, note), render(figure, note))
+    if reader is not None:
+        pngs = _collect(reader, pid)
+        for figure in there:
+            png = pngs.get(figure.name)
+            out[figure.name] = (signature(figure, note),
+                                png if png is not None else render(figure, note))
+    return out
+
+
+def _shares(figures: list) -> tuple[list, list]:
+    """The figures split in two of about equal work (counted in panels), the largest
+    figure in the first."""
+    here, there, load = [], [], [0, 0]
+    for figure in sorted(figures, key=lambda f: -len(f.panels)):
+        k = 0 if load[0] <= load[1] else 1
+        (here, there)[k].append(figure)
+        load[k] += len(figure.panels)
+    return here, there
+
+
+def _draw_share(writer: int, figures: list, note: str) -> None:
+    """In the forked child: draw ``figures``, write {name: PNG} pickled to ``writer``, and
+    exit (status 1 on any failure: the parent then draws them)."""
+    import pickle
+
+    from app.runs.plots import render
+    from app.runs.replicate_pool import _die_with
+
+    status = 1
+    try:
+        _die_with(os.getppid())
+        data = pickle.dumps({f.name: render(f, note) for f in figures})
+        with os.fdopen(writer, "wb") as pipe:
+            pipe.write(data)
+        status = 0
+    finally:
+        os._exit(status)
+
+
+def _collect(reader: int, pid: int) -> dict:
+    """The child's PNGs by name ({} where it failed or did not finish within
+    :data:`CHILD_TIMEOUT_S`: it is then killed)."""
+    import pickle
+    import select
+
+    deadline = time.monotonic() + CHILD_TIMEOUT_S
+    chunks = []
+    try:
+        while True:
+            left_s = deadline - time.monotonic()
+            if left_s <= 0.0 or not select.select([reader], [], [], left_s)[0]:
+                os.kill(pid, signal.SIGKILL)
+                chunks = None
+                break
+            chunk = os.read(reader, 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(reader)
+        _, status = os.waitpid(pid, 0)
+    if chunks is None or status != 0:
+        return {}
+    try:
+        return pickle.loads(b"".join(chunks))
+    except Exception:  # noqa: BLE001 - cut short: drawn here
+        return {}
 
 
 def _send(conn, answer) -> None:
