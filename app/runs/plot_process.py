@@ -240,6 +240,7 @@ def _side_by_side(figures: list, note: str) -> dict:
         if pid == 0:  # the child: draws its share, sends it, ends
             os.close(reader)
             _draw_share(writer, there, note)
+            os._exit(1)  # (never reached: _draw_share exits)
         elif reader is not None:
             os.close(writer)
     for figure in here:

@@ -197,3 +197,51 @@ def test_more_telemetry_than_it_was_started_for_is_an_oserror(both, tmp_path):
     finally:
         process.close()
     assert not any(tmp_path.iterdir())
+
+
+def _planned(both):
+    from app.runs.plots import plan_figures
+
+    run = both[True][1]
+    return plan_figures(run.emulator.telemetry.rows(), run.emulator.telemetry.index,
+                        run.emulator.config, run.metrics)
+
+
+def test_the_last_figures_drawn_on_two_cores_are_the_bytes_drawn_here(both):
+    """The figures left for the final metrics: the largest drawn in the plot process, the
+    others in a child forked from it; each the same PNG as drawn here, under its own
+    signature."""
+    from app.runs.plots import render, signature
+
+    figures = _planned(both)
+    here, there = plot_process._shares(figures)
+    assert here and there and len(here) + len(there) == len(figures)
+    assert max(len(f.panels) for f in figures) == len(here[0].panels)
+    drawn = plot_process._side_by_side(figures, "a note")
+    assert sorted(drawn) == sorted(f.name for f in figures)
+    for figure in figures:
+        assert drawn[figure.name] == (signature(figure, "a note"), render(figure, "a note"))
+
+
+@pytest.mark.parametrize("child", ["fails", "hangs", "no fork"])
+def test_what_the_child_does_not_deliver_is_drawn_here(both, monkeypatch, child):
+    import time
+
+    from app.runs.plots import render
+
+    if child == "fails":
+        monkeypatch.setattr(plot_process, "_draw_share", lambda *a: os._exit(1))
+    elif child == "hangs":
+        monkeypatch.setattr(plot_process, "_draw_share", lambda *a: time.sleep(30))
+        monkeypatch.setattr(plot_process, "CHILD_TIMEOUT_S", 0.5)
+    else:
+        def refused():
+            raise BlockingIOError(11, "Resource temporarily unavailable")
+
+        monkeypatch.setattr(os, "fork", refused)
+    figures = _planned(both)
+    t0 = time.monotonic()
+    drawn = plot_process._side_by_side(figures, "")
+    assert time.monotonic() - t0 < 10.0
+    for figure in figures:
+        assert drawn[figure.name][1] == render(figure, ""), (child, figure.name)
