@@ -20,15 +20,16 @@ import io
 import json
 import math
 import textwrap
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from app.runs.report import interval_text
 
-__all__ = ["FIGURES", "FIGURES_FILE", "Figure", "Line", "Panel", "draw", "figures_of",
-           "plan_figures", "plot_run", "pyplot", "render", "signature"]
+__all__ = ["FIGURES", "FIGURES_FILE", "Figure", "Line", "Panel", "Panels", "draw", "figures_of",
+           "panels_signature", "plan_figures", "plot_run", "pyplot", "render", "render_panels",
+           "signature"]
 
 AXES = ("x", "y", "z")
 
@@ -153,18 +154,39 @@ def draw(figure: Figure, note: str = ""):
     legends outside the axes on the right, the text (if any) in a panel below, ``note``
     (the scaling in force) on top.
 
-    The layout is computed here, once (:func:`_layout`): every height from the font sizes
-    (so the y axes' ticks are those of their final size), then the left and right margins
-    from what the y axes' labels and the legends measure, the same for every panel."""
+    The layout is computed here, once: every height from the font sizes (:func:`_frames`:
+    the y axes' ticks are those of their final size), then the left and right margins
+    from what the y axes' labels and the legends measure, the same for every panel
+    (:func:`_fit_width`). The panels' place does not depend on the text: the figure is
+    the panels' figure of the text-less figure with the text's strip under it
+    (:func:`render` draws them apart)."""
+    fig = _panels_figure(figure, note, _text_height_in(figure.text))
+    if figure.text:
+        _write_text(fig, figure.text, fig.axes[0].get_position().x0,
+                    _text_height_in(figure.text))
+    return fig
+
+
+def _text_height_in(text: str) -> float:
+    """The height of a figure's text strip (0 without text)."""
+    return 0.0 if not text else 0.16 * (text.count("\n") + 1) + 0.3
+
+
+def _new_figure(height_in: float):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure as MplFigure
 
     pyplot()  # (the Agg backend and its settings)
-    n = len(figure.panels)
-    text_in = 0.0 if not figure.text else 0.16 * (figure.text.count("\n") + 1) + 0.3
-    height_in = PANEL_HEIGHT_IN * n + text_in + 0.6
     fig = MplFigure(figsize=(FIGURE_WIDTH_IN, height_in), dpi=DPI)
     FigureCanvasAgg(fig)
+    return fig
+
+
+def _panels_figure(figure: Figure, note: str, text_in: float = 0.0):
+    """The figure's title and panels, ``text_in`` inches left free under them."""
+    n = len(figure.panels)
+    height_in = PANEL_HEIGHT_IN * n + text_in + 0.6
+    fig = _new_figure(height_in)
     title = figure.title if not note else f"{figure.title}\n{note}"
     fig.suptitle(title, fontsize=10, va="top", y=1.0 - PAD_IN / height_in)
     frames = _frames(figure, title, height_in, text_in)
@@ -177,11 +199,14 @@ def draw(figure: Figure, note: str = ""):
         ax.tick_params(labelbottom=False)
     axes[-1].set_xlabel(figure.xlabel)
     _fit_width(fig, axes)
-    if figure.text:
-        x0 = axes[0].get_position().x0
-        fig.text(x0, (text_in - PAD_IN) / height_in, figure.text, va="top", ha="left",
-                 fontsize=7.5, family="monospace")
     return fig
+
+
+def _write_text(fig, text: str, x0: float, text_in: float) -> None:
+    """``text`` in the figure's bottom ``text_in`` inches, from ``x0`` (figure fraction,
+    the panels' left edge)."""
+    fig.text(x0, (text_in - PAD_IN) / fig.get_figheight(), text, va="top", ha="left",
+             fontsize=7.5, family="monospace")
 
 
 _PT_IN = 1.0 / 72.0
@@ -280,18 +305,51 @@ LOG_DECADES_MAX = 1e5
 """A log axis shows at most five decades below its highest value."""
 
 
-def render(figure: Figure, note: str = "") -> bytes:
-    """The PNG of ``figure`` (:func:`draw`, :data:`DPI`): its pixels as drawn (the figure
-    is opaque: RGB), compressed fast (zlib level 1: a file of the same size as
-    matplotlib's own RGBA at level 6, written in half the time)."""
+def render(figure: Figure, note: str = "", panels: Panels | None = None) -> bytes:
+    """The PNG of ``figure`` (:func:`draw`, :data:`DPI`): the pixels of its panels
+    (:func:`render_panels`; ``panels``: those already drawn, from a figure of the same
+    :func:`signature` but its text) over its text's strip. The figure is opaque: RGB,
+    compressed fast (zlib level 1: a file of the size of matplotlib's own RGBA at level
+    6, written in half the time)."""
     from PIL import Image
 
-    fig = draw(figure, note)
-    fig.canvas.draw()
+    panels = panels or render_panels(figure, note)
+    pixels = panels.rgba
+    if figure.text:
+        text_in = _text_height_in(figure.text)
+        strip = _new_figure(text_in)
+        _write_text(strip, figure.text, panels.text_x0, text_in)
+        pixels = np.concatenate([pixels, _pixels(strip)])
     png = io.BytesIO()
-    Image.fromarray(np.asarray(fig.canvas.buffer_rgba())).convert("RGB").save(
-        png, format="png", compress_level=1)
+    Image.fromarray(pixels).convert("RGB").save(png, format="png", compress_level=1)
     return png.getvalue()
+
+
+@dataclass
+class Panels:
+    """A figure's panels drawn, without its text (:func:`render_panels`)."""
+
+    rgba: np.ndarray
+    """(rows, columns, 4) uint8: the pixels."""
+    text_x0: float
+    """Where the text's strip starts its lines: the panels' left edge (figure fraction)."""
+
+
+def render_panels(figure: Figure, note: str = "") -> Panels:
+    """The pixels of ``figure``'s title and panels: all of it but its text (which the
+    final metrics may change: app/runs/plot_process.py draws these before them)."""
+    fig = _panels_figure(figure, note)
+    return Panels(_pixels(fig), fig.axes[0].get_position().x0)
+
+
+def _pixels(fig) -> np.ndarray:
+    fig.canvas.draw()
+    return np.array(fig.canvas.buffer_rgba())
+
+
+def panels_signature(figure: Figure, note: str = "") -> tuple:
+    """:func:`signature` of what :func:`render_panels` draws (all but the text)."""
+    return signature(replace(figure, text=""), note)
 
 
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,

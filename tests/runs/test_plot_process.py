@@ -4,6 +4,7 @@ reported as the run's own would be, and a process that died leaves the run to dr
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 
@@ -199,28 +200,37 @@ def test_more_telemetry_than_it_was_started_for_is_an_oserror(both, tmp_path):
     assert not any(tmp_path.iterdir())
 
 
-def _planned(both):
+def _planned(both, **changes):
+    """The short collision's figures planned, its collision metrics changed as given."""
+    import copy
+
     from app.runs.plots import plan_figures
 
     run = both[True][1]
+    metrics = copy.deepcopy(run.metrics)
+    metrics["collision"].update(changes)
     return plan_figures(run.emulator.telemetry.rows(), run.emulator.telemetry.index,
-                        run.emulator.config, run.metrics)
+                        run.emulator.config, metrics)
 
 
-def test_the_last_figures_drawn_on_two_cores_are_the_bytes_drawn_here(both):
-    """The figures left for the final metrics: the largest drawn in the plot process, the
-    others in a child forked from it; each the same PNG as drawn here, under its own
-    signature."""
+def test_what_is_drawn_early_and_late_on_two_cores_is_the_bytes_drawn_here(both):
+    """Before the final metrics, every figure is drawn on two cores, a figure with text
+    but its text; after them, what they changed (the interval's line in the text): each
+    PNG the same as drawn here, under its final signature."""
     from app.runs.plots import render, signature
 
-    figures = _planned(both)
-    here, there = plot_process._shares(figures)
-    assert here and there and len(here) + len(there) == len(figures)
-    assert max(len(f.panels) for f in figures) == len(here[0].panels)
-    drawn = plot_process._side_by_side(figures, "a note")
-    assert sorted(drawn) == sorted(f.name for f in figures)
-    for figure in figures:
-        assert drawn[figure.name] == (signature(figure, "a note"), render(figure, "a note"))
+    early = _planned(both, restitution_interval_95=None)
+    final = _planned(both)
+    assert [f.text for f in early] != [f.text for f in final]  # (the interval's line)
+    here, there = plot_process._shares({f.name: (len(f.panels), None) for f in early})
+    assert here and there and len(here) + len(there) == len(early)
+    done = plot_process._early(early, "a note")
+    assert {kind for kind, _ in done} == {"png", "panels"}
+    rendered = plot_process._final(final, {f.name: f for f in early}, done, "a note")
+    assert sorted(rendered) == sorted(f.name for f in final)
+    for figure in final:
+        assert rendered[figure.name] == (signature(figure, "a note"),
+                                         render(figure, "a note")), figure.name
 
 
 @pytest.mark.parametrize("child", ["fails", "hangs", "no fork"])
@@ -230,9 +240,9 @@ def test_what_the_child_does_not_deliver_is_drawn_here(both, monkeypatch, child)
     from app.runs.plots import render
 
     if child == "fails":
-        monkeypatch.setattr(plot_process, "_draw_share", lambda *a: os._exit(1))
+        monkeypatch.setattr(plot_process, "_do_share", lambda *a: os._exit(1))
     elif child == "hangs":
-        monkeypatch.setattr(plot_process, "_draw_share", lambda *a: time.sleep(30))
+        monkeypatch.setattr(plot_process, "_do_share", lambda *a: time.sleep(30))
         monkeypatch.setattr(plot_process, "CHILD_TIMEOUT_S", 0.5)
     else:
         def refused():
@@ -241,7 +251,8 @@ def test_what_the_child_does_not_deliver_is_drawn_here(both, monkeypatch, child)
         monkeypatch.setattr(os, "fork", refused)
     figures = _planned(both)
     t0 = time.monotonic()
-    drawn = plot_process._side_by_side(figures, "")
+    done = plot_process._side_by_side({f.name: (len(f.panels), functools.partial(
+        render, f, "")) for f in figures})
     assert time.monotonic() - t0 < 10.0
     for figure in figures:
-        assert drawn[figure.name][1] == render(figure, ""), (child, figure.name)
+        assert done[figure.name] == render(figure, ""), (child, figure.name)
