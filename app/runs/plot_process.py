@@ -57,6 +57,7 @@ class PlotProcess:
         self._shared, self._shape = shared, shape
         self._answered = False  # (then it exits by itself)
         self._begun = False
+        self._sent: bool | None = False  # the final metrics: sent; None: the send failed
 
     def begin(self, rows: np.ndarray, index: dict, metrics: dict, note: str = "") -> None:
         """Hand it the run's telemetry and its metrics as they are now (the loop has ended):
@@ -71,8 +72,22 @@ class PlotProcess:
         self._conn.send((len(rows), index, metrics, note))
         self._begun = True
 
+    def send(self, metrics: dict) -> None:
+        """Send the run's final metrics now: the process draws what they change while the
+        run writes its other files; :meth:`finish` then waits for the figures. Nothing
+        where :meth:`begin` was not reached or they were sent already (a process gone is
+        :meth:`finish`'s to see)."""
+        if not self._begun or self._sent is not False:
+            return
+        try:
+            self._conn.send(metrics)
+            self._sent = True
+        except (EOFError, OSError):
+            self._sent = None
+
     def finish(self, metrics: dict) -> list[Path] | None:
-        """Send the run's final metrics, wait for its figures: the paths written; raises
+        """Send the run's final metrics (unless :meth:`send` did: the figures are then
+        those of the metrics it sent), wait for its figures: the paths written; raises
         the OSError or ValueError that kept them from being written; None if the process
         died first, failed, or gave no answer within :data:`FINISH_TIMEOUT_S` (it is then
         killed; the caller draws them; also where :meth:`begin` was not reached)."""
@@ -80,7 +95,9 @@ class PlotProcess:
             self.close()
             return None
         try:
-            self._conn.send(metrics)
+            self.send(metrics)
+            if not self._sent:
+                raise OSError("the final metrics could not be sent")
             answer = self._answer(time.monotonic() + FINISH_TIMEOUT_S)
         except (EOFError, OSError):
             answer = None

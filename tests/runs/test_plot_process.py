@@ -256,3 +256,27 @@ def test_what_the_child_does_not_deliver_is_drawn_here(both, monkeypatch, child)
     assert time.monotonic() - t0 < 10.0
     for figure in figures:
         assert done[figure.name] == render(figure, ""), (child, figure.name)
+
+
+def test_the_final_metrics_sent_early_are_those_drawn_and_a_process_gone_is_seen(both,
+                                                                                 tmp_path):
+    """The run sends its final metrics before it writes its record (send) and waits for
+    the figures after it (finish): the figures are those of the metrics sent; sent to a
+    process that has died, nothing raises and finish leaves the drawing to the run."""
+    (here, _), run = both[False], both[True][1]
+    em, metrics = run.emulator, run.metrics
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path / "a",
+                                 em.config, metrics, note=metrics["scaling"]["text"])
+    process.send(metrics)
+    process.send({})  # (once only)
+    paths = process.finish({})
+    assert {p.name for p in paths} >= {"forces.png", "figures.json"}
+    for p in paths:
+        assert p.read_bytes() == (here / p.name).read_bytes(), p.name
+    gone = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path / "b",
+                              em.config, metrics)
+    os.kill(gone._process.pid, signal.SIGKILL)
+    gone._process.join()
+    gone.send(metrics)
+    assert gone.finish(metrics) is None
+    assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
