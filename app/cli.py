@@ -394,15 +394,37 @@ def run_text(record: dict, folder: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command: its exit status. Where it is the program (``argv`` None: the
+    `orbit-emulator` script, ``python -m app.cli``) and ran `run`, the process ends here
+    (:func:`_exit_at_once`)."""
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        status = args.func(args)
     except (ValueError, LookupError) as err:  # ConfigError included: the user's mistake,
         print(f"error: {err}", file=sys.stderr)  # named; an unknown run too
-        return 2
+        status = 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        return 130
+        status = 130
+    if argv is None and args.func is _cmd_run:
+        _exit_at_once(status)
+    return status
+
+
+def _exit_at_once(status: int) -> None:
+    """End the process with ``status`` now that everything is written: the exit handlers
+    run (they end what the run started and flush the logs) and the output is flushed,
+    but the interpreter's teardown, which frees every object one by one (numba's kernels,
+    the telemetry: a few tenths of a second of a run's wall time), is left to the
+    system."""
+    import atexit
+    import logging
+
+    atexit._run_exitfuncs()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
 
 
 if __name__ == "__main__":

@@ -293,6 +293,8 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
     instead; RunFilesNotWritten then says where (nothing recorded is lost silently)."""
     out = Path(out_dir)
     rows = em.telemetry.rows()
+    if plotter is not None and plots:  # it draws what they change while the record is written
+        plotter.send(metrics)
     writers = [("metrics.json", lambda d: [_write_json(d / "metrics.json", metrics)])]
     if telemetry:
         writers.append(("telemetry.csv", lambda d: [

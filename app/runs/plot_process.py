@@ -8,13 +8,16 @@ second) while the loop runs on the other core. Once the loop has ended,
 (mapped before the fork, sized for the run's telemetry buffer: nothing the size of the
 telemetry goes through the pipe, so a process that has stopped answering cannot block the
 run) and sends it the row count and the metrics as they are then (the restitution's
-interval not yet in them; :func:`start` does both at once). It draws at
-once each planned figure that carries no text of metrics (the
-velocities, positions, tracking errors...), then waits for the final metrics
-(:meth:`PlotProcess.finish`), plans again and writes every figure as
-:func:`app.runs.plots.plot_run` does: a figure drawn early is written as it is only where
-its signature (everything the drawing reads) is the final plan's; any other is drawn then.
-The files are the same bytes a drawing in the run's own process writes.
+interval not yet in them; :func:`start` does both at once). While the run's replicates
+go on, it draws what the final metrics cannot change, on two cores (itself and a process
+it forks, matplotlib imported: :func:`_side_by_side`): each planned figure without text
+whole, each with text (the metrics) all but its text (app/runs/plots.py render_panels).
+Then it waits for the final metrics (:meth:`PlotProcess.finish`), plans again and writes
+every figure as :func:`app.runs.plots.plot_run` does: a figure drawn early is taken as it
+is only where its signature (everything the drawing reads) is the final plan's, a
+figure's panels only where all but its text is (its text's strip is drawn then); any
+other is drawn whole then. The files are the same bytes a drawing in the run's own
+process writes.
 
 A failure to write is reported back as it happened (OSError, ValueError: the caller then
 writes the plots elsewhere, as for any file of a run), with nothing half written left in
@@ -27,8 +30,10 @@ terminal.
 
 from __future__ import annotations
 
+import functools
 import mmap
 import multiprocessing
+import os
 import signal
 import sys
 import time
@@ -52,6 +57,7 @@ class PlotProcess:
         self._shared, self._shape = shared, shape
         self._answered = False  # (then it exits by itself)
         self._begun = False
+        self._sent: bool | None = False  # the final metrics: sent; None: the send failed
 
     def begin(self, rows: np.ndarray, index: dict, metrics: dict, note: str = "") -> None:
         """Hand it the run's telemetry and its metrics as they are now (the loop has ended):
@@ -66,8 +72,22 @@ class PlotProcess:
         self._conn.send((len(rows), index, metrics, note))
         self._begun = True
 
+    def send(self, metrics: dict) -> None:
+        """Send the run's final metrics now: the process draws what they change while the
+        run writes its other files; :meth:`finish` then waits for the figures. Nothing
+        where :meth:`begin` was not reached or they were sent already (a process gone is
+        :meth:`finish`'s to see)."""
+        if not self._begun or self._sent is not False:
+            return
+        try:
+            self._conn.send(metrics)
+            self._sent = True
+        except (EOFError, OSError):
+            self._sent = None
+
     def finish(self, metrics: dict) -> list[Path] | None:
-        """Send the run's final metrics, wait for its figures: the paths written; raises
+        """Send the run's final metrics (unless :meth:`send` did: the figures are then
+        those of the metrics it sent), wait for its figures: the paths written; raises
         the OSError or ValueError that kept them from being written; None if the process
         died first, failed, or gave no answer within :data:`FINISH_TIMEOUT_S` (it is then
         killed; the caller draws them; also where :meth:`begin` was not reached)."""
@@ -75,7 +95,9 @@ class PlotProcess:
             self.close()
             return None
         try:
-            self._conn.send(metrics)
+            self.send(metrics)
+            if not self._sent:
+                raise OSError("the final metrics could not be sent")
             answer = self._answer(time.monotonic() + FINISH_TIMEOUT_S)
         except (EOFError, OSError):
             answer = None
@@ -190,16 +212,19 @@ def _draw(conn, shared: mmap.mmap, shape: tuple[int, int], out_dir: Path, config
 
 def _drawn(conn, rows, index, out_dir: Path, config, metrics: dict, note: str, guard):
     """The figures drawn and written: the answer to send; None if the run ended without
-    them."""
-    from app.runs.plots import plan_figures, plot_run, render, signature
+    them. Whatever the final metrics cannot change is drawn on two cores while the run's
+    replicates go on (:func:`_early`); then what they changed (a figure's text, mostly)."""
+    from app.runs.plots import plan_figures, plot_run
 
     guard = guard or (lambda write, folder: write(folder))
     early = plan_figures(rows, index, config, metrics) if len(rows) else []
-    rendered = {f.name: (signature(f, note), render(f, note)) for f in early if not f.text}
+    done = _early(early, note)
     try:
         final = conn.recv()
     except (EOFError, OSError):  # the run ended without its figures
         return None
+    plan = plan_figures(rows, index, config, final) if len(rows) else []
+    rendered = _final(plan, {f.name: f for f in early}, done, note)
     try:
         paths = guard(lambda d: plot_run(rows, index, d, config, final, note,
                                          rendered=rendered), out_dir)
@@ -207,6 +232,134 @@ def _drawn(conn, rows, index, out_dir: Path, config, metrics: dict, note: str, g
         message = str(err) if not isinstance(err, OSError) else (err.strerror or str(err))
         return ("error", "OSError" if isinstance(err, OSError) else "ValueError", message)
     return ("ok", [str(p) for p in paths])
+
+
+def _early(figures: list, note: str) -> dict:
+    """Drawn before the final metrics: each figure without text whole (its PNG), each with
+    text all but its text (its panels' pixels, app/runs/plots.py render_panels); by
+    (kind, name)."""
+    from app.runs.plots import render, render_panels
+
+    jobs = {(("panels" if f.text else "png"), f.name):
+            (len(f.panels), functools.partial(render_panels if f.text else render, f, note))
+            for f in figures}
+    return _side_by_side(jobs)
+
+
+def _final(plan: list, early: dict, done: dict, note: str) -> dict:
+    """The final plan's figures: name -> (signature, PNG), from what was drawn early where
+    the final figure is drawn alike (its signature, or but for its text its panels'),
+    the rest drawn now on two cores."""
+    from app.runs.plots import panels_signature, render, signature
+
+    rendered, left = {}, {}
+    for f in plan:
+        was = early.get(f.name)
+        if was is not None and not f.text and ("png", f.name) in done \
+                and signature(was, note) == signature(f, note):
+            rendered[f.name] = (signature(f, note), done["png", f.name])
+        elif was is not None and f.text and ("panels", f.name) in done \
+                and panels_signature(was, note) == panels_signature(f, note):
+            left[f.name] = (1, functools.partial(render, f, note, done["panels", f.name]))
+            rendered[f.name] = (signature(f, note), None)  # (its text's strip to draw)
+        else:
+            left[f.name] = (1 + len(f.panels), functools.partial(render, f, note))
+            rendered[f.name] = (signature(f, note), None)
+    drawn = _side_by_side(left)
+    return {name: (sig, drawn[name] if png is None else png)
+            for name, (sig, png) in rendered.items()}
+
+
+CHILD_TIMEOUT_S = 60.0
+"""How long the second drawer (:func:`_side_by_side`) is waited for before this process
+draws its share itself."""
+
+
+def _side_by_side(jobs: dict) -> dict:
+    """``jobs`` (key -> (weight, function)) done on two cores: key -> result. The heaviest
+    here, the others in a process forked from this one (matplotlib already imported), its
+    results sent back pickled through a pipe; what it does not deliver (it failed, died,
+    or took longer than :data:`CHILD_TIMEOUT_S`) is done here. The same results either
+    way."""
+    here, there = _shares(jobs)
+    pid = reader = None
+    if there:
+        reader, writer = os.pipe()
+        try:
+            pid = os.fork()
+        except OSError:  # no second process: all done here
+            os.close(reader)
+            os.close(writer)
+            here, there, reader = here + there, [], None
+        if pid == 0:  # the child: does its share, sends it, ends
+            os.close(reader)
+            _do_share(writer, {k: jobs[k][1] for k in there})
+            os._exit(1)  # (never reached: _do_share exits)
+        elif reader is not None:
+            os.close(writer)
+    out = {key: jobs[key][1]() for key in here}
+    if reader is not None:
+        theirs = _collect(reader, pid)
+        out.update({key: theirs[key] if key in theirs else jobs[key][1]() for key in there})
+    return out
+
+
+def _shares(jobs: dict) -> tuple[list, list]:
+    """The jobs' keys split in two of about equal weight, the heaviest in the first."""
+    shares, load = ([], []), [0, 0]
+    for key in sorted(jobs, key=lambda k: -jobs[k][0]):
+        k = 0 if load[0] <= load[1] else 1
+        shares[k].append(key)
+        load[k] += jobs[key][0]
+    return shares
+
+
+def _do_share(writer: int, share: dict) -> None:
+    """In the forked child: do ``share`` (key -> function), write {key: result} pickled to
+    ``writer``, and exit (status 1 on any failure: the parent then does them)."""
+    import pickle
+
+    from app.runs.replicate_pool import _die_with
+
+    status = 1
+    try:
+        _die_with(os.getppid())
+        data = pickle.dumps({key: fn() for key, fn in share.items()})
+        with os.fdopen(writer, "wb") as pipe:
+            pipe.write(data)
+        status = 0
+    finally:
+        os._exit(status)
+
+
+def _collect(reader: int, pid: int) -> dict:
+    """The child's PNGs by name ({} where it failed or did not finish within
+    :data:`CHILD_TIMEOUT_S`: it is then killed)."""
+    import pickle
+    import select
+
+    deadline = time.monotonic() + CHILD_TIMEOUT_S
+    chunks = []
+    try:
+        while True:
+            left_s = deadline - time.monotonic()
+            if left_s <= 0.0 or not select.select([reader], [], [], left_s)[0]:
+                os.kill(pid, signal.SIGKILL)
+                chunks = None
+                break
+            chunk = os.read(reader, 1 << 20)
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(reader)
+        _, status = os.waitpid(pid, 0)
+    if chunks is None or status != 0:
+        return {}
+    try:
+        return pickle.loads(b"".join(chunks))
+    except Exception:  # noqa: BLE001 - cut short: drawn here
+        return {}
 
 
 def _send(conn, answer) -> None:

@@ -20,15 +20,16 @@ import io
 import json
 import math
 import textwrap
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from app.runs.report import interval_text
 
-__all__ = ["FIGURES", "FIGURES_FILE", "Figure", "Line", "Panel", "draw", "figures_of",
-           "plan_figures", "plot_run", "pyplot", "render", "signature"]
+__all__ = ["FIGURES", "FIGURES_FILE", "Figure", "Line", "Panel", "Panels", "draw", "figures_of",
+           "panels_signature", "plan_figures", "plot_run", "pyplot", "render", "render_panels",
+           "signature"]
 
 AXES = ("x", "y", "z")
 
@@ -142,31 +143,113 @@ def pyplot():
 PANEL_HEIGHT_IN = 2.4
 TEXT_COLUMNS = 120
 """Characters per line of a figure's text panel (about 10 in wide at 7.5 pt)."""
+FIGURE_WIDTH_IN = 11.0
+DPI = 100
+PAD_IN = 0.06
+"""The space between a figure's edge, or a panel's title, and what is next to it."""
 
 
 def draw(figure: Figure, note: str = ""):
     """The matplotlib figure of ``figure``: its panels stacked over a shared time axis,
     legends outside the axes on the right, the text (if any) in a panel below, ``note``
-    (the scaling in force) on top."""
+    (the scaling in force) on top.
+
+    The layout is computed here, once: every height from the font sizes (:func:`_frames`:
+    the y axes' ticks are those of their final size), then the left and right margins
+    from what the y axes' labels and the legends measure, the same for every panel
+    (:func:`_fit_width`). The panels' place does not depend on the text: the figure is
+    the panels' figure of the text-less figure with the text's strip under it
+    (:func:`render` draws them apart)."""
+    fig = _panels_figure(figure, note, _text_height_in(figure.text))
+    if figure.text:
+        _write_text(fig, figure.text, fig.axes[0].get_position().x0,
+                    _text_height_in(figure.text))
+    return fig
+
+
+def _text_height_in(text: str) -> float:
+    """The height of a figure's text strip (0 without text)."""
+    return 0.0 if not text else 0.16 * (text.count("\n") + 1) + 0.3
+
+
+def _new_figure(height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure as MplFigure
+
+    pyplot()  # (the Agg backend and its settings)
+    fig = MplFigure(figsize=(FIGURE_WIDTH_IN, height_in), dpi=DPI)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _panels_figure(figure: Figure, note: str, text_in: float = 0.0):
+    """The figure's title and panels, ``text_in`` inches left free under them."""
     n = len(figure.panels)
-    text_in = 0.0 if not figure.text else 0.16 * (figure.text.count("\n") + 1) + 0.3
-    fig = pyplot().figure(figsize=(11, PANEL_HEIGHT_IN * n + text_in + 0.6), layout="constrained")
-    ratios = [PANEL_HEIGHT_IN] * n + ([text_in] if text_in else [])
-    grid = fig.add_gridspec(len(ratios), 1, height_ratios=ratios)
-    axes = [fig.add_subplot(grid[0])]
-    axes += [fig.add_subplot(grid[k], sharex=axes[0]) for k in range(1, n)]
+    height_in = PANEL_HEIGHT_IN * n + text_in + 0.6
+    fig = _new_figure(height_in)
+    title = figure.title if not note else f"{figure.title}\n{note}"
+    fig.suptitle(title, fontsize=10, va="top", y=1.0 - PAD_IN / height_in)
+    frames = _frames(figure, title, height_in, text_in)
+    axes = [fig.add_axes((0.1, b, 0.7, h)) for b, h in frames]
+    for ax in axes[1:]:
+        ax.sharex(axes[0])
     for ax, panel in zip(axes, figure.panels, strict=True):
         _draw_panel(ax, panel)
     for ax in axes[:-1]:
         ax.tick_params(labelbottom=False)
     axes[-1].set_xlabel(figure.xlabel)
-    if figure.text:
-        box = fig.add_subplot(grid[n])
-        box.axis("off")
-        box.text(0.0, 1.0, figure.text, transform=box.transAxes, va="top", ha="left",
-                 fontsize=7.5, family="monospace")
-    fig.suptitle(figure.title if not note else f"{figure.title}\n{note}", fontsize=10)
+    _fit_width(fig, axes)
     return fig
+
+
+def _write_text(fig, text: str, x0: float, text_in: float) -> None:
+    """``text`` in the figure's bottom ``text_in`` inches, from ``x0`` (figure fraction,
+    the panels' left edge)."""
+    fig.text(x0, (text_in - PAD_IN) / fig.get_figheight(), text, va="top", ha="left",
+             fontsize=7.5, family="monospace")
+
+
+_PT_IN = 1.0 / 72.0
+TITLE_LINE_IN = 10 * 1.2 * _PT_IN
+PANEL_GAP_IN = 0.12
+"""Between a panel's axes and the next panel's title (or axes, where it has none)."""
+PANEL_TITLE_IN = 9 * 1.2 * _PT_IN + 6 * _PT_IN + PANEL_GAP_IN  # (the title pad: 6 pt)
+X_AXIS_IN = (3.5 + 3.5 + 10 * 1.2 + 4 + 10 * 1.2) * _PT_IN + PAD_IN
+"""Below the last panel: its ticks, their labels and the axis label (rc defaults)."""
+
+
+def _frames(figure: Figure, title: str, height_in: float, text_in: float
+            ) -> list[tuple[float, float]]:
+    """Each panel's axes (bottom, height) in figure fractions, top to bottom: under the
+    title, each panel's title above its axes, the x axis under the last, the text under
+    it; the axes alike in height."""
+    top_in = PAD_IN + TITLE_LINE_IN * (title.count("\n") + 1) + PAD_IN
+    titles_in = sum(PANEL_TITLE_IN if p.title else PANEL_GAP_IN for p in figure.panels)
+    n = len(figure.panels)
+    axes_in = (height_in - top_in - titles_in - X_AXIS_IN - text_in) / n
+    frames, y_in = [], height_in - top_in
+    for panel in figure.panels:
+        y_in -= PANEL_TITLE_IN if panel.title else PANEL_GAP_IN
+        y_in -= axes_in
+        frames.append((y_in / height_in, axes_in / height_in))
+    return frames
+
+
+def _fit_width(fig, axes) -> None:
+    """The panels' common left and right edges: room on the left for the widest y axis
+    (tick labels and label), on the right for the widest legend (it sits at 1.01 of the
+    axes' width)."""
+    renderer = fig.canvas.get_renderer()
+    width_px = fig.bbox.width
+    left_px = max(ax.bbox.x0 - ax.yaxis.get_tightbbox(renderer).x0 for ax in axes)
+    legend_px = max(ax.get_legend().get_window_extent(renderer).width for ax in axes)
+    pad_px = PAD_IN * fig.dpi
+    left = (left_px + pad_px) / width_px
+    right = (legend_px + 2 * pad_px) / width_px
+    axes_w = (1.0 - left - right) / 1.01
+    for ax in axes:
+        pos = ax.get_position()
+        ax.set_position((left, pos.y0, axes_w, pos.height))
 
 
 def _draw_panel(ax, panel: Panel) -> None:
@@ -222,15 +305,51 @@ LOG_DECADES_MAX = 1e5
 """A log axis shows at most five decades below its highest value."""
 
 
-def render(figure: Figure, note: str = "") -> bytes:
-    """The PNG of ``figure`` (:func:`draw`, 100 dpi)."""
-    fig = draw(figure, note)
-    try:
-        png = io.BytesIO()
-        fig.savefig(png, dpi=100)
-        return png.getvalue()
-    finally:
-        pyplot().close(fig)
+def render(figure: Figure, note: str = "", panels: Panels | None = None) -> bytes:
+    """The PNG of ``figure`` (:func:`draw`, :data:`DPI`): the pixels of its panels
+    (:func:`render_panels`; ``panels``: those already drawn, from a figure of the same
+    :func:`signature` but its text) over its text's strip. The figure is opaque: RGB,
+    compressed fast (zlib level 1: a file of the size of matplotlib's own RGBA at level
+    6, written in half the time)."""
+    from PIL import Image
+
+    panels = panels or render_panels(figure, note)
+    pixels = panels.rgba
+    if figure.text:
+        text_in = _text_height_in(figure.text)
+        strip = _new_figure(text_in)
+        _write_text(strip, figure.text, panels.text_x0, text_in)
+        pixels = np.concatenate([pixels, _pixels(strip)])
+    png = io.BytesIO()
+    Image.fromarray(pixels).convert("RGB").save(png, format="png", compress_level=1)
+    return png.getvalue()
+
+
+@dataclass
+class Panels:
+    """A figure's panels drawn, without its text (:func:`render_panels`)."""
+
+    rgba: np.ndarray
+    """(rows, columns, 4) uint8: the pixels."""
+    text_x0: float
+    """Where the text's strip starts its lines: the panels' left edge (figure fraction)."""
+
+
+def render_panels(figure: Figure, note: str = "") -> Panels:
+    """The pixels of ``figure``'s title and panels: all of it but its text (which the
+    final metrics may change: app/runs/plot_process.py draws these before them)."""
+    fig = _panels_figure(figure, note)
+    return Panels(_pixels(fig), fig.axes[0].get_position().x0)
+
+
+def _pixels(fig) -> np.ndarray:
+    fig.canvas.draw()
+    return np.array(fig.canvas.buffer_rgba())
+
+
+def panels_signature(figure: Figure, note: str = "") -> tuple:
+    """:func:`signature` of what :func:`render_panels` draws (all but the text)."""
+    return signature(replace(figure, text=""), note)
 
 
 def plot_run(rows: np.ndarray, index: dict, out_dir: Path, config, metrics: dict | None = None,

@@ -4,6 +4,7 @@ reported as the run's own would be, and a process that died leaves the run to dr
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 
@@ -197,3 +198,85 @@ def test_more_telemetry_than_it_was_started_for_is_an_oserror(both, tmp_path):
     finally:
         process.close()
     assert not any(tmp_path.iterdir())
+
+
+def _planned(both, **changes):
+    """The short collision's figures planned, its collision metrics changed as given."""
+    import copy
+
+    from app.runs.plots import plan_figures
+
+    run = both[True][1]
+    metrics = copy.deepcopy(run.metrics)
+    metrics["collision"].update(changes)
+    return plan_figures(run.emulator.telemetry.rows(), run.emulator.telemetry.index,
+                        run.emulator.config, metrics)
+
+
+def test_what_is_drawn_early_and_late_on_two_cores_is_the_bytes_drawn_here(both):
+    """Before the final metrics, every figure is drawn on two cores, a figure with text
+    but its text; after them, what they changed (the interval's line in the text): each
+    PNG the same as drawn here, under its final signature."""
+    from app.runs.plots import render, signature
+
+    early = _planned(both, restitution_interval_95=None)
+    final = _planned(both)
+    assert [f.text for f in early] != [f.text for f in final]  # (the interval's line)
+    here, there = plot_process._shares({f.name: (len(f.panels), None) for f in early})
+    assert here and there and len(here) + len(there) == len(early)
+    done = plot_process._early(early, "a note")
+    assert {kind for kind, _ in done} == {"png", "panels"}
+    rendered = plot_process._final(final, {f.name: f for f in early}, done, "a note")
+    assert sorted(rendered) == sorted(f.name for f in final)
+    for figure in final:
+        assert rendered[figure.name] == (signature(figure, "a note"),
+                                         render(figure, "a note")), figure.name
+
+
+@pytest.mark.parametrize("child", ["fails", "hangs", "no fork"])
+def test_what_the_child_does_not_deliver_is_drawn_here(both, monkeypatch, child):
+    import time
+
+    from app.runs.plots import render
+
+    if child == "fails":
+        monkeypatch.setattr(plot_process, "_do_share", lambda *a: os._exit(1))
+    elif child == "hangs":
+        monkeypatch.setattr(plot_process, "_do_share", lambda *a: time.sleep(30))
+        monkeypatch.setattr(plot_process, "CHILD_TIMEOUT_S", 0.5)
+    else:
+        def refused():
+            raise BlockingIOError(11, "Resource temporarily unavailable")
+
+        monkeypatch.setattr(os, "fork", refused)
+    figures = _planned(both)
+    t0 = time.monotonic()
+    done = plot_process._side_by_side({f.name: (len(f.panels), functools.partial(
+        render, f, "")) for f in figures})
+    assert time.monotonic() - t0 < 10.0
+    for figure in figures:
+        assert done[figure.name] == render(figure, ""), (child, figure.name)
+
+
+def test_the_final_metrics_sent_early_are_those_drawn_and_a_process_gone_is_seen(both,
+                                                                                 tmp_path):
+    """The run sends its final metrics before it writes its record (send) and waits for
+    the figures after it (finish): the figures are those of the metrics sent; sent to a
+    process that has died, nothing raises and finish leaves the drawing to the run."""
+    (here, _), run = both[False], both[True][1]
+    em, metrics = run.emulator, run.metrics
+    process = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path / "a",
+                                 em.config, metrics, note=metrics["scaling"]["text"])
+    process.send(metrics)
+    process.send({})  # (once only)
+    paths = process.finish({})
+    assert {p.name for p in paths} >= {"forces.png", "figures.json"}
+    for p in paths:
+        assert p.read_bytes() == (here / p.name).read_bytes(), p.name
+    gone = plot_process.start(em.telemetry.rows(), em.telemetry.index, tmp_path / "b",
+                              em.config, metrics)
+    os.kill(gone._process.pid, signal.SIGKILL)
+    gone._process.join()
+    gone.send(metrics)
+    assert gone.finish(metrics) is None
+    assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
