@@ -15,6 +15,7 @@ cancels what is under way and keeps them.
 from __future__ import annotations
 
 import os
+import pickle
 import re
 import socket
 import sys
@@ -226,10 +227,10 @@ def _resolve_apart(ideals: OrderedDict, run: Run, ideal_task, ray, summary: dict
     other's."""
     computing = ideals.pop(run.ideal_id)
     try:
-        ideals[run.ideal_id] = ray.put(computing.result.recv())
+        ideals[run.ideal_id] = ray.put(computing.result())
         summary["ideal_runs"] += 1
         summary["ideal_runs_apart"] += 1
-    except (EOFError, OSError):
+    except (OSError, EOFError, pickle.UnpicklingError):  # it died: a Ray task
         _ideal_ref(ideals, run, ideal_task, summary)
     finally:
         computing.stop()

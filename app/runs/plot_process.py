@@ -33,13 +33,15 @@ from __future__ import annotations
 import functools
 import mmap
 import multiprocessing
-import os
+import pickle
 import signal
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from app.runs.replicate_pool import apart
 
 __all__ = ["FINISH_TIMEOUT_S", "PlotProcess", "prestart", "start"]
 
@@ -277,29 +279,22 @@ draws its share itself."""
 
 def _side_by_side(jobs: dict) -> dict:
     """``jobs`` (key -> (weight, function)) done on two cores: key -> result. The heaviest
-    here, the others in a process forked from this one (matplotlib already imported), its
-    results sent back pickled through a pipe; what it does not deliver (it failed, died,
-    or took longer than :data:`CHILD_TIMEOUT_S`) is done here. The same results either
-    way."""
+    here, the others in a process forked from this one (matplotlib already imported:
+    app/runs/replicate_pool.py ``apart``); what it does not deliver (it failed, died, or
+    took longer than :data:`CHILD_TIMEOUT_S`) is done here. The same results either way."""
     here, there = _shares(jobs)
-    pid = reader = None
+    other = None
     if there:
-        reader, writer = os.pipe()
         try:
-            pid = os.fork()
+            other = apart(_do_share, {key: jobs[key][1] for key in there})
         except OSError:  # no second process: all done here
-            os.close(reader)
-            os.close(writer)
-            here, there, reader = here + there, [], None
-        if pid == 0:  # the child: does its share, sends it, ends
-            os.close(reader)
-            _do_share(writer, {k: jobs[k][1] for k in there})
-            os._exit(1)  # (never reached: _do_share exits)
-        elif reader is not None:
-            os.close(writer)
+            here, there = here + there, []
     out = {key: jobs[key][1]() for key in here}
-    if reader is not None:
-        theirs = _collect(reader, pid)
+    if other is not None:
+        try:
+            theirs = other.result(CHILD_TIMEOUT_S)
+        except (OSError, pickle.UnpicklingError, EOFError):
+            theirs = {}
         out.update({key: theirs[key] if key in theirs else jobs[key][1]() for key in there})
     return out
 
@@ -314,52 +309,9 @@ def _shares(jobs: dict) -> tuple[list, list]:
     return shares
 
 
-def _do_share(writer: int, share: dict) -> None:
-    """In the forked child: do ``share`` (key -> function), write {key: result} pickled to
-    ``writer``, and exit (status 1 on any failure: the parent then does them)."""
-    import pickle
-
-    from app.runs.replicate_pool import _die_with
-
-    status = 1
-    try:
-        _die_with(os.getppid())
-        data = pickle.dumps({key: fn() for key, fn in share.items()})
-        with os.fdopen(writer, "wb") as pipe:
-            pipe.write(data)
-        status = 0
-    finally:
-        os._exit(status)
-
-
-def _collect(reader: int, pid: int) -> dict:
-    """The child's PNGs by name ({} where it failed or did not finish within
-    :data:`CHILD_TIMEOUT_S`: it is then killed)."""
-    import pickle
-    import select
-
-    deadline = time.monotonic() + CHILD_TIMEOUT_S
-    chunks = []
-    try:
-        while True:
-            left_s = deadline - time.monotonic()
-            if left_s <= 0.0 or not select.select([reader], [], [], left_s)[0]:
-                os.kill(pid, signal.SIGKILL)
-                chunks = None
-                break
-            chunk = os.read(reader, 1 << 20)
-            if not chunk:
-                break
-            chunks.append(chunk)
-    finally:
-        os.close(reader)
-        _, status = os.waitpid(pid, 0)
-    if chunks is None or status != 0:
-        return {}
-    try:
-        return pickle.loads(b"".join(chunks))
-    except Exception:  # noqa: BLE001 - cut short: drawn here
-        return {}
+def _do_share(share: dict) -> dict:
+    """The other process's share (key -> function) done: key -> result."""
+    return {key: fn() for key, fn in share.items()}
 
 
 def _send(conn, answer) -> None:

@@ -19,11 +19,12 @@ import ctypes
 import math
 import multiprocessing
 import os
+import pickle
+import select
 import signal
+import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing.connection import Connection
-from typing import NamedTuple
 
 PR_SET_PDEATHSIG = 1
 """prctl's option: the signal a process gets when its parent ends (linux/prctl.h)."""
@@ -99,41 +100,82 @@ def _in_processes(fn, args: tuple, noise, draws: list, processes: int, tick) -> 
     return results
 
 
-class Apart(NamedTuple):
-    """A call under way in a process of its own (:func:`apart`)."""
+class Apart:
+    """A call under way in a process forked from this one (:func:`apart`)."""
 
-    process: multiprocessing.Process
-    result: Connection
-    """Where its result arrives (EOFError if the process died first)."""
+    def __init__(self, pid: int, reader: int) -> None:
+        self.pid, self._reader = pid, reader
+        self._ended = False
+        self._status: int | None = None  # its exit status once ended (None: unknown)
 
-    def stop(self) -> None:
-        """End the process now if it is still under way (its result is dropped)."""
-        if self.process.is_alive():
-            self.process.terminate()
-        self.process.join(timeout=5.0)
-        self.result.close()
+    def result(self, timeout_s: float | None = None):
+        """The call's result, once it has come (within ``timeout_s``, if given); the
+        process is then ended. OSError where it failed or died (ChildProcessError) or did
+        not answer in time (TimeoutError; it is then killed)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        chunks, answered = [], False
+        try:
+            while True:
+                if deadline is not None:
+                    left_s = deadline - time.monotonic()
+                    if left_s <= 0.0 or not select.select([self._reader], [], [], left_s)[0]:
+                        raise TimeoutError(f"no answer within {timeout_s:g} s")
+                chunk = os.read(self._reader, 1 << 20)
+                if not chunk:
+                    break
+                chunks.append(chunk)
+            answered = True
+        finally:
+            status = self.stop(kill=not answered)  # (answered: it is ending by itself)
+        if status != 0:
+            raise ChildProcessError(f"the process apart ended with status {status}")
+        return pickle.loads(b"".join(chunks))
+
+    def stop(self, kill: bool = True) -> int | None:
+        """End the process now if it is still under way (its result is dropped; with
+        ``kill`` False, wait for it to end); its exit status (None if something else
+        reaped it)."""
+        if not self._ended:
+            self._ended = True
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG) if kill else (0, 0)
+                if pid == 0:  # under way
+                    if kill:
+                        os.kill(self.pid, signal.SIGKILL)
+                    status = os.waitpid(self.pid, 0)[1]
+                self._status = os.waitstatus_to_exitcode(status)
+            except ChildProcessError:  # (reaped by something else)
+                self._status = None
+            os.close(self._reader)
+        return self._status
 
 
 def apart(fn, *args) -> Apart:
-    """``fn(*args)`` in a process forked from this one, which ignores Ctrl+C (the caller's
-    to handle: :meth:`Apart.stop`), ends on SIGTERM and dies with this process. OSError
-    where no process can be had (or the system cannot fork)."""
-    if "fork" not in multiprocessing.get_all_start_methods():
-        raise OSError("this system cannot fork")
-    context = multiprocessing.get_context("fork")
-    receive, send = context.Pipe(duplex=False)
-    process = context.Process(target=_answer, args=(fn, args, send, os.getpid()),
-                              daemon=True)
-    process.start()
-    send.close()
-    return Apart(process, receive)
-
-
-def _answer(fn, args: tuple, send: Connection, parent_pid: int) -> None:
-    """:func:`apart`'s process: set up as a pool's worker, it sends ``fn(*args)``."""
-    _adopt(None, (), None, parent_pid)
-    send.send(fn(*args))
-    send.close()
+    """``fn(*args)`` in a process forked from this one (with os.fork: a daemonic process
+    may call it too), whose result comes back pickled through a pipe. The process ignores
+    Ctrl+C (the caller's to handle: :meth:`Apart.stop`), ends on SIGTERM and dies with
+    this process. OSError where no process can be had."""
+    reader, writer = os.pipe()
+    parent = os.getpid()
+    try:
+        pid = os.fork()
+    except OSError:
+        os.close(reader)
+        os.close(writer)
+        raise
+    if pid == 0:  # the process apart: the call, its result sent, the end
+        status = 1
+        try:
+            os.close(reader)
+            _adopt(None, (), None, parent)
+            data = pickle.dumps(fn(*args))
+            with os.fdopen(writer, "wb") as pipe:
+                pipe.write(data)
+            status = 0
+        finally:
+            os._exit(status)
+    os.close(writer)
+    return Apart(pid, reader)
 
 
 def _adopt(fn, args: tuple, noise, parent_pid: int) -> None:

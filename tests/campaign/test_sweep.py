@@ -593,7 +593,7 @@ def test_the_first_ideal_run_computed_apart_while_ray_starts_is_the_one_a_worker
     assert summary == {"ideal_runs": 1, "ideal_runs_apart": 1} and not submitted
 
     computing = sweep_ray._ideal_apart(run)  # its process killed before it answers
-    os.kill(computing.process.pid, signal.SIGKILL)
+    os.kill(computing.pid, signal.SIGKILL)
     ideals = OrderedDict(c0=computing)
     sweep_ray._resolve_apart(ideals, run, IdealTask, Ray, summary)
     assert ideals["c0"] == "a Ray task's ref" and submitted == [config]

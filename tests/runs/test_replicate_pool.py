@@ -196,13 +196,15 @@ def test_a_call_apart_answers_ignores_ctrl_c_and_stops_at_once():
 
     from app.runs.replicate_pool import apart
 
-    assert apart(divmod, 17, 5).result.recv() == (3, 2)
+    assert apart(divmod, 17, 5).result() == (3, 2)
+    with pytest.raises(ChildProcessError, match="the process apart ended with status 1"):
+        apart(divmod, 17, 0).result()  # (ZeroDivisionError there)
     slow = apart(time.sleep, 60.0)
     time.sleep(0.5)  # (its handlers are set)
-    os.kill(slow.process.pid, signal.SIGINT)
-    time.sleep(0.2)
-    assert slow.process.is_alive()
+    os.kill(slow.pid, signal.SIGINT)
+    with pytest.raises(TimeoutError, match="no answer within 0.3 s"):
+        slow.result(timeout_s=0.3)  # (killed then)
+    assert slow.stop() == -signal.SIGKILL
     t0 = time.perf_counter()
-    slow.stop()
-    assert not slow.process.is_alive() and time.perf_counter() - t0 < 2.0
-    assert slow.process.exitcode == -signal.SIGTERM
+    slower = apart(time.sleep, 60.0)
+    assert slower.stop() == -signal.SIGKILL and time.perf_counter() - t0 < 2.0
