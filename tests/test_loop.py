@@ -13,6 +13,7 @@ import pytest
 from app.config import merge_overrides
 from app.runs.headless import run_scenario
 from app.scenarios import load_scenario, scenario_descriptions
+from app.sim.compensation import predicted_state
 from app.sim.hand import Push
 from app.sim.loop import Emulator, tracking_stop_reason
 from app.sim.orbital import OrbitalSimulator
@@ -505,3 +506,27 @@ def test_a_copy_of_the_loop_steps_on_alone_and_shares_only_constants():
             loop.step()
     assert np.array_equal(em.telemetry.rows(), before.telemetry.rows())
     assert len(em.telemetry.rows()) > 400
+
+
+def test_the_arms_predictions_made_in_the_step_call_are_the_staged_ones():
+    """Collision hil (lag compensation on, two arms with two leads): the predictions the
+    ODS step works out in its own compiled call drive the arms exactly as
+    compensation.predicted_state of the committed state, called after the step, does;
+    cycle after cycle, every arm's joints and VFDM state and every telemetry row."""
+    em = Emulator(load_scenario("collision"))
+    em.prepare()
+    for _ in range(5):
+        em.step()
+    staged = em.copy_state()
+    staged._predicted = lambda force_R, torque_B: [  # the stages: one step per arm
+        predicted_state(staged.ods, force_R, torque_B, arm.lead_s) for arm in staged.arms]
+    fused, calls = em.ods.advance_and_ahead, []
+    em.ods.advance_and_ahead = lambda *args: calls.append(args) or fused(*args)
+    for k in range(40):
+        em.step()
+        staged.step()
+        for a, b in zip(em.arms, staged.arms, strict=True):
+            assert a.servo.state.q_rad.tobytes() == b.servo.state.q_rad.tobytes(), k
+            assert a.vfdm._x.tobytes() == b.vfdm._x.tobytes(), k
+        assert em.telemetry.rows(last=1).tobytes() == staged.telemetry.rows(last=1).tobytes()
+    assert len(calls) == 40 and len(calls[0][3]) == len({a.lead_s for a in em.arms}) == 2
