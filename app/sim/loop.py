@@ -292,7 +292,7 @@ class Emulator:
         self._capture()
         if own is not None:  # the prediction holds the whole input, own actuation included
             force_R, torque_B = force_R + own[0], torque_B + own[1]
-        predicted = self._predicted(force_R, torque_B)  # the ODS state at each arm's lead
+        predicted = self._predicted(force_R, torque_B) if self.arms else ()  # at each lead
         for arm, y_ahead in zip(self.arms, predicted, strict=True):  # TCP target (where
             arm.command_towards(y_ahead)  # the satellite will be) -> VFDM -> servo
             if arm.servo.stopped:
