@@ -5,6 +5,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 from types import FunctionType, MethodType
 
 import numpy as np
@@ -530,3 +531,32 @@ def test_the_arms_predictions_made_in_the_step_call_are_the_staged_ones():
             assert a.vfdm._x.tobytes() == b.vfdm._x.tobytes(), k
         assert em.telemetry.rows(last=1).tobytes() == staged.telemetry.rows(last=1).tobytes()
     assert len(calls) == 40 and len(calls[0][3]) == len({a.lead_s for a in em.arms}) == 2
+
+
+def test_no_compiled_kernel_is_first_loaded_in_a_cycle():
+    """The loop loads every kernel its cycle calls when it is built (_load_kernels), not
+    in the first timed cycles (loading one from numba's cache takes milliseconds): in a
+    fresh process, a collision hil run (two arms, lag compensation: the ODS step with the
+    predictions) adds no compiled signature to any of app's kernels in its first cycles."""
+    code = """
+import sys
+from numba.core.registry import CPUDispatcher
+from app.scenarios import load_scenario
+from app.sim.loop import Emulator
+
+def signatures():
+    return {(name, key): len(v.overloads) for name, mod in list(sys.modules.items())
+            if name.startswith("app.") for key, v in vars(mod).items()
+            if isinstance(v, CPUDispatcher)}
+
+em = Emulator(load_scenario("collision"))
+em.prepare()
+before = signatures()
+for _ in range(5):
+    em.step()
+after = signatures()
+print(sorted(k for k in after if after[k] != before.get(k, 0)))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=300, cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "[]", out.stdout

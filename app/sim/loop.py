@@ -769,6 +769,8 @@ class Emulator:
         ods = OrbitalSimulator(self.ods.params, self.ods.y.copy())
         zeros = np.zeros((self.n_sat, 3))
         ods.step(zeros, zeros, self.dt_s)
+        if self.arms:  # the step with the arms' predictions (a lead: compensation on)
+            ods.advance_and_ahead(zeros, zeros, self.dt_s, np.array([self.dt_s]))
         scratch = self._recorder(1)
         bodies = ods_bodies(self.T_W_R, ods)
         if not self.arms:
