@@ -29,8 +29,8 @@ def _fields(rig: ArmRig, out) -> list:
     return [out.force_R_N, out.torque_B_Nm, out.wrench_S, rig.last_raw_S,
             rig.last_processed, rig.v_W_prev, s._ring, s._head, s._held_for, s.age_cycles,
             s._calls, s.rng.bit_generator.state["state"]["state"], p._state_S,
-            p._contact_state_S, p._gate_was_open, p.reading_age_cycles,
-            [np.concatenate([a.ravel() for a in entry]) for entry in p._ring]]
+            p._contact_state_S, p._gate_was_open, p.reading_age_cycles, p._poses,
+            p._pose_at]
 
 
 def _drive(rig: ArmRig, R_W_R: np.ndarray, cycles: int) -> tuple[list[bool], float]:

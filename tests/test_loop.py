@@ -5,6 +5,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 from types import FunctionType, MethodType
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 from app.config import merge_overrides
 from app.runs.headless import run_scenario
 from app.scenarios import load_scenario, scenario_descriptions
+from app.sim.compensation import predicted_state
 from app.sim.hand import Push
 from app.sim.loop import Emulator, tracking_stop_reason
 from app.sim.orbital import OrbitalSimulator
@@ -521,3 +523,56 @@ def test_the_contact_estimate_s_dot_forms_give_matmul_s_bits():
         for matmul, dot in ((v @ w, v.dot(w)), (R @ v, R_c.dot(v)), (v @ R, v.dot(R_c)),
                             (v @ R, v.dot(R)), (R.T @ T[1:, 1:], R.T.dot(T[1:, 1:]))):
             assert np.asarray(matmul).tobytes() == np.asarray(dot).tobytes()
+
+
+def test_the_arms_predictions_made_in_the_step_call_are_the_staged_ones():
+    """Collision hil (lag compensation on, two arms with two leads): the predictions the
+    ODS step works out in its own compiled call drive the arms exactly as
+    compensation.predicted_state of the committed state, called after the step, does;
+    cycle after cycle, every arm's joints and VFDM state and every telemetry row."""
+    em = Emulator(load_scenario("collision"))
+    em.prepare()
+    for _ in range(5):
+        em.step()
+    staged = em.copy_state()
+    staged._predicted = lambda force_R, torque_B: [  # the stages: one step per arm
+        predicted_state(staged.ods, force_R, torque_B, arm.lead_s) for arm in staged.arms]
+    fused, calls = em.ods.advance_and_ahead, []
+    em.ods.advance_and_ahead = lambda *args: calls.append(args) or fused(*args)
+    for k in range(40):
+        em.step()
+        staged.step()
+        for a, b in zip(em.arms, staged.arms, strict=True):
+            assert a.servo.state.q_rad.tobytes() == b.servo.state.q_rad.tobytes(), k
+            assert a.vfdm._x.tobytes() == b.vfdm._x.tobytes(), k
+        assert em.telemetry.rows(last=1).tobytes() == staged.telemetry.rows(last=1).tobytes()
+    assert len(calls) == 40 and len(calls[0][3]) == len({a.lead_s for a in em.arms}) == 2
+
+
+def test_no_compiled_kernel_is_first_loaded_in_a_cycle():
+    """The loop loads every kernel its cycle calls when it is built (_load_kernels), not
+    in the first timed cycles (loading one from numba's cache takes milliseconds): in a
+    fresh process, a collision hil run (two arms, lag compensation: the ODS step with the
+    predictions) adds no compiled signature to any of app's kernels in its first cycles."""
+    code = """
+import sys
+from numba.core.registry import CPUDispatcher
+from app.scenarios import load_scenario
+from app.sim.loop import Emulator
+
+def signatures():
+    return {(name, key): len(v.overloads) for name, mod in list(sys.modules.items())
+            if name.startswith("app.") for key, v in vars(mod).items()
+            if isinstance(v, CPUDispatcher)}
+
+em = Emulator(load_scenario("collision"))
+em.prepare()
+before = signatures()
+for _ in range(5):
+    em.step()
+after = signatures()
+print(sorted(k for k in after if after[k] != before.get(k, 0)))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=300, cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "[]", out.stdout

@@ -147,3 +147,27 @@ def test_the_tank_keeps_a_lagging_two_body_contact_passive_and_momentum_balanced
 def test_tank_bad_parameters():
     with pytest.raises(ValueError, match="dt_s must be > 0, got 0.0"):
         TankPassivity(0.0, np.ones(2), 1.0, 0, 0.1, 0.0)
+
+
+def test_the_tank_given_lab_velocities_and_R_W_R_is_the_tank_given_them_in_R():
+    """TankPassivity.step with the bodies' velocities in the lab W and R_W_R (turned into
+    R only in a cycle that acts) gives the forces, tank and dissipation of the step given
+    ``v_W @ R_W_R`` every cycle, bit for bit: through idle cycles, a delay of three
+    cycles, pushes that drain the tank and its damping."""
+    from app.sim.rotations import rotvec_to_matrix
+
+    R_W_R = rotvec_to_matrix([0.2, -0.5, 0.9])
+    rng = np.random.default_rng(2)
+    tanks = [TankPassivity(DT, np.array([1.0, 3.0]), 1.0, 3, idle_reset_s=0.02,
+                           tank_max_J=0.05) for _ in range(2)]
+    damped = 0
+    for k in range(400):
+        acting = (k // 40) % 2 == 1  # 40 idle cycles, 40 pushing, ...
+        force = rng.normal(0, 20, (2, 3)) if acting else np.zeros((2, 3))
+        v_virtual, v_W = rng.normal(0, 0.3, (2, 3)), rng.normal(0, 0.3, (2, 3))
+        in_W = tanks[0].step(force, v_virtual, v_W, R_W_R)
+        in_R = tanks[1].step(force, v_virtual, v_W @ R_W_R)
+        assert in_W.tobytes() == in_R.tobytes(), k
+        assert tanks[0].tank_J == tanks[1].tank_J, k
+        damped += in_R is not force
+    assert tanks[0].dissipated_J == tanks[1].dissipated_J > 0.0 and damped > 10

@@ -245,3 +245,33 @@ def test_a_ring_read_elsewhere_keeps_only_whole_rows():
     np.testing.assert_array_equal(ring_rows(data, counters), [[4, 4.5], [5, 5.5]])
     with pytest.raises(ValueError, match="already holds rows"):
         buf.use_storage(np.zeros((3, 2)), np.zeros(2, dtype=np.int64))
+
+
+@pytest.mark.parametrize("n_arms", [1, 2, 3])
+def test_a_row_with_arms_is_its_columns_written_one_call_each(n_arms):
+    """The recorder writes a row with its first arms' columns in the row's own compiled
+    call (one arm: record_row_arm; two: record_row_arms; more: the rest one call each):
+    the same bits as record_row, then record_arm per arm."""
+    from app.sim.telemetry import record_arm, record_row
+
+    rng = np.random.default_rng(11)
+    n_sat = 3
+    T_R_W = invert_transform(make_transform(rotvec_to_matrix([0.2, 0.1, -0.4]),
+                                            [0.1, -0.2, 0.9]))
+    y = rng.normal(size=(n_sat, 13))
+    y[:, 6:10] = [rotvec_to_quat(rng.normal(size=3)) for _ in range(n_sat)]
+    force_R, torque_B, true_R = (rng.normal(size=(n_sat, 3)) for _ in range(3))
+    gnc = rng.normal(size=(n_sat, 6))
+    arms = [(make_transform(rotvec_to_matrix(rng.normal(size=3)), rng.normal(size=3)),
+             rng.normal(size=3), rng.normal(size=6), rng.normal(size=6), rng.normal(size=6))
+            for _ in range(n_arms)]
+    rec = Recorder(n_sat, n_arms, 4, T_R_W, OMEGA)
+    rec.record(0.5, y, force_R, torque_B, arms, true_R, gnc)
+    staged = TelemetryBuffer(loop_columns(n_sat, n_arms), 4)
+    at = record_row(0.5, y, OMEGA, force_R, torque_B, true_R, gnc, np.zeros((0, 3)), n_arms,
+                    staged._data, staged._counters)
+    k = 1 + len(SAT_FIELDS) * n_sat
+    for arm in arms:
+        k = record_arm(T_R_W, *arm, staged._data[at], k)
+    staged.commit()
+    assert rec.buffer.rows().tobytes() == staged.rows().tobytes()

@@ -17,8 +17,9 @@ calls, takes the sensor's and the chain's constants as one buffer each
 of them, so an assignment such as a new calibration is what the next call reads) and the
 chain's filter states as one more. What stays in Python is the bookkeeping the
 objects do anyway (the noise draws from the sensor's generator, the delay ring's head,
-the ring of poses that aligns a delayed reading, the gate's flags: ``advance`` and
-``begin``), so the numbers are those of the stages to the last bit; what it saves is the
+the gate's flags: ``advance`` and ``gate``), so the numbers are those of the stages to
+the last bit; the ring of poses that aligns a delayed reading is kept in the call
+(:func:`app.sim.ft_sensor.push_pose`, on the chain's buffers). What it saves is the
 Python between them and the unpacking of some forty arguments.
 
 Not fused: a sensor slower than the loop (its held readings) and a sensor on the mockup
@@ -30,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from app.sim.ft_sensor import ProcessedWrench, process_cycle, sensor_step
+from app.sim.ft_sensor import ProcessedWrench, process_cycle, push_pose, sensor_step
 
 __all__ = ["OUT_SIZE", "arm_sense", "arm_sense_packed", "sense"]
 
@@ -42,21 +43,25 @@ raw reading in S (6,), the ODS's part of the processed wrench (force in R, torqu
 @njit(cache=True, fastmath=False)
 def arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel,
               normals, s_mass, s_gravity, s_bias, s_noise, s_range, ring, head, fill,
-              T_W_F_then, T_W_C_then, accel_then, R_W_R, p_gravity, payload, inertial,
+              poses, pose_at, age, R_W_R, p_gravity, payload, inertial,
               p_bias, p_mass, p_com, alpha, contact_alpha, state, contact_state, gate_open,
               reset_slow, db_force, db_torque, soft, scratch, out):
     """One cycle of a rig's sensor path, into out (:data:`OUT_SIZE`).
 
     accel (3,) := the mockup's acceleration ``(v_W − v_W_prev) / dt_s`` (zeros on the first
-    cycle), then v_W_prev := v_W; the sensor's reading of the wrench on the mockup at
-    T_W_C, sensor at T_W_F (:func:`sensor_step`, constants s_*, the delay ring at row
+    cycle), then v_W_prev := v_W; (T_W_F, T_W_C, accel) kept in the chain's ring of poses
+    (:func:`push_pose`: poses, pose_at); the sensor's reading of the wrench on the mockup
+    at T_W_C, sensor at T_W_F (:func:`sensor_step`, constants s_*, the delay ring at row
     ``head``) into out[12:18]; the chain on it with the poses and the acceleration of the
-    cycle it was taken in (``*_then``; :func:`process_cycle`, constants p_*) into
+    cycle it was taken in, ``age`` cycles ago (:func:`process_cycle`, constants p_*) into
     out[0:12]; out[18:24] := out[0:6].
     """
     for a in range(3):
         accel[a] = 0.0 if first_cycle else (v_W[a] - v_W_prev[a]) / dt_s
         v_W_prev[a] = v_W[a]
+    then = poses[push_pose(poses, pose_at, T_W_F, T_W_C, accel, age)]
+    T_W_F_then, T_W_C_then = then[0:16].reshape((4, 4)), then[16:32].reshape((4, 4))
+    accel_then = then[32:35]
     raw = out[12:18]
     sensor_step(wrench_W, T_W_C, T_W_F, s_mass, s_gravity, accel, normals, s_bias, s_noise,
                 s_range, ring, head, fill, raw)
@@ -69,16 +74,17 @@ def arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel,
 
 
 @njit(cache=True, fastmath=False)
-def arm_sense_packed(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel,
-                     normals, sc, ring, head, fill, T_W_F_then, T_W_C_then, accel_then,
-                     R_W_R, pc, px, gate_open, reset_slow, db_force, db_torque, out):
+def arm_sense_packed(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, normals, sc,
+                     ring, head, fill, poses, pose_at, age, R_W_R, pc, px, gate_open,
+                     reset_slow, db_force, db_torque, out):
     """:func:`arm_sense` with the sensor's constants in one buffer sc
     (``VirtualFTSensor.constants``), the chain's in pc (``WrenchProcessor.constants``) and
     the chain's filter states and scratch in px (``WrenchProcessor._x``): the same
-    kernels on the same numbers, thirteen arguments fewer to unpack per call."""
-    arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, accel, normals,
+    kernels on the same numbers, fourteen arguments fewer to unpack per call (the
+    acceleration is worked out in a scratch array of its own)."""
+    arm_sense(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, np.empty(3), normals,
               sc[0], sc[1:4], sc[4:10], sc[10:16], sc[16:22], ring, head, fill,
-              T_W_F_then, T_W_C_then, accel_then, R_W_R, pc[0:3], pc[3] != 0.0,
+              poses, pose_at, age, R_W_R, pc[0:3], pc[3] != 0.0,
               pc[4] != 0.0, pc[5:11], pc[11], pc[12:15], pc[15], pc[16], px[0:6],
               px[6:12], gate_open, reset_slow, db_force, db_torque, pc[17] != 0.0,
               px[12:24], out)
@@ -92,16 +98,14 @@ def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
     stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included)."""
     sensor, proc = rig.sensor, rig.processor
     T_W_F = rig.mockup_state_W()[0]
-    accel = np.empty(3)
     normals, fill, held = sensor.advance()
     assert held is None  # a sensor that samples every cycle holds nothing
-    proc.reading_age_cycles = sensor.age_cycles
-    (T_W_F_then, T_W_C_then, accel_then), db_force, db_torque, reset_slow = proc.begin(
-        T_W_F, T_W_C, accel, gate_open)
+    age = proc.reading_age_cycles = sensor.age_cycles
+    db_force, db_torque, reset_slow = proc.gate(gate_open)  # begin's, but for the poses
     out = np.empty(OUT_SIZE)
     arm_sense_packed(np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, v_W,
-                     rig.v_W_prev, dt_s, first_cycle, accel, normals, sensor.constants,
-                     sensor._ring, sensor._head, fill, T_W_F_then, T_W_C_then, accel_then,
+                     rig.v_W_prev, dt_s, first_cycle, normals, sensor.constants,
+                     sensor._ring, sensor._head, fill, proc._poses, proc._pose_at, age,
                      R_W_R, proc.constants, proc._x, gate_open, reset_slow, db_force,
                      db_torque, out)
     rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]

@@ -51,7 +51,7 @@ class OdsCoupling:
         the satellite itself)."""
         if not self.enabled:
             return force_R, torque_B
-        force_R = self.tank.step(force_R, ods.velocity_mps, bodies.v_W @ R_W_R)
+        force_R = self.tank.step(force_R, ods.velocity_mps, bodies.v_W, R_W_R)
         w_virtual_B = None
         for s, pc in self.torque_pcs.items():
             t = torque_B[s]

@@ -81,6 +81,8 @@ contact's α, soft deadband (1.0 soft)."""
 PROCESSOR_STATE = 24
 """Length of :attr:`WrenchProcessor._x`: the filter state (6), the contact filter's (6),
 the kernel's scratch (12)."""
+POSE_ROW = 35
+"""Width of a row of :attr:`WrenchProcessor._poses`: T_W_F (16), T_W_C (16), accel (3)."""
 
 
 def _frozen(value, shape: tuple[int, ...]) -> np.ndarray:
@@ -248,6 +250,31 @@ def process_cycle(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inerti
     elif dual:
         process_step(wrench_S, T_W_F, T_W_C, R_W_R, gravity, payload, accel, inertial, bias,
                      mass, com, contact_alpha, contact_state, db_force, db_torque, soft, out)
+
+
+@njit(cache=True, fastmath=False, inline="always")
+def push_pose(poses, at, T_W_F, T_W_C, accel, age):
+    """Keep this cycle's (T_W_F, T_W_C, accel) in the ring ``poses`` (K, :data:`POSE_ROW`)
+    (at: [rows kept, newest row], at most K kept, the oldest overwritten); returns the
+    row of the cycle ``age`` calls ago, or the oldest kept when fewer are."""
+    k = poses.shape[0]
+    head = (at[1] + 1) % k
+    kept = min(at[0] + 1, k)
+    at[0], at[1] = kept, head
+    row = poses[head]
+    for a in range(4):
+        for b in range(4):
+            row[4 * a + b] = T_W_F[a, b]
+            row[16 + 4 * a + b] = T_W_C[a, b]
+    for a in range(3):
+        row[32 + a] = accel[a]
+    return (head - min(age, kept - 1)) % k
+
+
+@njit(cache=True, fastmath=False)
+def aligned_pose(poses, at, T_W_F, T_W_C, accel, age):
+    """:func:`push_pose` as a call of its own (the stages')."""
+    return push_pose(poses, at, T_W_F, T_W_C, accel, age)
 
 
 # --- the sensor and the processing chain ---------------------------------------------------
@@ -518,7 +545,11 @@ class WrenchProcessor:
         """How old the next reading is (set by the rig from the sensor's ``age_cycles``
         before each :meth:`process`; the delay when the sensor samples every cycle)."""
         self._gate_was_open = False
-        self._ring: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._poses = np.zeros((self.max_age_cycles + 1, POSE_ROW))
+        """The ring of the last cycles' (T_W_F, T_W_C, accel), one row each
+        (:func:`push_pose`), that a delayed reading is aligned with."""
+        self._pose_at = np.array([0, -1], dtype=np.int64)
+        """(rows of ``_poses`` kept, its newest row)."""
 
     def reset(self) -> None:
         """Reset the filter states to zero (the expected compensated wrench at rest) and
@@ -526,16 +557,16 @@ class WrenchProcessor:
         self._state_S = np.zeros(6)
         self._contact_state_S = np.zeros(6)
         self._gate_was_open = False
-        self._ring = []
+        self._pose_at[:] = (0, -1)
 
     def _aligned(self, T_W_F: np.ndarray, T_W_C: np.ndarray,
                  accel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(T_W_F, T_W_C, accel) of the cycle the arriving reading was taken in."""
-        ring = self._ring
-        ring.append((T_W_F, T_W_C, accel))
-        if len(ring) > self.max_age_cycles + 1:
-            del ring[0]
-        return ring[max(0, len(ring) - 1 - self.reading_age_cycles)]
+        """(T_W_F, T_W_C, accel) of the cycle the arriving reading was taken in (views
+        of the ring, where this cycle's are kept too)."""
+        row = self._poses[aligned_pose(self._poses, self._pose_at, T_W_F, T_W_C,
+                                       np.asarray(accel, dtype=float),
+                                       self.reading_age_cycles)]
+        return row[0:16].reshape(4, 4), row[16:32].reshape(4, 4), row[32:35]
 
     def calibrate(
         self,
@@ -635,12 +666,16 @@ class WrenchProcessor:
         by the contact's filter: the slow filter restarts from rest, so that its lagging
         copy of the contact (up to several N after a rigid one) is not handed over a
         second time."""
-        aligned = self._aligned(T_W_F, T_W_C, accel)
+        return (self._aligned(T_W_F, T_W_C, accel), *self.gate(gate_open))
+
+    def gate(self, gate_open: bool) -> tuple[float, float, bool]:
+        """:meth:`begin`'s bookkeeping of the gate: (the force and torque deadbands,
+        whether the slow filter restarts from rest)."""
         db_force, db_torque = ((0.0, 0.0) if gate_open
                                else (self.deadband_force_N, self.deadband_torque_Nm))
         reset_slow = self._gate_was_open and not gate_open and self.contact_alpha != self.alpha
         self._gate_was_open = gate_open
-        return aligned, db_force, db_torque, reset_slow
+        return db_force, db_torque, reset_slow
 
     def process(
         self,

@@ -233,6 +233,13 @@ class Emulator:
         self.true_force_R = np.zeros((self.n_sat, 3))
         self.compound: Compound | None = None  # a docked pair, once captured
         self._compound_y: tuple[np.ndarray, np.ndarray] | None = None  # (now, next) rows
+        self._leads = np.zeros(0)
+        """(L,) the arms' distinct leads > 0 [s], in order (set by :meth:`prepare`)."""
+        self._lead_slot: dict[float, int] = {}
+        """Each of ``_leads``' index there."""
+        self._ahead: tuple[np.ndarray, np.ndarray] | None = None
+        """(the ODS state the last step made, the states each of ``_leads`` after it): the
+        arms' predictions, worked out in the step's call (:meth:`_predicted`)."""
         self.capture_event: dict | None = None
         self.scaling = scaling_of(config)
         self.gnc = self._gnc_params()
@@ -285,11 +292,9 @@ class Emulator:
         self._capture()
         if own is not None:  # the prediction holds the whole input, own actuation included
             force_R, torque_B = force_R + own[0], torque_B + own[1]
-        predicted = {}
-        for arm in self.arms:  # TCP target (where the satellite will be) -> VFDM -> servo
-            if arm.lead_s not in predicted:
-                predicted[arm.lead_s] = predicted_state(self.ods, force_R, torque_B, arm.lead_s)
-            arm.command_towards(predicted[arm.lead_s])
+        predicted = self._predicted(force_R, torque_B) if self.arms else ()  # at each lead
+        for arm, y_ahead in zip(self.arms, predicted, strict=True):  # TCP target (where
+            arm.command_towards(y_ahead)  # the satellite will be) -> VFDM -> servo
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
         self._cycle_time_ns[self.cycles % len(self._cycle_time_ns)] = time.perf_counter_ns() - t0
@@ -519,10 +524,12 @@ class Emulator:
         (ODS-input units, :meth:`own_actuation`); in an ideal run, a cycle that starts or
         ends in contact has the contact law integrated within it (:mod:`app.sim.reference`),
         the own actuation acting in every sub-step; a docked pair moves as one body."""
-        if own is None:
-            y_next = self.ods.advance(force_R, torque_B, self.dt_s)
-        else:
-            y_next = self.ods.advance(force_R + own[0], torque_B + own[1], self.dt_s)
+        total = (force_R, torque_B) if own is None else (force_R + own[0], torque_B + own[1])
+        if self._lead_slot and self.compound is None:  # and the arms' predictions from it
+            y_next, ahead = self.ods.advance_and_ahead(*total, self.dt_s, self._leads)
+            self._ahead = (y_next, ahead)
+        else:  # (a compound's step rewrites y_next: its predictions come after it)
+            y_next = self.ods.advance(*total, self.dt_s)
         if self.mode == "ideal" and (self.interaction.contact_active
                                      or self._overlap(y_next)):
             y_next, force_R, torque_B = substepped_advance(
@@ -530,10 +537,22 @@ class Emulator:
                 self.config.loop.reference_substeps, own)
             self.true_force_R = force_R  # no sensor in an ideal run: the ODS gets the truth
         if self.compound is not None:  # the docked pair moves as one body
-            total = (force_R, torque_B) if own is None else (force_R + own[0],
-                                                              torque_B + own[1])
             y_next = self._advance_compound(y_next, *total)
         return y_next, force_R, torque_B
+
+    def _predicted(self, force_R: np.ndarray, torque_B: np.ndarray) -> list[np.ndarray]:
+        """Each arm's ODS state ``lead_s`` ahead of the committed one under the cycle's
+        whole input (force_R, torque_B: app/sim/compensation.py predicted_state): the
+        states the ODS step worked out in its call (:meth:`ods_advance`) while the
+        committed state is the one they start from (a capture rewrites it: then anew)."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is None or ahead[0] is not self.ods.y:
+            return [predicted_state(self.ods, force_R, torque_B, arm.lead_s)
+                    for arm in self.arms]
+        slot, states = self._lead_slot, ahead[1]
+        return [states[slot[arm.lead_s]] if arm.lead_s in slot
+                else predicted_state(self.ods, force_R, torque_B, arm.lead_s)
+                for arm in self.arms]
 
     def _advance_compound(self, y_next: np.ndarray, force_R: np.ndarray,
                           torque_B: np.ndarray) -> np.ndarray:
@@ -574,6 +593,7 @@ class Emulator:
             return
         self.compound, row = join(self.ods.y, (c, t), p.mass_kg, p.inertia_kgm2,
                                   p.force_scale, p.torque_scale, p.orbit_rate_radps)
+        self._ahead = None  # the state the predictions started from is rewritten here
         spread(self.compound, row, p.orbit_rate_radps, self.ods.y)
         self._compound_y = (row, row)
         self.interaction.contact.exclude(c, t)
@@ -681,6 +701,8 @@ class Emulator:
             tick()
             arm.move_to(q, self.dt_s)
             tick()
+        leads = sorted({arm.lead_s for arm in self.arms if arm.lead_s > 0.0})
+        self._leads, self._lead_slot = np.array(leads), {t: k for k, t in enumerate(leads)}
         rest = {arm.index: [] for arm in self.arms}
         tick()
         for k in range(int(round(settle_s / self.dt_s))):
@@ -758,6 +780,8 @@ class Emulator:
         ods = OrbitalSimulator(self.ods.params, self.ods.y.copy())
         zeros = np.zeros((self.n_sat, 3))
         ods.step(zeros, zeros, self.dt_s)
+        if self.arms:  # the step with the arms' predictions (a lead: compensation on)
+            ods.advance_and_ahead(zeros, zeros, self.dt_s, np.array([self.dt_s]))
         scratch = self._recorder(1)
         bodies = ods_bodies(self.T_W_R, ods)
         if not self.arms:

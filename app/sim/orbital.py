@@ -116,21 +116,61 @@ def _derivative(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dy)
         dy[i, 9] = 0.5 * (qw * r3 + qx * r2 - qy * r1)
 
 
-@njit(cache=True)
-def _rk4(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt):
-    """Classical RK4 with the wrench held constant; quaternion renormalised, w >= 0."""
-    k1, k2, k3, k4 = np.empty_like(y), np.empty_like(y), np.empty_like(y), np.empty_like(y)
-    p = (W, mass, inertia, gg_on, f_scale, t_scale)
-    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y, force, torque, k1)
-    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y + 0.5 * dt * k1, force, torque, k2)
-    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y + 0.5 * dt * k2, force, torque, k3)
-    _derivative(p[0], p[1], p[2], p[3], p[4], p[5], y + dt * k3, force, torque, k4)
-    out = y + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    for i in range(out.shape[0]):
-        norm = np.sqrt(np.sum(out[i, 6:10] ** 2))
-        sign = -1.0 if out[i, 6] < 0.0 else 1.0
-        out[i, 6:10] *= sign / norm
-    return out
+@njit(cache=True, fastmath=False, inline="always")
+def _rk4_into(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, k1, k2, k3,
+              k4, tmp, out):
+    """out := one classical RK4 step of y (wrench held constant), quaternion renormalised,
+    w >= 0; k1..k4 and tmp are scratch of y's shape. Element by element, the very
+    operations of the array expressions it replaced (``y + 0.5 * dt * k1``, ...,
+    ``y + (dt / 6) * (k1 + 2 k2 + 2 k3 + k4)``, the norm a sum from 0 in order): the same
+    bits, without their temporaries."""
+    n, m = y.shape
+    h, c = 0.5 * dt, dt / 6.0
+    _derivative(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, k1)
+    for i in range(n):
+        for j in range(m):
+            tmp[i, j] = y[i, j] + h * k1[i, j]
+    _derivative(W, mass, inertia, gg_on, f_scale, t_scale, tmp, force, torque, k2)
+    for i in range(n):
+        for j in range(m):
+            tmp[i, j] = y[i, j] + h * k2[i, j]
+    _derivative(W, mass, inertia, gg_on, f_scale, t_scale, tmp, force, torque, k3)
+    for i in range(n):
+        for j in range(m):
+            tmp[i, j] = y[i, j] + dt * k3[i, j]
+    _derivative(W, mass, inertia, gg_on, f_scale, t_scale, tmp, force, torque, k4)
+    for i in range(n):
+        for j in range(m):
+            out[i, j] = y[i, j] + c * (k1[i, j] + 2.0 * k2[i, j] + 2.0 * k3[i, j] + k4[i, j])
+        sq = 0.0
+        for j in range(6, 10):
+            sq += out[i, j] * out[i, j]
+        scale = (-1.0 if out[i, 6] < 0.0 else 1.0) / np.sqrt(sq)
+        for j in range(6, 10):
+            out[i, j] *= scale
+
+
+@njit(cache=True, fastmath=False)
+def _rk4(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, out):
+    """out := classical RK4 with the wrench held constant; quaternion renormalised,
+    w >= 0 (out is the caller's: a compiled call that returns a new array pays more to
+    hand it over than the step costs)."""
+    k = np.empty((5,) + y.shape)
+    _rk4_into(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, k[0], k[1],
+              k[2], k[3], k[4], out)
+
+
+@njit(cache=True, fastmath=False)
+def _rk4_then_leads(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, leads,
+                    out):
+    """out[0] := one RK4 step of y of length dt; out[1 + s] := one step of out[0] of
+    length leads[s], for each s (the step and the predictions from its state, one call)."""
+    k = np.empty((5,) + y.shape)
+    _rk4_into(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, k[0], k[1],
+              k[2], k[3], k[4], out[0])
+    for s in range(leads.shape[0]):
+        _rk4_into(W, mass, inertia, gg_on, f_scale, t_scale, out[0], force, torque, leads[s],
+                  k[0], k[1], k[2], k[3], k[4], out[1 + s])
 
 
 def _kernel_args(params: OdsParams) -> tuple:
@@ -177,11 +217,15 @@ def rk4_step(
     dt_s: float,
 ) -> np.ndarray:
     """One classical Runge-Kutta step (wrench held constant), quaternion renormalised."""
-    return _rk4(*_kernel_args(params), y, _f64(force_R_N), _f64(torque_B_Nm), float(dt_s))
+    out = np.empty(y.shape)
+    _rk4(*_kernel_args(params), y, _f64(force_R_N), _f64(torque_B_Nm), float(dt_s), out)
+    return out
 
 
 def _f64(a) -> np.ndarray:
-    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
+    """a wrench as a contiguous (N, 3) float64 array (the array itself when it is one)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.ndim == 2 else a.reshape(-1, 3)
 
 
 def cw_state_transition(orbit_rate_radps: float, t_s: float) -> np.ndarray:
@@ -263,6 +307,17 @@ class OrbitalSimulator:
                 dt_s: float) -> np.ndarray:
         """The state dt_s later under wrenches held constant (nothing changes here)."""
         return rk4_step(self.params, self.y, force_R_N, torque_B_Nm, dt_s)
+
+    def advance_and_ahead(self, force_R_N: np.ndarray, torque_B_Nm: np.ndarray, dt_s: float,
+                          leads_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`advance`, (len(leads_s), N, 13) the states ``leads_s`` after that one
+        under the same wrenches): the step and the predictions from its state in one
+        compiled call, bit for bit :meth:`advance` and :func:`rk4_step` of its result."""
+        leads = np.asarray(leads_s, dtype=np.float64)
+        out = np.empty((1 + len(leads),) + self.y.shape)
+        _rk4_then_leads(*_kernel_args(self.params), self.y, _f64(force_R_N), _f64(torque_B_Nm),
+                        float(dt_s), leads, out)
+        return out[0], out[1:]
 
     def commit(self, y: np.ndarray, dt_s: float) -> None:
         """Take the state y as the one dt_s later."""

@@ -180,11 +180,12 @@ class TankPassivity:
         return self._history[0]
 
     def step(self, force: np.ndarray, v_virtual: np.ndarray,
-             v_physical: np.ndarray) -> np.ndarray:
+             v_physical: np.ndarray, R_W_R: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) forces for the satellites from the measured (N, 3) ones; v_virtual: the
         satellites' velocities now, v_physical: the bodies' velocities now (for a satellite
-        without an arm, its own; kept, not copied). A satellite with zero force is not part
-        of the port."""
+        without an arm, its own; kept, not copied), in R, or in the lab W when R_W_R is
+        given: then turned into R (``v_physical @ R_W_R``, the same product) only in a
+        cycle that uses it. A satellite with zero force is not part of the port."""
         v_p = self._aligned(v_physical)
         acted = [f[0] != 0.0 or f[1] != 0.0 or f[2] != 0.0  # not is_zero, on plain floats
                  for f in force.tolist()]
@@ -194,6 +195,8 @@ class TankPassivity:
                 self.tank_J = self.tank_max_J
             return force
         self._idle_cycles = 0
+        if R_W_R is not None:
+            v_p = v_p @ R_W_R
         dt = self.dt_s
         tank = self.tank_J + dt * float(np.sum(force * (v_p - v_virtual)))
         out = force

@@ -273,6 +273,20 @@ def record_row_arm(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rai
     return at
 
 
+@njit(cache=True, fastmath=False)
+def record_row_arms(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails, n_arms,
+                    data, counters, T_R_W, T_W_C, v_W, q, raw_S, processed, T_W_C2, v_W2, q2,
+                    raw_S2, processed2):
+    """:func:`record_row_arm`, then the second arm's columns (:func:`record_arm`) in the
+    same call (a dual-arm loop: one call per row); -1 as record_row."""
+    at = record_row_arm(t_s, y, orbit_rate, force_R, torque_B, true_force_R, gnc, rails,
+                        n_arms, data, counters, T_R_W, T_W_C, v_W, q, raw_S, processed)
+    if at >= 0:
+        record_arm(T_R_W, T_W_C2, v_W2, q2, raw_S2, processed2, data[at],
+                   1 + len(SAT_FIELDS) * y.shape[0] + len(ROBOT_FIELDS))
+    return at
+
+
 class Recorder:
     """Writes the loop's telemetry row of each cycle into a :class:`TelemetryBuffer`."""
 
@@ -306,8 +320,9 @@ class Recorder:
                       self._no_rails if rails is None else rails, self.n_arms,
                       buffer._data, buffer._counters)
             try:  # claims the row only if every shape fits (-1 if not)
-                at = (record_row_arm(*common, self.T_R_W, *arms[0]) if arms
-                      else record_row(*common))
+                at = (record_row(*common) if not arms
+                      else record_row_arm(*common, self.T_R_W, *arms[0]) if len(arms) == 1
+                      else record_row_arms(*common, self.T_R_W, *arms[0], *arms[1]))
             except TypingError:  # an array of another dimension or type
                 at = -1
             bad = at < 0
@@ -321,8 +336,8 @@ class Recorder:
                 f"{'' if rails is None else f', rails {np.shape(rails)}'}"
                 f"{f' (it has {self.n_rails} rails)' if self.n_rails else ''}"
             )
-        if len(arms) > 1:  # the first arm's columns are written
-            row, k = buffer._data[at], self._arms_at + len(ROBOT_FIELDS)
-            for T_W_C, v_W, q_rad, raw_S, processed in arms[1:]:
+        if len(arms) > 2:  # the first two arms' columns are written
+            row, k = buffer._data[at], self._arms_at + 2 * len(ROBOT_FIELDS)
+            for T_W_C, v_W, q_rad, raw_S, processed in arms[2:]:
                 k = record_arm(self.T_R_W, T_W_C, v_W, q_rad, raw_S, processed, row, k)
         buffer.commit()
