@@ -458,6 +458,19 @@ def test_the_calibration_measures_the_noise_the_gate_open_chain_passes():
         np.testing.assert_allclose(np.diag(measured), np.diag(predicted_R), rtol=0.1)
 
 
+def test_the_filtered_force_covariance_is_matmul_s_to_the_last_bit():
+    """filtered_force_cov rotates the kept covariance with ndarray.dot (less overhead than
+    `@`, the same BLAS calls): on rotations such as the loop hands it (R_W_R.T times a
+    pose's rotation), R K Rᵀ to the last bit of the `@` form."""
+    proc = _calibrated(_sensor(seed=5), WrenchProcessingConfig(inertial_compensation=False))
+    K = proc.calibration.force_noise_cov_S * (proc.contact_alpha / (2.0 - proc.contact_alpha))
+    rng = np.random.default_rng(17)
+    for _ in range(2000):
+        T = rng.standard_normal((4, 4)) * 10.0 ** rng.uniform(-2, 2)
+        R_X_S = R_W_R.T.dot(T[:3, :3])
+        assert proc.filtered_force_cov(R_X_S).tobytes() == (R_X_S @ K @ R_X_S.T).tobytes()
+
+
 def test_the_deadbands_are_six_sigma_of_the_filtered_noise_the_calibration_measured():
     """The calibration raises each deadband to 6 times the largest principal standard
     deviation of the noise the chain passes at rest (the force; the torque about the COM,
