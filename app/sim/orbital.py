@@ -117,6 +117,14 @@ def _derivative(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dy)
 
 
 @njit(cache=True, fastmath=False, inline="always")
+def _along(y, h, k, out):
+    """out := y + h k, element by element (an RK4 stage's state)."""
+    for i in range(y.shape[0]):
+        for j in range(y.shape[1]):
+            out[i, j] = y[i, j] + h * k[i, j]
+
+
+@njit(cache=True, fastmath=False, inline="always")
 def _rk4_into(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, k1, k2, k3,
               k4, tmp, out):
     """out := one classical RK4 step of y (wrench held constant), quaternion renormalised,
@@ -127,17 +135,11 @@ def _rk4_into(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, k
     n, m = y.shape
     h, c = 0.5 * dt, dt / 6.0
     _derivative(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, k1)
-    for i in range(n):
-        for j in range(m):
-            tmp[i, j] = y[i, j] + h * k1[i, j]
+    _along(y, h, k1, tmp)
     _derivative(W, mass, inertia, gg_on, f_scale, t_scale, tmp, force, torque, k2)
-    for i in range(n):
-        for j in range(m):
-            tmp[i, j] = y[i, j] + h * k2[i, j]
+    _along(y, h, k2, tmp)
     _derivative(W, mass, inertia, gg_on, f_scale, t_scale, tmp, force, torque, k3)
-    for i in range(n):
-        for j in range(m):
-            tmp[i, j] = y[i, j] + dt * k3[i, j]
+    _along(y, dt, k3, tmp)
     _derivative(W, mass, inertia, gg_on, f_scale, t_scale, tmp, force, torque, k4)
     for i in range(n):
         for j in range(m):
