@@ -412,14 +412,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _exit_at_once(status: int) -> None:
-    """End the process with ``status`` now that everything is written: the exit handlers
-    run (they end what the run started and flush the logs) and the output is flushed,
-    but the interpreter's teardown, which frees every object one by one (numba's kernels,
-    the telemetry: a few tenths of a second of a run's wall time), is left to the
-    system."""
+    """End the process with ``status`` now that everything is written, as the interpreter
+    ends one up to its teardown: its threads' shutdown (it joins the threads left and
+    runs their exit hooks: a process pool's, which stops the pool's workers, Ctrl+C or
+    not), then the exit handlers (they end the processes the run started and flush the
+    logs), the output flushed; but the teardown, which frees every object one by one
+    (numba's kernels, the telemetry: a few tenths of a second of a run's wall time), is
+    left to the system."""
     import atexit
     import logging
+    import threading
 
+    threading._shutdown()
     atexit._run_exitfuncs()
     logging.shutdown()
     sys.stdout.flush()

@@ -592,7 +592,11 @@ def test_the_first_ideal_run_computed_apart_while_ray_starts_is_the_one_a_worker
     assert ideals["c0"][1][0] == "ok" and ideals["c0"][1][1]["restitution"] > 0
     assert summary == {"ideal_runs": 1, "ideal_runs_apart": 1} and not submitted
 
-    computing = sweep_ray._ideal_apart(run)  # its process killed before it answers
+    import time
+
+    from app.runs.replicate_pool import apart
+
+    computing = apart(time.sleep, 60.0)  # a process apart killed before it answers
     os.kill(computing.pid, signal.SIGKILL)
     ideals = OrderedDict(c0=computing)
     sweep_ray._resolve_apart(ideals, run, IdealTask, Ray, summary)
