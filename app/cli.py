@@ -394,21 +394,31 @@ def run_text(record: dict, folder: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The command: its exit status. Where it is the program (``argv`` None: the
-    `orbit-emulator` script, ``python -m app.cli``) and ran `run`, the process ends here
+    """The command of ``argv`` (None: the process's arguments): its exit status."""
+    return _dispatch(build_parser().parse_args(argv))
+
+
+def program() -> None:
+    """The `orbit-emulator` program (and ``python -m app.cli``): :func:`main` on the
+    process's arguments, then the process ends with its status; after `run`, at once
     (:func:`_exit_at_once`)."""
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args()
+    status = _dispatch(args)
+    if args.func is _cmd_run:
+        _exit_at_once(status)
+    sys.exit(status)
+
+
+def _dispatch(args) -> int:
+    """Run the parsed command: its exit status (2 for the user's mistake, 130 for Ctrl+C)."""
     try:
-        status = args.func(args)
+        return args.func(args)
     except (ValueError, LookupError) as err:  # ConfigError included: the user's mistake,
         print(f"error: {err}", file=sys.stderr)  # named; an unknown run too
-        status = 2
+        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        status = 130
-    if argv is None and args.func is _cmd_run:
-        _exit_at_once(status)
-    return status
+        return 130
 
 
 def _exit_at_once(status: int) -> None:
@@ -432,4 +442,4 @@ def _exit_at_once(status: int) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    program()

@@ -805,17 +805,19 @@ def test_a_push_the_arm_cannot_follow_is_refused_and_the_largest_taken_leaves_th
         "change is force_scale x |force| x duration / mass)")}
     before = live.client.get("/api/state").json()["satellites"][0]["applied_force_N"]
     assert np.linalg.norm(before) < 1e-9  # nothing pushes
-    r = _push(live, [-5.0, 0.0, 0.0], limit / 5.0)  # 1 kg, force scale 1: Δv = 5 N x T
-    # (against its motion: a push that brought its course's exit sooner would be refused)
+    # 1 kg, force scale 1: Δv = 0.25 N x T; over 0.4 s, so that it is still under way
+    # when the next request comes, however busy the machine (against its motion: a push
+    # that brought its course's exit sooner would be refused)
+    r = _push(live, [-0.25, 0.0, 0.0], limit / 0.25)
     assert r.status_code == 200, r.text
     r2 = _push(live, [0.0, 0.0, 5.0], 0.01)  # on top of it: beyond the limit together
     assert r2.status_code == 422
     assert "velocity by 0.050 m/s with 0.100 m/s already under way" in r2.json()["detail"]
-    end_s = r.json()["t_s"] + limit / 5.0
+    end_s = r.json()["t_s"] + limit / 0.25
     live.wait_for(lambda s: s["t_s"] >= end_s + 0.1, timeout_s=30.0)
     # once it has ended, the same push again: the run's pushes add up (20 small pushes
     # in a row once took a satellite to 0.63 m/s and the run to a stop)
-    r3 = _push(live, [-5.0, 0.0, 0.0], limit / 5.0)
+    r3 = _push(live, [-0.25, 0.0, 0.0], limit / 0.25)
     assert r3.status_code == 422
     assert r3.json()["detail"].startswith(
         "force_N, duration_s: the pushes of this run would change satellite 1's velocity by "

@@ -49,6 +49,9 @@ OBJECT_STORE_BYTES = 256 * 2**20
 """A local Ray's object store: runs return only their metrics."""
 IDEAL_CACHE = 64
 """Ideal references kept for runs still to come (runs of one configuration are adjacent)."""
+IDEAL_APART_TIMEOUT_S = 300.0
+"""How long the first ideal run, computed apart while Ray starts, is waited for (a
+pre-flight and its forecast take seconds) before a Ray task computes it instead."""
 LOOKAHEAD_RUNS = 256
 """How far ahead of the runs under way the sweep looks for ideal references to start."""
 
@@ -223,17 +226,17 @@ def _ideal_apart(run: Run) -> Apart | None:
 
 def _resolve_apart(ideals: OrderedDict, run: Run, ideal_task, ray, summary: dict) -> None:
     """The ideal run computed apart (:func:`_ideal_apart`), waited for and put into Ray's
-    object store for the runs that need it; if its process died, a Ray task as any
-    other's."""
+    object store for the runs that need it; if its process died or gave no answer within
+    :data:`IDEAL_APART_TIMEOUT_S` (it is then killed), a Ray task as any other's."""
     computing = ideals.pop(run.ideal_id)
     try:
-        ideals[run.ideal_id] = ray.put(computing.result())
-        summary["ideal_runs"] += 1
-        summary["ideal_runs_apart"] += 1
-    except (OSError, EOFError, pickle.UnpicklingError):  # it died: a Ray task
+        ideal = computing.result(IDEAL_APART_TIMEOUT_S)
+    except (OSError, EOFError, pickle.UnpicklingError):  # it died or hung: a Ray task
         _ideal_ref(ideals, run, ideal_task, summary)
-    finally:
-        computing.stop()
+        return
+    ideals[run.ideal_id] = ray.put(ideal)
+    summary["ideal_runs"] += 1
+    summary["ideal_runs_apart"] += 1
 
 
 def _drop(computing: Apart | None) -> None:

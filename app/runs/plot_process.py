@@ -289,7 +289,12 @@ def _side_by_side(jobs: dict) -> dict:
             other = apart(_do_share, {key: jobs[key][1] for key in there})
         except OSError:  # no second process: all done here
             here, there = here + there, []
-    out = {key: jobs[key][1]() for key in here}
+    try:
+        out = {key: jobs[key][1]() for key in here}
+    except BaseException:
+        if other is not None:
+            other.stop()
+        raise
     if other is not None:
         try:
             theirs = other.result(CHILD_TIMEOUT_S)

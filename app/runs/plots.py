@@ -221,15 +221,16 @@ X_AXIS_IN = (3.5 + 3.5 + 10 * 1.2 + 4 + 10 * 1.2) * _PT_IN + PAD_IN
 def _frames(figure: Figure, title: str, height_in: float, text_in: float
             ) -> list[tuple[float, float]]:
     """Each panel's axes (bottom, height) in figure fractions, top to bottom: under the
-    title, each panel's title above its axes, the x axis under the last, the text under
-    it; the axes alike in height."""
+    title, a title line's room above each panel's axes (its title; titled or not, the
+    axis's multiplier such as "1e6" is drawn there), the x axis under the last, the text
+    under it; the axes alike in height."""
     top_in = PAD_IN + TITLE_LINE_IN * (title.count("\n") + 1) + PAD_IN
-    titles_in = sum(PANEL_TITLE_IN if p.title else PANEL_GAP_IN for p in figure.panels)
+    titles_in = PANEL_TITLE_IN * len(figure.panels)
     n = len(figure.panels)
     axes_in = (height_in - top_in - titles_in - X_AXIS_IN - text_in) / n
     frames, y_in = [], height_in - top_in
-    for panel in figure.panels:
-        y_in -= PANEL_TITLE_IN if panel.title else PANEL_GAP_IN
+    for _ in figure.panels:
+        y_in -= PANEL_TITLE_IN
         y_in -= axes_in
         frames.append((y_in / height_in, axes_in / height_in))
     return frames

@@ -111,7 +111,9 @@ class Apart:
     def result(self, timeout_s: float | None = None):
         """The call's result, once it has come (within ``timeout_s``, if given); the
         process is then ended. OSError where it failed or died (ChildProcessError) or did
-        not answer in time (TimeoutError; it is then killed)."""
+        not answer in time (TimeoutError; it is then killed); an answer cut short does
+        not unpickle (pickle.UnpicklingError, EOFError). What failed there is not said:
+        the caller does the call itself, where it fails in the open."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         chunks, answered = [], False
         try:
@@ -127,7 +129,7 @@ class Apart:
             answered = True
         finally:
             status = self.stop(kill=not answered)  # (answered: it is ending by itself)
-        if status != 0:
+        if status not in (0, None):  # (None: reaped elsewhere; its answer is whole or not)
             raise ChildProcessError(f"the process apart ended with status {status}")
         return pickle.loads(b"".join(chunks))
 

@@ -190,3 +190,29 @@ def test_the_summary_labels_net_and_pushed_delta_v_and_lists_the_criteria(runs):
     rendezvous = run_summary(runs["rendezvous"][0].metrics)
     assert "no_contact passed" in rendezvous and "final_position" in rendezvous
     assert "(limit 0.5 m)" in rendezvous
+
+
+def test_an_axis_multiplier_has_room_above_its_panel_titled_or_not():
+    """The layout is computed once (app/runs/plots.py _frames): an axis whose values call
+    for a multiplier ("1e6" over its top-left corner) gets it in the room above its
+    axes, titled or not: between the panel above's axes and its own there is the
+    multiplier's height and half a tick label's (a tick label at the edge of the panel
+    above reaches that far), and a title clears it."""
+    from app.runs.plots import Figure, Line, Panel
+
+    t = np.linspace(0.0, 1.0, 50)
+    panels = [Panel("big", [Line(t, 3e6 * np.sin(6 * t) + 1e6 * k, "a")], 1.0,
+                    title="titled" if k == 1 else "") for k in range(3)]
+    fig = draw(Figure("synthetic", "three panels", panels))
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    axes = fig.axes
+    for above, below in zip(axes, axes[1:], strict=False):
+        offset = below.yaxis.get_offset_text()
+        assert offset.get_text(), "the values call for a multiplier"
+        multiplier = offset.get_window_extent(renderer)
+        tick = above.get_yticklabels()[0].get_window_extent(renderer)
+        assert above.bbox.y0 - below.bbox.y1 >= multiplier.height + tick.height / 2
+        if below.get_title():
+            assert not multiplier.overlaps(below.title.get_window_extent(renderer))
+    plt.close("all")
