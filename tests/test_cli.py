@@ -406,3 +406,17 @@ def test_a_run_writes_the_same_files_with_its_setting_kept_or_computed(tmp_path)
     assert metrics[0]["collision"]["restitution_interval_95"] is not None
     for f in figures:
         assert (first / f["file"]).read_bytes() == (second / f["file"]).read_bytes()
+
+
+def test_main_called_from_other_code_returns_after_run(tmp_path):
+    """Only the program itself (the console script, python -m app.cli) ends at once after
+    `run`; main() called from other code, even with the process's arguments, returns
+    its status to the caller."""
+    code = ("import sys; sys.argv = ['orbit-emulator', 'run', 'collision', '--mode', "
+            f"'ideal', '--duration', '0.2', '--out', {str(tmp_path / 'out')!r}, '--quiet']\n"
+            "from app.cli import main\nstatus = main()\nprint('returned', status)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "returned 0"
+    assert (tmp_path / "out" / "metrics.json").is_file()

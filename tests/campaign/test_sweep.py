@@ -602,3 +602,14 @@ def test_the_first_ideal_run_computed_apart_while_ray_starts_is_the_one_a_worker
     sweep_ray._resolve_apart(ideals, run, IdealTask, Ray, summary)
     assert ideals["c0"] == "a Ray task's ref" and submitted == [config]
     assert summary == {"ideal_runs": 2, "ideal_runs_apart": 1}
+
+    hung = apart(time.sleep, 60.0)  # a process apart that does not answer in time
+    ideals = OrderedDict(c0=hung)
+    t0 = time.monotonic()
+    sweep_ray.IDEAL_APART_TIMEOUT_S, kept = 0.5, sweep_ray.IDEAL_APART_TIMEOUT_S
+    try:
+        sweep_ray._resolve_apart(ideals, run, IdealTask, Ray, summary)
+    finally:
+        sweep_ray.IDEAL_APART_TIMEOUT_S = kept
+    assert time.monotonic() - t0 < 5.0 and hung.stop() == -signal.SIGKILL
+    assert ideals["c0"] == "a Ray task's ref" and submitted == [config, config]
