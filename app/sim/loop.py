@@ -542,17 +542,19 @@ class Emulator:
 
     def _predicted(self, force_R: np.ndarray, torque_B: np.ndarray) -> list[np.ndarray]:
         """Each arm's ODS state ``lead_s`` ahead of the committed one under the cycle's
-        whole input (force_R, torque_B: app/sim/compensation.py predicted_state): the
-        states the ODS step worked out in its call (:meth:`ods_advance`) while the
-        committed state is the one they start from (a capture rewrites it: then anew)."""
+        whole input (force_R, torque_B: app/sim/compensation.py predicted_state), once per
+        lead: the states the ODS step worked out in its call (:meth:`ods_advance`) while
+        the committed state is the one they start from (a capture rewrites it: then anew)."""
         ahead, self._ahead = self._ahead, None
-        if ahead is None or ahead[0] is not self.ods.y:
-            return [predicted_state(self.ods, force_R, torque_B, arm.lead_s)
-                    for arm in self.arms]
-        slot, states = self._lead_slot, ahead[1]
-        return [states[slot[arm.lead_s]] if arm.lead_s in slot
-                else predicted_state(self.ods, force_R, torque_B, arm.lead_s)
-                for arm in self.arms]
+        from_step = ahead is not None and ahead[0] is self.ods.y
+        made: dict[float, np.ndarray] = {}
+        for arm in self.arms:
+            lead = arm.lead_s
+            if lead not in made:
+                made[lead] = (ahead[1][self._lead_slot[lead]]
+                              if from_step and lead in self._lead_slot
+                              else predicted_state(self.ods, force_R, torque_B, lead))
+        return [made[arm.lead_s] for arm in self.arms]
 
     def _advance_compound(self, y_next: np.ndarray, force_R: np.ndarray,
                           torque_B: np.ndarray) -> np.ndarray:
