@@ -271,12 +271,6 @@ def push_pose(poses, at, T_W_F, T_W_C, accel, age):
     return (head - min(age, kept - 1)) % k
 
 
-@njit(cache=True, fastmath=False)
-def aligned_pose(poses, at, T_W_F, T_W_C, accel, age):
-    """:func:`push_pose` as a call of its own (the stages')."""
-    return push_pose(poses, at, T_W_F, T_W_C, accel, age)
-
-
 # --- the sensor and the processing chain ---------------------------------------------------
 
 
@@ -563,7 +557,7 @@ class WrenchProcessor:
                  accel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(T_W_F, T_W_C, accel) of the cycle the arriving reading was taken in (views
         of the ring, where this cycle's are kept too)."""
-        row = self._poses[aligned_pose(self._poses, self._pose_at, T_W_F, T_W_C,
+        row = self._poses[push_pose(self._poses, self._pose_at, T_W_F, T_W_C,
                                        np.asarray(accel, dtype=float),
                                        self.reading_age_cycles)]
         return row[0:16].reshape(4, 4), row[16:32].reshape(4, 4), row[32:35]
