@@ -25,6 +25,7 @@ import signal
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 
 PR_SET_PDEATHSIG = 1
 """prctl's option: the signal a process gets when its parent ends (linux/prctl.h)."""
@@ -52,9 +53,9 @@ def _cgroup_cpus() -> int | None:
                                     ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us",
                                      "/sys/fs/cgroup/cpu/cpu.cfs_period_us")):
         try:
-            fields = open(quota_file).read().split()
+            fields = Path(quota_file).read_text().split()
             if period_file is not None:
-                fields.append(open(period_file).read().strip())
+                fields.append(Path(period_file).read_text().strip())
             quota, period = fields[0], fields[1]
             if quota in ("max", "-1"):
                 return None
@@ -169,7 +170,7 @@ def apart(fn, *args) -> Apart:
         status = 1
         try:
             os.close(reader)
-            _adopt(None, (), None, parent)
+            _detach(parent)
             data = pickle.dumps(fn(*args))
             with os.fdopen(writer, "wb") as pipe:
                 pipe.write(data)
@@ -186,10 +187,16 @@ def _adopt(fn, args: tuple, noise, parent_pid: int) -> None:
     computes its replicates itself); and the worker dies with the run's process however
     that ends (killed: it would otherwise wait for work for ever)."""
     global _job
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the run's "SIGTERM as Ctrl+C"
-    _die_with(parent_pid)
+    _detach(parent_pid)
     _job = (fn, args, noise)
+
+
+def _detach(parent_pid: int) -> None:
+    """A forked process's signals: Ctrl+C ignored (its parent's to handle), SIGTERM ends
+    it (not the run's "SIGTERM as Ctrl+C"), and it dies with its parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _die_with(parent_pid)
 
 
 def _die_with(parent_pid: int) -> None:
