@@ -256,17 +256,17 @@ def _final(plan: list, early: dict, done: dict, note: str) -> dict:
 
     rendered, left = {}, {}
     for f in plan:
-        was = early.get(f.name)
+        was, sig = early.get(f.name), signature(f, note)
         if was is not None and not f.text and ("png", f.name) in done \
-                and signature(was, note) == signature(f, note):
-            rendered[f.name] = (signature(f, note), done["png", f.name])
-        elif was is not None and f.text and ("panels", f.name) in done \
+                and signature(was, note) == sig:
+            rendered[f.name] = (sig, done["png", f.name])
+            continue
+        rendered[f.name] = (sig, None)  # drawn now: its text's strip, or all of it
+        if was is not None and f.text and ("panels", f.name) in done \
                 and panels_signature(was, note) == panels_signature(f, note):
             left[f.name] = (1, functools.partial(render, f, note, done["panels", f.name]))
-            rendered[f.name] = (signature(f, note), None)  # (its text's strip to draw)
         else:
             left[f.name] = (1 + len(f.panels), functools.partial(render, f, note))
-            rendered[f.name] = (signature(f, note), None)
     drawn = _side_by_side(left)
     return {name: (sig, drawn[name] if png is None else png)
             for name, (sig, png) in rendered.items()}
