@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import pickle
 import re
+import signal
 import socket
 import sys
 import threading
@@ -105,7 +106,6 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
     except BaseException:
         _drop(early)
         raise
-    interrupt_on_sigterm()  # after ray.init, which installs a handler of its own
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         summary["workers"] = min(cpus, workers) if workers else cpus
@@ -291,9 +291,9 @@ def start_ray(address: str | None, workers: int | None):
               "logging_level": logging.WARNING, "configure_logging": True}
     if address is None:
         # at most one worker per core here: more only share the cores and the memory
-        ray.init(address="local", num_cpus=min(workers or os.cpu_count() or 1,
-                                               os.cpu_count() or 1),
-                 object_store_memory=OBJECT_STORE_BYTES, **common)
+        _init_holding_signals(ray, address="local",
+                              num_cpus=min(workers or os.cpu_count() or 1, os.cpu_count() or 1),
+                              object_store_memory=OBJECT_STORE_BYTES, **common)
         return ray
     host, port = parse_address(address)
     probe_address(host, port)
@@ -301,6 +301,37 @@ def start_ray(address: str | None, workers: int | None):
         os.environ["RAY_AUTH_MODE"] = "token"  # as Ray does for a cluster it finds itself
     _join(ray, f"{host}:{port}", common)
     return ray
+
+
+def _init_holding_signals(ray, **options) -> None:
+    """``ray.init(**options)`` with a Ctrl+C or SIGTERM that comes meanwhile held until it
+    returns; then Ray is shut down again and the sweep ends as interrupted (no run has
+    started). Acted on where it came, it ended ``ray.init`` half-way: its agents were
+    left running, and its own SIGTERM handler exited at once (status 15) or, once its
+    core had started, aborted (134). Ray sets that handler through
+    ``ray._private.utils.set_sigterm_handler``, which is held to nothing meanwhile; the
+    sweep's own (:func:`interrupt_on_sigterm`) follows."""
+    came: list[int] = []
+    main = threading.current_thread() is threading.main_thread()
+    if main:
+        before = {sig: signal.signal(sig, lambda signum, frame: came.append(signum))
+                  for sig in (signal.SIGINT, signal.SIGTERM)}
+    utils = getattr(getattr(ray, "_private", None), "utils", None)
+    own = getattr(utils, "set_sigterm_handler", None)
+    if own is not None:
+        utils.set_sigterm_handler = lambda handler: None
+    try:
+        ray.init(**options)
+    finally:
+        if own is not None:
+            utils.set_sigterm_handler = own
+        if main:
+            for sig, handler in before.items():
+                signal.signal(sig, handler)
+            interrupt_on_sigterm()
+    if came:
+        ray.shutdown()
+        raise KeyboardInterrupt
 
 
 def _auth_token_available() -> bool:
@@ -349,7 +380,7 @@ def _join(ray, address: str, options: dict) -> None:
     timer.daemon = True
     timer.start()
     try:
-        ray.init(address=address, **options)
+        _init_holding_signals(ray, address=address, **options)
     except Exception as err:  # noqa: BLE001 - Ray raises many kinds; all are this
         raise ValueError(f"--address {address}: cannot join the Ray cluster: "
                          f"{' '.join(str(err).split())}") from None

@@ -339,6 +339,49 @@ metrics = ["satellites.0.position_error_max_m"]
                            and "zombie" not in _state(p)], 30, "Ray's processes to end")
 
 
+@pytest.mark.parametrize("when", ["raylet", "agent"])
+def test_a_sigterm_while_ray_starts_ends_the_sweep_as_interrupted_and_leaves_nothing(
+        when, tmp_path):
+    """A scheduler's SIGTERM while ray.init is still starting Ray's processes (as soon as
+    the raylet, or one of its agents, is up): the sweep ends as interrupted (130, not
+    Ray's own exit 15 or an abort), says that no run had ended, and every process Ray
+    had started ends with it (none is left to init)."""
+    (tmp_path / "spec.toml").write_text("""
+scenario = "free-floating-scripted"
+duration_s = 0.5
+seeds = [0, 1]
+metrics = ["realtime_factor"]
+""")
+    proc = subprocess.Popen([EXE, "sweep", "spec.toml", "--out", "out", "--quiet"],
+                            cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    seen: set[int] = set()
+
+    def up(cmdline: str) -> bool:  # an agent names itself ray::DashboardAgent and the like
+        return ("/raylet" in cmdline if when == "raylet"
+                else cmdline.startswith("ray::") and "Agent" in cmdline)
+
+    def started():
+        seen.update(_descendants(proc.pid))
+        return any(up(_cmdline(p)) for p in seen)
+
+    try:
+        _wait_for(started, 120, f"Ray's {when}")
+        proc.send_signal(signal.SIGTERM)
+        while proc.poll() is None:
+            seen.update(_descendants(proc.pid))
+            time.sleep(0.05)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1] == "interrupted: no run had ended"
+    assert not (tmp_path / "out" / "results.csv").exists()
+    _wait_for(lambda: not [p for p in seen if Path(f"/proc/{p}").exists()
+                           and "zombie" not in _state(p)], 30, "Ray's processes to end")
+
+
 def _state(pid: int) -> str:
     try:
         return (Path("/proc") / str(pid) / "status").read_text().split("State:")[1].split("\n")[0]
