@@ -115,12 +115,12 @@ def _report_run(result) -> int:
     from app.runs.report import run_summary
 
     metrics = result.metrics
-    print(run_summary(metrics))
-    print(f"\nwrote {', '.join(str(p) for p in result.files)}")
+    _say(run_summary(metrics))
+    _say(f"\nwrote {', '.join(str(p) for p in result.files)}")
     written = [p for p in result.files if str(p).endswith("figures.json")]
     if written and not any(str(p).endswith(".png") for p in result.files):
-        print("no figure: nothing in this run moved beyond what a figure could show "
-              "(docs/outputs.md)")
+        _say("no figure: nothing in this run moved beyond what a figure could show "
+             "(docs/outputs.md)")
     if result.unwritten is not None:
         for problem in result.unwritten.problems:
             print(f"error: {problem}", file=sys.stderr)
@@ -150,8 +150,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         summary = run_sweep(plan, out, address=args.address, workers=args.workers,
                             resume=args.resume, keep=args.keep, quiet=args.quiet)
     except KeyboardInterrupt:
-        print(f"interrupted: the runs that ended are in {out / 'results.csv'} "
-              f"(--resume continues the sweep)", file=sys.stderr)
+        table = out / "results.csv"
+        kept = (f"the runs that ended are in {table} (--resume continues the sweep)"
+                if table.is_file() else "no run had ended")
+        print(f"interrupted: {kept}", file=sys.stderr)
         return 130
     print(describe(summary, out))
     failed = {s: summary["counts"].get(s, 0) for s in ("error", "lost")}
@@ -402,11 +404,59 @@ def program() -> None:
     """The `orbit-emulator` program (and ``python -m app.cli``): :func:`main` on the
     process's arguments, then the process ends with its status; after `run`, at once
     (:func:`_exit_at_once`)."""
+    _open_standard_streams()
     args = build_parser().parse_args()
-    status = _dispatch(args)
+    try:
+        status = _dispatch(args)
+    except BrokenPipeError:  # a command's last lines, to a reader that went away
+        _silence_stdout()
+        status = 1
     if args.func is _cmd_run:
         _exit_at_once(status)
+    _flush_stdout()
     sys.exit(status)
+
+
+def _open_standard_streams() -> None:
+    """A standard stream the caller closed (``run >&-``) opened on /dev/null instead: a
+    command that writes to it then writes to nothing, where the closed descriptor made
+    Python's stream None (an AttributeError in the first flush) and would have been
+    the first file the run opened (its telemetry receiving what was printed)."""
+    for fd, name in ((0, "stdin"), (1, "stdout"), (2, "stderr")):
+        try:
+            os.fstat(fd)
+        except OSError:
+            got = os.open(os.devnull, os.O_RDWR)
+            if got != fd:
+                os.dup2(got, fd)
+                os.close(got)
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(fd, "r" if fd == 0 else "w", closefd=False))  # noqa: SIM115
+
+
+def _silence_stdout() -> None:
+    """What is left to print goes to /dev/null: stdout's reader went away (``run |
+    head``), which is no fault of the command (its files are written)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
+def _flush_stdout() -> None:
+    """stdout flushed; to a reader gone away, silenced (not a traceback at exit)."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+
+
+def _say(text: str) -> None:
+    """``print(text)`` for a command's report: a reader gone away silences the rest of
+    stdout, and the command goes on (its status and its errors on stderr stay)."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        _silence_stdout()
 
 
 def _dispatch(args) -> int:
@@ -436,7 +486,7 @@ def _exit_at_once(status: int) -> None:
     threading._shutdown()
     atexit._run_exitfuncs()
     logging.shutdown()
-    sys.stdout.flush()
+    _flush_stdout()
     sys.stderr.flush()
     os._exit(status)
 

@@ -420,3 +420,39 @@ def test_main_called_from_other_code_returns_after_run(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.splitlines()[-1] == "returned 0"
     assert (tmp_path / "out" / "metrics.json").is_file()
+
+
+def test_a_run_whose_output_reader_went_away_keeps_its_status_and_its_files(tmp_path):
+    """`run | head`: stdout's reader gone before the summary is printed is no failure of
+    the run: no traceback, the run's own exit status (3 for a safety stop, 0 otherwise),
+    its errors still on stderr, its files written."""
+    for setting, status in (("loop.seed=1", 0), ("loop.max_tracking_error_m=1e-5", 3)):
+        out = tmp_path / setting.split("=")[0]
+        read, write = os.pipe()
+        os.close(read)  # nobody reads: the first write gets EPIPE
+        proc = subprocess.run([EXE, "run", "collision", "--duration", "0.5", "--quiet",
+                               "--set", setting, "--out", str(out)],
+                              stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+        os.close(write)
+        assert proc.returncode == status, proc.stderr
+        assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr
+        assert (status == 3) == ("error: the run ended in a safety stop" in proc.stderr)
+        assert {p.name for p in out.iterdir()} >= {"metrics.json", "telemetry.csv"}
+
+
+@pytest.mark.parametrize("closed", [1, 2], ids=["stdout", "stderr"])
+def test_a_run_with_a_closed_standard_stream_runs_and_writes_nothing_of_it_to_its_files(
+        closed, tmp_path):
+    """`run >&-` (or `2>&-`): a closed descriptor is /dev/null for the command, not the
+    first file it opens; the run ends as any other and its telemetry is a table."""
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [EXE, "run", "free-floating-scripted", "--duration", "0.5", "--out", str(out)],
+        stdin=subprocess.DEVNULL, capture_output=False, timeout=120,
+        stdout=subprocess.DEVNULL if closed == 2 else None,
+        stderr=subprocess.DEVNULL if closed == 1 else None,
+        preexec_fn=lambda: os.close(closed))
+    assert proc.returncode == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["status"] == "finished"
+    assert (out / "telemetry.csv").read_text().startswith("t_s,")

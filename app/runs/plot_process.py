@@ -161,8 +161,9 @@ def prestart(out_dir: str | Path, config, shape: tuple[int, int],
     draws); raises the OSError of a fork that failed (EAGAIN, ENOMEM)."""
     if "fork" not in multiprocessing.get_all_start_methods():
         return None
-    sys.stdout.flush()  # nothing the run printed is written twice by the child
-    sys.stderr.flush()
+    for stream in (sys.stdout, sys.stderr):  # nothing the run printed is written twice
+        if stream is not None:  # by the child (None: a descriptor the caller closed)
+            stream.flush()
     shape = (int(shape[0]), int(shape[1]))
     shared = mmap.mmap(-1, max(1, 8 * shape[0] * shape[1]))  # anonymous, shared with the fork
     context = multiprocessing.get_context("fork")
