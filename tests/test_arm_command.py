@@ -12,7 +12,7 @@ from app.scenarios import load_scenario
 from app.sim.arm_command import ArmCommand
 from app.sim.orbital import OrbitalSimulator
 from app.sim.rig import ArmRig, build_rig
-from app.sim.rotations import make_transform, quat_to_matrix, rotvec_to_matrix
+from app.sim.rotations import make_transform, matrix_to_quat, quat_to_matrix, rotvec_to_matrix
 from app.sim.servo import SafetyBox
 
 
@@ -32,9 +32,22 @@ def _state(rig: ArmRig) -> list:
             s._sp_prev, *rig.mockup_state_W()]
 
 
-def _drive(rig: ArmRig, cycles: int, speed_mps: float, spin_radps: float) -> tuple:
+def _ods_state(rig: ArmRig, T_B_C: np.ndarray) -> np.ndarray:
+    """An ODS state (2, 13) whose satellite ``rig.satellite`` is at the TCP pose T_B_C
+    (to rounding: what matters is that both rigs get the same state)."""
+    T_R_C = np.linalg.inv(rig.T_B_R) @ T_B_C
+    y = np.zeros((2, 13))
+    y[:, 6] = 1.0
+    y[rig.satellite, 0:3] = T_R_C[:3, 3]
+    y[rig.satellite, 6:10] = matrix_to_quat(T_R_C[:3, :3])
+    return y
+
+
+def _drive(rig: ArmRig, cycles: int, speed_mps: float, spin_radps: float,
+           towards: bool = False) -> tuple:
     """The fused rig and a deep copy taking the stages, both sent along the same target
-    path (a line from the home TCP pose and a spin about a tilted axis); asserts that
+    path (a line from the home TCP pose and a spin about a tilted axis; ``towards``: as
+    the satellite's pose in an ODS state, :meth:`ArmRig.command_towards`); asserts that
     every written field and the new FK stay bit-identical. Returns the two rigs."""
     staged = copy.deepcopy(rig)
     T0 = rig.vfdm.tcp_pose()
@@ -44,8 +57,13 @@ def _drive(rig: ArmRig, cycles: int, speed_mps: float, spin_radps: float) -> tup
         T = T0.copy()
         T[:3, 3] += np.array([1.0, -0.4, 0.3]) * speed_mps * k * dt
         T[:3, :3] = rotvec_to_matrix(axis * spin_radps * k * dt) @ T0[:3, :3]
-        rig.command(T)
-        staged.command_in_stages(T)
+        if towards:
+            y = _ods_state(rig, T)
+            rig.command_towards(y)
+            staged.command_in_stages(staged.tcp_target_B(y))
+        else:
+            rig.command(T)
+            staged.command_in_stages(T)
         st = rig.servo.state  # the fused call left the new state's FK in the cache
         assert rig._state_key[0] is st.q_rad and rig._state_key[1] is st.qd_radps
         assert staged._state_key is None or staged._state_key[0] is not staged.servo.state.q_rad
@@ -54,42 +72,54 @@ def _drive(rig: ArmRig, cycles: int, speed_mps: float, spin_radps: float) -> tup
     return rig, staged
 
 
-def test_the_fused_command_is_the_stages_to_the_last_bit():
-    rig, _ = _drive(_rig({}), 300, 0.05, 0.2)
+TOWARDS = pytest.mark.parametrize("towards", [False, True], ids=["target", "towards"])
+
+
+@TOWARDS
+def test_the_fused_command_is_the_stages_to_the_last_bit(towards):
+    rig, _ = _drive(_rig({}), 300, 0.05, 0.2, towards)
     assert isinstance(rig._fused, ArmCommand)  # the fused path ran
     assert rig.vfdm.last_scale == 1.0 and not rig.servo.stopped
 
 
-def test_the_fused_command_is_the_stages_with_sync_reset_and_pd_and_no_delay():
+@TOWARDS
+def test_the_fused_command_is_the_stages_with_sync_reset_and_pd_and_no_delay(towards):
     overrides = {"vfdm": {"sync_to_measured": True, "velocity_mode": "reset",
                           "kd_lin": 0.5, "kd_rot": 0.1},
                  "servo": {"delay_cycles": 0}}
-    rig, _ = _drive(_rig(overrides), 200, 0.05, 0.2)
+    rig, _ = _drive(_rig(overrides), 200, 0.05, 0.2, towards)
     assert len(rig.servo._ring) == 0
 
 
-def test_the_fused_command_is_the_stages_when_limits_act_and_the_arm_stops():
+@TOWARDS
+def test_the_fused_command_is_the_stages_when_limits_act_and_the_arm_stops(towards):
     # a target far faster than the joints may go: the VFDM scales its steps down
-    rig, _ = _drive(_rig({}), 60, 3.0, 4.0)
+    rig, _ = _drive(_rig({}), 60, 3.0, 4.0, towards)
     assert rig.vfdm.last_scale < 1.0
     # a safety box 1 cm around the TCP: the controller stops the arm, which then brakes
     rig = _rig({})
     box = rig.servo.safety
     p_W = box.tcp_position_W(rig.servo.state.q_rad)
     rig.servo.safety = SafetyBox(p_W - 0.01, p_W + 0.01, box.chain)
-    rig, _ = _drive(rig, 80, 0.5, 0.0)
+    rig, _ = _drive(rig, 80, 0.5, 0.0, towards)
     assert rig.servo.stopped and rig.servo.reason == "TCP left safety volume"
     assert np.all(np.abs(rig.servo.state.qd_radps) < 1e-3)  # braked to rest since
 
 
 @pytest.mark.parametrize("fields", ["vfdm", "servo"])
-def test_a_replaced_vfdm_or_servo_is_what_the_fused_command_drives(fields):
+@TOWARDS
+def test_a_replaced_vfdm_or_servo_is_what_the_fused_command_drives(fields, towards):
     rig = _rig({})
-    rig.command(rig.vfdm.tcp_pose())
+
+    def command():
+        T = rig.vfdm.tcp_pose()
+        rig.command_towards(_ods_state(rig, T)) if towards else rig.command(T)
+
+    command()
     old = rig._fused
     setattr(rig, fields, copy.deepcopy(getattr(rig, fields)))
     q_before = rig.servo.state.q_rad
-    rig.command(rig.vfdm.tcp_pose())
+    command()
     assert rig._fused is not old and getattr(rig._fused, fields) is getattr(rig, fields)
     assert rig.servo.state.q_rad is not q_before  # the servo in the rig stepped
 

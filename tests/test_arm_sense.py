@@ -9,6 +9,7 @@ import pytest
 
 from app.config import merge_overrides
 from app.scenarios import load_scenario
+from app.sim.ft_sensor import NORMALS_BLOCK
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import make_transform, quat_to_matrix
 
@@ -28,7 +29,8 @@ def _fields(rig: ArmRig, out) -> list:
     s, p = rig.sensor, rig.processor
     return [out.force_R_N, out.torque_B_Nm, out.wrench_S, rig.last_raw_S,
             rig.last_processed, rig.v_W_prev, s._ring, s._head, s._held_for, s.age_cycles,
-            s._calls, s.rng.bit_generator.state["state"]["state"], p._state_S,
+            s._calls, s.rng.bit_generator.state["state"]["state"], s._normals_at,
+            s._normals, p._state_S,
             p._contact_state_S, p._gate_was_open, p.reading_age_cycles, p._poses,
             p._pose_at]
 
@@ -73,6 +75,16 @@ def test_the_fused_sensor_path_is_the_stages_to_the_last_bit(overrides):
     gates, peak_N = _drive(*_calibrated(overrides), 110)
     assert any(gates) and not all(gates)
     assert peak_N > 20.0  # the contact came through
+
+
+def test_the_fused_sensor_path_draws_the_stages_noise_across_blocks():
+    # the fused path hands out the sensor's block of normals itself: through the end of
+    # a block, a reset of the sensor (its ring refilled) and a gate that opens and closes
+    rig, R_W_R = _calibrated({})
+    _drive(rig, R_W_R, NORMALS_BLOCK - 40)
+    assert rig.sensor._normals_at == 10  # 50 calibration readings, then the cycles
+    rig.sensor.reset()
+    _drive(rig, R_W_R, 100)
 
 
 def test_a_sensor_slower_than_the_loop_or_on_the_body_takes_the_stages():

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
 from app.config import SensorConfig, WrenchProcessingConfig
 from app.sim.ft_sensor import (
+    NORMALS_BLOCK,
     Calibration,
     VirtualFTSensor,
     WrenchProcessor,
@@ -179,6 +182,42 @@ def test_same_seed_same_readings_and_different_seed_differs():
 
     np.testing.assert_array_equal(run(5), run(5))
     assert not np.array_equal(run(5), run(6))
+
+
+def test_the_noise_drawn_in_blocks_is_the_stream_of_six_draws_a_call():
+    """The sensor draws its normals NORMALS_BLOCK rows at a time; call after call they
+    are bit for bit ``rng.standard_normal(6)`` of a twin generator, over several blocks,
+    through a reset, in a deep copy taken mid-block (as copy_state takes one: copy and
+    original go on alike and apart), and after a new generator is assigned mid-block (a
+    replicate's reseeding); the readings carry exactly these draws."""
+    sensor, ref = _sensor(seed=11), np.random.default_rng(11)
+
+    def same(s, r, calls):
+        for _ in range(calls):
+            np.testing.assert_array_equal(s.next_normals(), r.standard_normal(6))
+
+    same(sensor, ref, NORMALS_BLOCK + 100)
+    twin, twin_ref = copy.deepcopy(sensor), copy.deepcopy(ref)
+    sensor.reset()
+    same(sensor, ref, 2 * NORMALS_BLOCK)
+    same(twin, twin_ref, NORMALS_BLOCK + 7)
+    same(sensor, ref, 3)
+    sensor.rng, ref = np.random.default_rng(12), np.random.default_rng(12)
+    same(sensor, ref, NORMALS_BLOCK + 1)
+    # the readings: the noiseless reading plus σ times the draws, to the last bit
+    cfg = SensorConfig(delay_cycles=0)
+    noisy = VirtualFTSensor(cfg, MASS_KG, G_W, np.random.default_rng(3))
+    quiet = VirtualFTSensor(cfg.model_copy(update={"noise_force_N": 0.0,
+                                                   "noise_torque_Nm": 0.0}),
+                            MASS_KG, G_W, np.random.default_rng(3))
+    ref = np.random.default_rng(3)
+    for k in range(NORMALS_BLOCK + 20):
+        if k == 300:
+            noisy.reset()
+            quiet.reset()
+        expected = quiet.measure(np.zeros(6), T_W_C, T_W_F) + noisy.noise_std_S * \
+            ref.standard_normal(6)
+        np.testing.assert_array_equal(noisy.measure(np.zeros(6), T_W_C, T_W_F), expected)
 
 
 def test_calibration_estimates_bias_mass_and_com_from_several_poses():

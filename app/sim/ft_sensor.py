@@ -49,6 +49,9 @@ __all__ = [
 
 
 _ZERO3 = np.zeros(3)
+NORMALS_BLOCK = 512
+"""Rows of six standard normals a sensor draws from its generator at a time."""
+_NO_NORMALS = np.empty((0, 6))
 
 
 def _packed(slot: slice, doc: str, scalar: bool = False) -> property:
@@ -312,7 +315,7 @@ class VirtualFTSensor:
         ``range_S`` are views of it (:data:`SENSOR_CONSTANTS`)."""
         self.mass_kg = float(mass_kg)
         self.gravity_W_mps2 = gravity_W_mps2
-        self.rng = rng
+        self.rng = rng  # (the property: an empty block of normals)
         self.bias_S = np.array([*config.bias_force_N, *config.bias_torque_Nm], dtype=float)
         self.noise_std_S = np.array(
             [config.noise_force_N] * 3 + [config.noise_torque_Nm] * 3, dtype=float
@@ -329,8 +332,35 @@ class VirtualFTSensor:
         """How many calls ago the reading last handed out was taken: the delay, plus the
         cycles it had been held (a lab knows it from the sensor's sample counter)."""
 
+    @property
+    def rng(self) -> np.random.Generator:
+        """The generator the noise is drawn from, by blocks of :data:`NORMALS_BLOCK` × 6
+        (:meth:`next_normals`), which this sensor alone draws from; assigning one (a
+        reseeding) drops the draws left in the block, so the next six are the new
+        generator's first."""
+        return self._rng
+
+    @rng.setter
+    def rng(self, rng: np.random.Generator) -> None:
+        self._rng = rng
+        self._normals = _NO_NORMALS
+        self._normals_at = 0
+
+    def next_normals(self) -> np.ndarray:
+        """The next six standard normal draws (a view of a row of the block): the same
+        numbers, in the same order, as ``rng.standard_normal(6)`` called once per cycle,
+        for a Generator hands out its normals in a stream that does not depend on how
+        many are asked at a time (a block costs about one call, a row a tenth of it)."""
+        k = self._normals_at
+        if k == len(self._normals):
+            self._normals = self._rng.standard_normal((NORMALS_BLOCK, 6))
+            k = 0
+        self._normals_at = k + 1
+        return self._normals[k]
+
     def reset(self) -> None:
-        """Forget past readings (the next call refills the delay ring)."""
+        """Forget past readings (the next call refills the delay ring; the noise goes on
+        from where it was)."""
         self._head = -1
         self._calls = 0
 
@@ -345,7 +375,7 @@ class VirtualFTSensor:
         """The bookkeeping of one call, before the reading: (the six normal draws, whether
         the delay ring is to be filled, the held reading handed out when the sensor does
         not sample in this call, else None); the ring's head and ``age_cycles`` move on."""
-        normals = self.rng.standard_normal(6)
+        normals = self.next_normals()
         if self.every_cycles == 1.0 and self._head >= 0:
             # a sensor that samples every call, its ring filled: nothing is ever held
             # (every _held_for stays 0, age_cycles the delay), only the head moves on

@@ -23,14 +23,14 @@ import numpy as np
 
 from app.config import EmulatorConfig, RobotConfig
 from app.sim import arm_sense
-from app.sim.arm_command import ArmCommand
+from app.sim.arm_command import OUT_SIZE, ArmCommand, arm_command_towards
 from app.sim.feedforward import ServoFeedforward, send, servo_feedforward
 from app.sim.frames import satellite_pose
 from app.sim.ft_sensor import ProcessedWrench, VirtualFTSensor, WrenchProcessor
 from app.sim.rotations import invert_transform
 from app.sim.scaling import mockup_mass_kg
 from app.sim.sensor_models import sample_every_cycles
-from app.sim.servo import UR10eServo, safety_box_for_robot
+from app.sim.servo import UR10eServo, reason_of, safety_box_for_robot
 from app.sim.ur10e import (
     T_F_C_from_config,
     T_W_B_from_config,
@@ -190,12 +190,37 @@ class ArmRig:
 
     def command_towards(self, ods_y: np.ndarray) -> None:
         """:meth:`command` towards :meth:`tcp_target_B` of the ODS state ``ods_y`` (fused:
-        the target is worked out in the same compiled call)."""
-        fused = self._fused_command()
-        if fused is None:
-            self.command(self.tcp_target_B(ods_y))
-        else:
-            self._keep_state(fused.towards(self.T_B_R, ods_y, self.satellite))
+        the target is worked out in the same compiled call).
+
+        The fused path, the loop's every cycle, is :meth:`ArmCommand.towards` and
+        :meth:`_keep_state` written out here, the kernel called directly: the VFDM's
+        ``last_scale`` and ``last_error``, the servo's ring slot, new state arrays and stop
+        (:meth:`UR10eServo.commit`), the forward kinematics cache, all as those calls leave
+        them, for a third of their Python."""
+        fused = self._fused
+        if (fused is None or self.feedforward is not None or fused.vfdm is not self.vfdm
+                or fused.servo is not self.servo or fused.chain is not self.chain):
+            fused = self._fused_command()
+            if fused is None:
+                self.command(self.tcp_target_B(ods_y))
+                return
+        vfdm, servo = self.vfdm, self.servo
+        st, ring, out = servo.state, servo._ring, np.empty(OUT_SIZE)
+        slot = servo._slot if len(ring) else -1  # servo.delay_slot
+        vfdm.last_scale, code = arm_command_towards(
+            self.T_B_R, ods_y, self.satellite, vfdm.constants, vfdm._x,
+            fused.servo_constants, fused.chain_constants, ring, slot, servo._sp_prev,
+            st.q_rad, st.qd_radps, st.stopped, out)
+        vfdm.last_error = out[18:24]
+        if slot >= 0:
+            servo._slot = (slot + 1) % len(ring)
+        q, qd = st.q_rad, st.qd_radps = out[0:6], out[6:12]
+        st.qdd_radps2 = out[12:18]
+        if code:
+            st.stopped, st.reason = True, reason_of(code)
+        self._state = (out[24:40].reshape(4, 4), out[40:56].reshape(4, 4), out[56:59],
+                       out[59:62])
+        self._state_key = (q, qd)
 
     def _fused_command(self) -> ArmCommand | None:
         """The fused command path of this VFDM, servo and chain (None: the stages, with
