@@ -110,11 +110,6 @@ class ArmCommand:
         as :func:`mockup_state` gives it."""
         return self._cycle(arm_command, np.ascontiguousarray(T_B_C_target, dtype=float))
 
-    def towards(self, T_B_R: np.ndarray, ods_y: np.ndarray, satellite: int) -> tuple:
-        """As a call with the target ``T_B_R · T_R_sat`` of satellite ``satellite`` in the
-        ODS state ``ods_y``, worked out in the same compiled call."""
-        return self._cycle(arm_command_towards, T_B_R, ods_y, satellite)
-
     def _cycle(self, kernel, *target) -> tuple:
         vfdm, servo = self.vfdm, self.servo
         st, slot, out = servo.state, servo.delay_slot, np.empty(OUT_SIZE)

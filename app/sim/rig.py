@@ -192,11 +192,11 @@ class ArmRig:
         """:meth:`command` towards :meth:`tcp_target_B` of the ODS state ``ods_y`` (fused:
         the target is worked out in the same compiled call).
 
-        The fused path, the loop's every cycle, is :meth:`ArmCommand.towards` and
-        :meth:`_keep_state` written out here, the kernel called directly: the VFDM's
-        ``last_scale`` and ``last_error``, the servo's ring slot, new state arrays and stop
-        (:meth:`UR10eServo.commit`), the forward kinematics cache, all as those calls leave
-        them, for a third of their Python."""
+        The fused path, the loop's every cycle, calls :func:`arm_command_towards` itself
+        and does what :meth:`ArmCommand.__call__` and :meth:`_keep_state` do after theirs:
+        the VFDM's ``last_scale`` and ``last_error``, the servo's ring slot, new state
+        arrays and stop (:meth:`UR10eServo.commit`), the forward kinematics cache, all as
+        those calls leave them, for a third of their Python."""
         fused = self._fused
         if (fused is None or self.feedforward is not None or fused.vfdm is not self.vfdm
                 or fused.servo is not self.servo or fused.chain is not self.chain):
