@@ -97,6 +97,20 @@ class ContactGate:
             alone[i] = n == 0 or (n == 1 and nearest[i] == partner[i])
         return open_
 
+    def update_apart(self) -> np.ndarray:
+        """:meth:`update` for a cycle in which no body is within the margin of another
+        (every clearance inf, no nearest, no crowd), on plain values: the gates only
+        count their holds down; the same outputs and the same state."""
+        previous, hold = self._previous, self._hold
+        open_ = np.zeros(len(hold), dtype=bool)
+        for i in range(len(hold)):
+            if hold[i] > 0:
+                hold[i] -= 1
+                open_[i] = hold[i] > 0
+            previous[i] = math.inf
+        self.alone.fill(True)
+        return open_
+
 
 def contact_pairs(open_: np.ndarray, partner: np.ndarray, alone: np.ndarray,
                   carried: np.ndarray) -> list[tuple[int, int]]:
