@@ -236,6 +236,7 @@ def test_the_loop_s_free_flight_shortcut_gives_what_the_general_path_gives():
         assert _gate_state(fast.gate) == _gate_state(general.gate)
         assert fast._contact_kinematics == general._contact_kinematics
         assert fast.interaction.touching == general.interaction.touching
+        assert fast.interaction.contact_active == general.interaction.contact_active
     assert not general.lab_geometry.apart(general.bodies_W().T_W_C)  # still the general path
     rows = [em.telemetry.rows() for em in emulators]
     assert rows[0].tobytes() == rows[1].tobytes()
