@@ -284,7 +284,8 @@ class BoxContactModel:
         Where it holds, the arrays' bounding-sphere tests of :meth:`geometry` (within_m
         0) and :meth:`clearances` (their within_m) skip every pair too: the same
         differences (exact IEEE subtractions), a sum of squares within a few ulps of the
-        arrays' dot product. It only saves the arrays' calls in free flight."""
+        arrays' dot product. It only saves the arrays' calls in free flight (the loop's
+        contact gate, :class:`app.sim.interaction.PhysicalInteraction`)."""
         if not self.pairs:
             return True
         c, radii, slack = centres_W(T_W_C), self._radii, 1.0 + APART_SLACK
@@ -365,8 +366,6 @@ class BoxContactModel:
         (N, 3) angular velocities in W axes (None: zero). Returns per-body force in W and its
         moment about the body's COM; forces within a pair are exactly equal and opposite.
         """
-        if self.apart(T_W_C):  # no pair within reach: what the loop below gives then
-            return ContactResult(np.zeros((self.n, 6)), ())
         v = (np.zeros((self.n, 3)) if v_W_mps is None
              else np.asarray(v_W_mps, dtype=float))
         w = (np.zeros((self.n, 3)) if omega_W_radps is None
