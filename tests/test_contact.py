@@ -317,3 +317,5 @@ def test_apart_is_true_only_where_every_bounding_sphere_test_skips_its_pair():
     assert model.apart(np.array([_pose([0, 0, 0]), _pose([1.0, 0, 0])]))
     assert not model.apart(np.array([_pose([0, 0, 0]), _pose([0.1, 0, 0])]))
     assert BoxContactModel([SIZE], [RIGID]).apart(np.array([_pose([0, 0, 0])]))
+    # a pose gone NaN is no free flight: the arrays' test, which does not skip it, decides
+    assert not model.apart(np.array([_pose([0, 0, 0]), _pose([np.nan, 0, 0])]))

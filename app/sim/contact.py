@@ -293,7 +293,7 @@ class BoxContactModel:
             pa, pb = c[a], c[b]
             dx, dy, dz = pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]
             reach = radii[a] + radii[b] + within_m
-            if dx * dx + dy * dy + dz * dz <= reach * reach * slack:
+            if not dx * dx + dy * dy + dz * dz > reach * reach * slack:  # NaN: not apart
                 return False
         return True
 
