@@ -191,9 +191,10 @@ def _gate_state(gate: ContactGate) -> tuple:
 
 
 def test_update_apart_is_update_with_no_body_within_the_margin():
-    """Through approach, touch, a crowd, the hold counting down and free flight again:
-    on every cycle in which no body is within the margin, update_apart gives the outputs
-    and leaves the state update gives with every clearance inf and nothing nearest."""
+    """Through approach, touch, a crowd, the hold counting down and free flight again (at
+    rest, before and after): on every cycle in which no body is within the margin,
+    update_apart gives the outputs and leaves the state update gives with every clearance
+    inf and nothing nearest."""
     general, fast = ContactGate(3, 0.002, hold_cycles=3), ContactGate(3, 0.002, hold_cycles=3)
     nobody = (np.full(3, INF), np.full(3, -1), np.zeros(3, dtype=np.int64))
     cycles = [None, (np.array([0.0015, 0.0015, INF]), np.array([1, 0, -1]), [1, 1, 0]),
@@ -212,6 +213,7 @@ def test_update_apart_is_update_with_no_body_within_the_margin():
         assert got.dtype == expected.dtype and got.tolist() == expected.tolist()
         assert _gate_state(fast) == _gate_state(general)
     assert held_far == 6  # 2 after the approach, 1 after the crowd, 3 at the end
+    assert fast._at_rest  # the last cycles took update_apart's shortest way, at rest
 
 
 def test_the_loop_s_free_flight_shortcut_gives_what_the_general_path_gives():
