@@ -287,3 +287,35 @@ def test_clearance_frames_are_the_array_formulas_on_coal_s_own_answer():
             assert min(clearance[a], clearance[b]) <= d
             framed += 1
     assert framed > 100
+
+
+def test_apart_is_true_only_where_every_bounding_sphere_test_skips_its_pair():
+    """Centre distances at the bounding spheres' reach (+ a margin) and a few ulps either
+    side, and clearly beyond: where apart() holds, the arrays' test of geometry() and
+    clearances() skips the pair (compute and clearances report nothing); next to the
+    boundary it leaves the decision to them."""
+    model = _pair()
+    reach = 2 * 0.5 * float(np.sqrt(sum(x * x for x in SIZE)))
+    rng = np.random.default_rng(3)
+    for within_m in (0.0, 0.001):
+        boundary = reach + within_m
+        for scale in [1.0 + k * 2.2e-16 for k in range(-8, 9)] + [1.0 + 1e-8, 1.5]:
+            direction = rng.normal(size=3)
+            direction /= np.linalg.norm(direction)
+            poses = np.array([_pose([0.1, -0.2, 0.3]),
+                              _pose(np.array([0.1, -0.2, 0.3]) + boundary * scale * direction,
+                                    rng.normal(0.0, 0.3, 3))])
+            d_ab = poses[1][:3, 3] - poses[0][:3, 3]
+            arrays_skip = float(d_ab.dot(d_ab)) > boundary * boundary
+            if model.apart(poses, within_m):
+                assert arrays_skip and scale > 1.0 + 1e-12
+                assert model.compute(poses).contacts == ()
+                clearance, nearest, crowd = model.clearances(poses, within_m)
+                assert np.isinf(clearance).all() and (nearest == -1).all() and not crowd.any()
+            else:
+                assert scale < 1.0 + 1e-12
+    assert model.apart(np.array([_pose([0, 0, 0]), _pose([1.0, 0, 0])]))
+    assert not model.apart(np.array([_pose([0, 0, 0]), _pose([0.1, 0, 0])]))
+    assert BoxContactModel([SIZE], [RIGID]).apart(np.array([_pose([0, 0, 0])]))
+    # a pose gone NaN is no free flight: the arrays' test, which does not skip it, decides
+    assert not model.apart(np.array([_pose([0, 0, 0]), _pose([np.nan, 0, 0])]))

@@ -183,3 +183,63 @@ def test_a_push_on_one_mockup_during_the_contact_reaches_its_satellite(noise):
     else:
         assert impulse_y[2] == pytest.approx(0.15, rel=1e-3)
         assert abs(impulse_y[1]) < 1e-6
+
+
+def _gate_state(gate: ContactGate) -> tuple:
+    return (list(gate._previous), list(gate._hold), gate.partner.tolist(),
+            gate.alone.tolist())
+
+
+def test_update_apart_is_update_with_no_body_within_the_margin():
+    """Through approach, touch, a crowd, the hold counting down and free flight again (at
+    rest, before and after): on every cycle in which no body is within the margin,
+    update_apart gives the outputs and leaves the state update gives with every clearance
+    inf and nothing nearest."""
+    general, fast = ContactGate(3, 0.002, hold_cycles=3), ContactGate(3, 0.002, hold_cycles=3)
+    nobody = (np.full(3, INF), np.full(3, -1), np.zeros(3, dtype=np.int64))
+    cycles = [None, (np.array([0.0015, 0.0015, INF]), np.array([1, 0, -1]), [1, 1, 0]),
+              None, None,  # the hold counts down in free flight
+              (np.array([-1e-4, -2e-4, 0.001]), np.array([1, 2, 1]), [1, 2, 1]),  # a crowd
+              None, (np.array([0.0019, 0.0019, INF]), np.array([1, 0, -1]), [1, 1, 0]),
+              None, None, None, None, None]
+    held_far = 0  # free-flight cycles in which a gate was still held open
+    for inputs in cycles:
+        if inputs is None:
+            expected, got = general.update(*nobody), fast.update_apart()
+            held_far += bool(expected.any())
+        else:
+            expected = general.update(inputs[0], inputs[1], np.array(inputs[2]))
+            got = fast.update(inputs[0], inputs[1], np.array(inputs[2]))
+        assert got.dtype == expected.dtype and got.tolist() == expected.tolist()
+        assert _gate_state(fast) == _gate_state(general)
+    assert held_far == 6  # 2 after the approach, 1 after the crowd, 3 at the end
+    assert fast._at_rest  # the last cycles took update_apart's shortest way, at rest
+
+
+def test_the_loop_s_free_flight_shortcut_gives_what_the_general_path_gives():
+    """The collision through its contact and the gates' hold after it, cycle by cycle:
+    the loop with the bounding-sphere shortcuts (BoxContactModel.apart) and the loop
+    measuring every pair (apart never true) record the same telemetry bit for bit and
+    keep the same gate state and contact kinematics."""
+    emulators = [Emulator(load_scenario("collision")) for _ in range(2)]
+    general = emulators[1]
+    general.lab_geometry.apart = lambda T_W_C, within_m=0.0: False
+    for em in emulators:
+        em.prepare()
+    free_cycles = contact_cycles = 0
+    for _ in range(1700):
+        free = emulators[0].lab_geometry.apart(emulators[0].bodies_W().T_W_C,
+                                               emulators[0].gate.margin_m)
+        for em in emulators:
+            em.step()
+        free_cycles += free
+        contact_cycles += emulators[0].interaction.contact_active
+        fast = emulators[0]
+        assert _gate_state(fast.gate) == _gate_state(general.gate)
+        assert fast._contact_kinematics == general._contact_kinematics
+        assert fast.interaction.touching == general.interaction.touching
+        assert fast.interaction.contact_active == general.interaction.contact_active
+    assert not general.lab_geometry.apart(general.bodies_W().T_W_C)  # still the general path
+    rows = [em.telemetry.rows() for em in emulators]
+    assert rows[0].tobytes() == rows[1].tobytes()
+    assert free_cycles > 1000 and contact_cycles > 30

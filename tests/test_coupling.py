@@ -10,6 +10,7 @@ from app.config import EmulatorConfig, PassivityConfig, SatelliteConfig
 from app.sim.coupling import OdsCoupling
 from app.sim.interaction import Bodies
 from app.sim.orbital import OrbitalSimulator, omega_inertial_from_relative
+from app.sim.passivity import PassivityController, TankPassivity
 from app.sim.rotations import quat_to_matrix, rotvec_to_matrix, rotvec_to_quat
 
 DT = 0.002
@@ -211,3 +212,35 @@ def test_the_torque_port_of_each_carried_satellite_is_its_own():
     np.testing.assert_allclose(t[0], expected, rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(t[1], 0.0)
     assert c.dissipated_J()["torque"] == {0: pytest.approx(removed, rel=1e-12)}
+
+
+def test_cycles_without_force_or_torque_take_the_short_way_to_the_same_state():
+    """OdsCoupling.ods_input skips the tank's step (TankPassivity.idle) when no force
+    acts and tests the torques on plain floats: through cycles with forces only, torques
+    only, both and neither, its outputs and its tank's and torque ports' state are those
+    of the parts called in full (tank.step every cycle, each PassivityController.step)."""
+    rng = np.random.default_rng(12)
+    coupling = _coupling(tank_max_J=0.002, align_cycles=1, idle_reset_s=0.004)
+    tank = TankPassivity(DT, np.array(MASSES), 1.0, 1, 0.004, 0.002)
+    ports = [PassivityController(DT, 0.004) for _ in range(2)]
+    kinds = set()
+    for k in range(240):
+        pushes, twists = (k // 6) % 2 == 1, (k // 5) % 3 == 2
+        kinds.add((pushes, twists))
+        F = rng.normal(0, 5, (2, 3)) * pushes
+        T = rng.normal(0, 0.5, (2, 3)) * twists
+        v_v, v_p = rng.normal(0, 0.2, (2, 3)), rng.normal(0, 0.2, (2, 3))
+        w_v, w_p = rng.normal(0, 0.5, (2, 3)), rng.normal(0, 0.5, (2, 3))
+        force_R, torque_B = _input(coupling, F, T, v_v, v_p, w_v, w_p)
+        ods = _ods(v_v, w_v)
+        expected_F = tank.step(F, ods.velocity_mps, np.asarray(v_p) @ R_W_R.T, R_W_R)
+        w_p_W = np.asarray(w_p) @ R_W_C.T  # as the coupling sees it: in the lab
+        expected_T = np.array([ports[s].step(T[s], ods.omega_rel_radps[s], R_W_C.T @ w_p_W[s])
+                               for s in range(2)])
+        assert force_R.tobytes() == expected_F.tobytes(), k
+        assert torque_B.tobytes() == expected_T.tobytes(), k
+        assert coupling.tank.tank_J == tank.tank_J, k
+        assert [p.energy_J for p in coupling.torque_pcs.values()] == \
+            [p.energy_J for p in ports], k
+    assert kinds == {(False, False), (False, True), (True, False), (True, True)}
+    assert tank.dissipated_J > 0.0 and sum(p.dissipated_J for p in ports) > 0.0

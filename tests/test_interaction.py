@@ -139,6 +139,36 @@ def test_which_bodies_touch_and_which_the_hand_pushes_follow_each_call():
     np.testing.assert_array_equal(w, 0.0)
 
 
+def test_the_free_flight_shortcut_gives_what_compute_gives():
+    """Body b sliding along x from overlapping a, through the bounding spheres' reach, to
+    far apart and back, the hand pushing for part of the way: each call's wrenches (bit
+    for bit), contact_active, touching and hand_acting are those of an interaction that
+    calls compute every time (its BoxContactModel.apart never true)."""
+    cfg = _config()
+    fast, general = _interaction(cfg), _interaction(cfg)
+    general.contact.apart = lambda T_W_C, within_m=0.0: False
+    reach = float(np.sqrt(2 * 0.2 ** 2 + 0.1 ** 2))  # two 0.2 x 0.2 x 0.1 boxes' radii, summed
+    shortcuts = touched = 0
+    for k, x in enumerate(np.concatenate([np.linspace(0.18, reach + 0.01, 30),
+                                          np.linspace(reach + 0.01, 0.18, 30), [reach]])):
+        t_s = 0.01 * k
+        if k == 10:
+            for inter in (fast, general):
+                inter.hand.post(Push(satellite=1, force_R_N=(0.0, 3.0, 0.0), duration_s=0.3))
+        for inter in (fast, general):
+            inter.hand.update(t_s)
+        bodies = _overlapping_bodies()
+        bodies.T_W_C[1, 0, 3] = bodies.T_W_C[0, 0, 3] + x
+        shortcuts += fast.contact.apart(bodies.T_W_C)
+        expected = general.wrenches_W(bodies, t_s)
+        assert fast.wrenches_W(bodies, t_s).tobytes() == expected.tobytes(), k
+        assert fast.contact_active == general.contact_active, k
+        assert fast.touching == general.touching, k
+        assert fast.hand_acting.tolist() == general.hand_acting.tolist(), k
+        touched += fast.contact_active
+    assert 5 < shortcuts < 55 and touched > 5
+
+
 # --- where the bodies are --------------------------------------------------------------------
 
 

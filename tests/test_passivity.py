@@ -171,3 +171,32 @@ def test_the_tank_given_lab_velocities_and_R_W_R_is_the_tank_given_them_in_R():
         assert tanks[0].tank_J == tanks[1].tank_J, k
         damped += in_R is not force
     assert tanks[0].dissipated_J == tanks[1].dissipated_J > 0.0 and damped > 10
+
+
+def test_an_idle_cycle_is_a_step_with_every_force_zero():
+    """TankPassivity.idle (what the coupling calls when no force acts) against step with
+    zero forces, cycle by cycle through idle stretches shorter and longer than the
+    refill time, pushes that drain the tank and a delay of two cycles: the same forces,
+    tank, dissipation and kept velocities, bit for bit."""
+    rng = np.random.default_rng(8)
+    tanks = [TankPassivity(DT, np.array([1.0, 3.0]), 1.0, 2, idle_reset_s=0.02,
+                           tank_max_J=0.05) for _ in range(2)]
+    idle_before_push, refills = 0, 0
+    for k in range(600):
+        acting = k % 70 >= 55 or k % 23 == 0  # idle stretches of 54 cycles, and short ones
+        force = rng.normal(0, 20, (2, 3)) if acting else np.zeros((2, 3))
+        v_virtual, v_W = rng.normal(0, 0.3, (2, 3)), rng.normal(0, 0.3, (2, 3))
+        before = tanks[1].tank_J
+        expected = tanks[0].step(force, v_virtual, v_W)
+        if acting:
+            got = tanks[1].step(force, v_virtual, v_W)
+            assert got.tobytes() == expected.tobytes(), k
+        else:
+            tanks[1].idle(v_W)
+            refills += tanks[1].tank_J != before
+        assert tanks[0].tank_J == tanks[1].tank_J, k
+        assert tanks[0]._idle_cycles == tanks[1]._idle_cycles, k
+        assert [v.tobytes() for v in tanks[0]._history] == \
+            [v.tobytes() for v in tanks[1]._history], k
+        idle_before_push += not acting
+    assert tanks[0].dissipated_J == tanks[1].dissipated_J > 0.0 and refills >= 5

@@ -43,10 +43,12 @@ from app.config import DEFAULT_MATERIALS, ContactMaterial, SatelliteConfig
 from app.sim.rotations import cross3_floats, minus3_floats, point_velocity_floats
 
 __all__ = [
+    "APART_SLACK",
     "BoxContactModel",
     "ContactGeometry",
     "ContactResult",
     "PairContact",
+    "centres_W",
     "combine_friction",
     "combine_materials",
     "coulomb_friction",
@@ -142,6 +144,19 @@ def _add(acc: list[float], x: list[float], sign: float) -> None:
     else:
         for k, value in enumerate(x):
             acc[k] -= value
+
+
+APART_SLACK = 1e-9
+"""Relative slack of :meth:`BoxContactModel.apart`'s plain-float test: far more than the
+last bits by which its sum of three squares can differ from the arrays' dot product (a
+few ulps, ~1e-16 relative: the terms are all ≥ 0, nothing cancels)."""
+
+
+def centres_W(T_W_C: Sequence[np.ndarray]) -> list[list[float]]:
+    """The bodies' COM positions (the poses' translations) as plain floats."""
+    if isinstance(T_W_C, np.ndarray):
+        return T_W_C[:, :3, 3].tolist()
+    return [T[:3, 3].tolist() for T in T_W_C]
 
 
 def _holds_coal(value) -> bool:
@@ -262,6 +277,25 @@ class BoxContactModel:
         if depth <= 0.0:
             return None
         return ContactGeometry(depth, np.array(c.normal, dtype=float), np.array(c.pos))
+
+    def apart(self, T_W_C: Sequence[np.ndarray], within_m: float = 0.0) -> bool:
+        """Whether every pair that may touch is clearly out of reach at the COM poses
+        T_W_C: its bounding spheres more than ``within_m`` apart, beyond APART_SLACK.
+        Where it holds, the arrays' bounding-sphere tests of :meth:`geometry` (within_m
+        0) and :meth:`clearances` (their within_m) skip every pair too: the same
+        differences (exact IEEE subtractions), a sum of squares within a few ulps of the
+        arrays' dot product. It only saves the arrays' calls in free flight (the loop's
+        contact gate, :class:`app.sim.interaction.PhysicalInteraction`)."""
+        if not self.pairs:
+            return True
+        c, radii, slack = centres_W(T_W_C), self._radii, 1.0 + APART_SLACK
+        for a, b in self.pairs:
+            pa, pb = c[a], c[b]
+            dx, dy, dz = pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]
+            reach = radii[a] + radii[b] + within_m
+            if not dx * dx + dy * dy + dz * dz > reach * reach * slack:  # NaN: not apart
+                return False
+        return True
 
     def overlapping(self, T_W_C: Sequence[np.ndarray]) -> bool:
         """Whether any pair that may touch overlaps at the COM poses T_W_C: whether

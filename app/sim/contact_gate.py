@@ -75,6 +75,7 @@ class ContactGate:
         """Per body, the body that last opened its gate (-1: none yet)."""
         self.alone = np.ones(n_bodies, dtype=bool)
         """Per body: no body but its partner is within the margin."""
+        self._at_rest = True  # no hold running, no body near: update_apart changes nothing
 
     def update(self, clearance_m: np.ndarray, nearest: np.ndarray,
                crowd: np.ndarray | None = None) -> np.ndarray:
@@ -83,6 +84,7 @@ class ContactGate:
         are within the margin (``crowd``; None: at most the nearest). Also updates
         :attr:`partner` and :attr:`alone`."""
         previous, hold, partner, alone = self._previous, self._hold, self.partner, self.alone
+        self._at_rest = False
         open_ = np.zeros(len(hold), dtype=bool)
         for i in range(len(hold)):  # a few bodies: plain Python beats array calls
             c = float(clearance_m[i])
@@ -95,6 +97,24 @@ class ContactGate:
             open_[i] = hold[i] > 0
             n = 0 if crowd is None else int(crowd[i])
             alone[i] = n == 0 or (n == 1 and nearest[i] == partner[i])
+        return open_
+
+    def update_apart(self) -> np.ndarray:
+        """:meth:`update` for a cycle in which no body is within the margin of another
+        (every clearance inf, no nearest, no crowd), on plain values: the gates only
+        count their holds down; the same outputs and the same state. Once they are out,
+        the gate is at rest: the next such cycles leave it as it is."""
+        previous, hold = self._previous, self._hold
+        open_ = np.zeros(len(hold), dtype=bool)
+        if self._at_rest:
+            return open_
+        for i in range(len(hold)):
+            if hold[i] > 0:
+                hold[i] -= 1
+                open_[i] = hold[i] > 0
+            previous[i] = math.inf
+        self.alone.fill(True)
+        self._at_rest = not any(hold)
         return open_
 
 

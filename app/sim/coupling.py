@@ -17,7 +17,7 @@ import numpy as np
 from app.config import PassivityConfig
 from app.sim.frames import Bodies
 from app.sim.orbital import OrbitalSimulator
-from app.sim.passivity import PassivityController, TankPassivity, is_zero
+from app.sim.passivity import PassivityController, TankPassivity, any_nonzero
 
 __all__ = ["OdsCoupling"]
 
@@ -51,13 +51,18 @@ class OdsCoupling:
         the satellite itself)."""
         if not self.enabled:
             return force_R, torque_B
-        force_R = self.tank.step(force_R, ods.velocity_mps, bodies.v_W, R_W_R)
+        if any_nonzero(force_R):  # else the tank only counts an idle cycle: no velocities
+            force_R = self.tank.step(force_R, ods.velocity_mps, bodies.v_W, R_W_R)
+        else:
+            self.tank.idle(bodies.v_W)
+        torques = torque_B.tolist()  # plain floats for the zero tests (a few satellites)
         w_virtual_B = None
         for s, pc in self.torque_pcs.items():
-            t = torque_B[s]
-            if is_zero(t):
+            t_s = torques[s]
+            if t_s[0] == 0.0 and t_s[1] == 0.0 and t_s[2] == 0.0:  # is_zero
                 pc.idle()
                 continue
+            t = torque_B[s]
             if w_virtual_B is None:  # only while a torque acts
                 w_virtual_B = ods.omega_rel_radps
                 torque_B = torque_B.copy()

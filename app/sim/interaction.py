@@ -64,20 +64,35 @@ class PhysicalInteraction:
         """The pairs of bodies that overlapped in the last call (each a set of two)."""
         self.hand_acting = np.zeros(contact.n, dtype=bool)
         """Per body, whether the operator's hand pushed (or twisted) it in the last call."""
+        self._hand_acted = False  # whether hand_acting may hold a True
 
     def wrenches_W(self, bodies: Bodies, t_s: float) -> np.ndarray:
         """(N, 6) external wrench on each body at t_s: force in W, moment about its COM."""
         T_W_C = bodies.T_W_C
-        contact = self.contact.compute(T_W_C, bodies.v_W, bodies.w_W)
-        if contact.contacts:
-            self.contact_active = any(c.normal_force_N > 0 for c in contact.contacts)
-            self.touching = frozenset(frozenset((c.a, c.b)) for c in contact.contacts)
-        else:
-            self.contact_active, self.touching = False, frozenset()
+        contact_W = self._contact_W(bodies)
         if self.hand.idle(t_s):  # the hand's wrenches are all zero: nothing to add
-            self.hand_acting = np.zeros(self.contact.n, dtype=bool)
-            return contact.wrench_W
+            if self._hand_acted:  # else hand_acting is all False already
+                self.hand_acting = np.zeros(self.contact.n, dtype=bool)
+                self._hand_acted = False
+            return contact_W
         hand_W = self.hand.wrenches_W(t_s, T_W_C[:, :3, 3], T_W_C[:, :3, :3], bodies.v_W,
                                       bodies.w_W)
         self.hand_acting = np.any(hand_W != 0.0, axis=1)
-        return contact.wrench_W + hand_W
+        self._hand_acted = True
+        return contact_W + hand_W
+
+    def _contact_W(self, bodies: Bodies) -> np.ndarray:
+        """(N, 6) the contact wrenches (:meth:`BoxContactModel.compute`); updates
+        :attr:`contact_active` and :attr:`touching`. In free flight (no pair within
+        reach, :meth:`BoxContactModel.apart`) what compute then gives, without its call."""
+        contact = self.contact
+        if contact.apart(bodies.T_W_C):
+            self.contact_active, self.touching = False, frozenset()
+            return np.zeros((contact.n, 6))
+        result = contact.compute(bodies.T_W_C, bodies.v_W, bodies.w_W)
+        if result.contacts:
+            self.contact_active = any(c.normal_force_N > 0 for c in result.contacts)
+            self.touching = frozenset(frozenset((c.a, c.b)) for c in result.contacts)
+        else:
+            self.contact_active, self.touching = False, frozenset()
+        return result.wrench_W

@@ -440,13 +440,18 @@ class Emulator:
         """((N,) whether each body's chain lets a contact below the deadband through,
         (N,) its nearest body or -1): :mod:`app.sim.contact_gate`; all closed without
         ``[wrench] contact_gate``."""
-        if self.gate is None:
-            return np.zeros(self.n_sat, dtype=bool), np.full(self.n_sat, -1)
-        clearance, nearest, crowd = self.lab_geometry.clearances(bodies.T_W_C,
-                                                                        self.gate.margin_m)
-        if self.config.wrench.contact_force == "identified":
+        if self.gate is None:  # (np.array of a list: a third of np.full's cost)
+            return np.zeros(self.n_sat, dtype=bool), np.array([-1] * self.n_sat, dtype=np.int64)
+        identified = self.config.wrench.contact_force == "identified"
+        geometry, gate = self.lab_geometry, self.gate
+        if geometry.apart(bodies.T_W_C, gate.margin_m):  # free flight: nothing to measure
+            if identified:
+                self._keep_contact_kinematics({})
+            return gate.update_apart(), gate.partner
+        clearance, nearest, crowd = geometry.clearances(bodies.T_W_C, gate.margin_m)
+        if identified:
             self._record_contact_kinematics(clearance, nearest, bodies)
-        return self.gate.update(clearance, nearest, crowd), self.gate.partner
+        return gate.update(clearance, nearest, crowd), gate.partner
 
     def _record_contact_kinematics(self, clearance: np.ndarray, nearest: np.ndarray,
                                    bodies: Bodies) -> None:
@@ -472,6 +477,11 @@ class Emulator:
             v_b = point_velocity_floats(v_l[b], w_l[b],
                                         minus3_floats(p, T_W_C[b][:3, 3].tolist()))
             now[(a, b)] = (-clear[a], float(np.array(minus3_floats(v_a, v_b)).dot(n)))
+        self._keep_contact_kinematics(now)
+
+    def _keep_contact_kinematics(self, now: dict[tuple[int, int], tuple[float, float]]) -> None:
+        """Append one cycle's (depth, depth rate) per overlapping pair to the history,
+        which keeps as many cycles as a reading can be old."""
         history = self._contact_kinematics
         history.append(now)
         if len(history) > self._kinematics_kept:

@@ -74,12 +74,18 @@ import math
 
 import numpy as np
 
-__all__ = ["PassivityController", "TankPassivity", "is_zero"]
+__all__ = ["PassivityController", "TankPassivity", "any_nonzero", "is_zero"]
 
 
 def is_zero(v: np.ndarray) -> bool:
     """Whether a 3-vector is exactly zero (inside the deadband); cheaper than ndarray.any."""
     return v[0] == 0.0 and v[1] == 0.0 and v[2] == 0.0
+
+
+def any_nonzero(vectors: np.ndarray) -> bool:
+    """Whether any row of an (N, 3) array is not exactly zero (a port acted on); on plain
+    floats, cheaper than ndarray.any for a few rows."""
+    return any(v[0] != 0.0 or v[1] != 0.0 or v[2] != 0.0 for v in vectors.tolist())
 
 
 def _no_reversal_beta(force: np.ndarray, per_beta: np.ndarray) -> float:
@@ -127,12 +133,12 @@ class PassivityController:
             self.idle()
             return force
         self._idle_cycles = 0
-        dt = self.dt_s
-        self.energy_J += dt * float(force @ (v_physical - v_virtual))
-        power = float(force @ v_virtual)
+        dt = self.dt_s  # ndarray.dot: `@`'s dot kernel for 3-vectors, less overhead
+        self.energy_J += dt * float(force.dot(v_physical - v_virtual))
+        power = float(force.dot(v_virtual))
         if self.energy_J >= 0.0 or power <= 0.0:
             return force
-        vv = float(v_virtual @ v_virtual)
+        vv = float(v_virtual.dot(v_virtual))
         beta = min(-self.energy_J / (vv * dt), power / vv)
         removed_J = beta * vv * dt
         self.energy_J += removed_J
@@ -179,6 +185,15 @@ class TankPassivity:
             del self._history[0]
         return self._history[0]
 
+    def idle(self, v_physical: np.ndarray) -> None:
+        """One cycle in which no satellite is acted on (every force exactly zero: what
+        :meth:`step` does with such forces): the physical velocities are kept for the
+        alignment, the idle time counts, the tank refills after ``idle_reset_s``."""
+        self._aligned(v_physical)
+        self._idle_cycles += 1
+        if self._idle_cycles >= self.idle_reset_cycles:
+            self.tank_J = self.tank_max_J
+
     def step(self, force: np.ndarray, v_virtual: np.ndarray,
              v_physical: np.ndarray, R_W_R: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) forces for the satellites from the measured (N, 3) ones; v_virtual: the
@@ -186,17 +201,15 @@ class TankPassivity:
         without an arm, its own; kept, not copied), in R, or in the lab W when R_W_R is
         given: then turned into R (``v_physical @ R_W_R``, the same product) only in a
         cycle that uses it. A satellite with zero force is not part of the port."""
-        v_p = self._aligned(v_physical)
         acted = [f[0] != 0.0 or f[1] != 0.0 or f[2] != 0.0  # not is_zero, on plain floats
                  for f in force.tolist()]
         if not any(acted):
-            self._idle_cycles += 1
-            if self._idle_cycles >= self.idle_reset_cycles:
-                self.tank_J = self.tank_max_J
+            self.idle(v_physical)
             return force
+        v_p = self._aligned(v_physical)
         self._idle_cycles = 0
         if R_W_R is not None:
-            v_p = v_p @ R_W_R
+            v_p = v_p.dot(R_W_R)  # `@`'s gemm, less overhead
         dt = self.dt_s
         tank = self.tank_J + dt * float(np.sum(force * (v_p - v_virtual)))
         out = force
