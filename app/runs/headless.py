@@ -6,10 +6,8 @@ import contextlib
 import functools
 import os
 import shutil
-import signal
 import stat
 import tempfile
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +20,7 @@ from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
 from app.runs.preflight import check_drift, preflight
 from app.runs.report import write_json, write_telemetry_csv
+from app.runs.signals import held_stops
 from app.runs.uncertainty import add_systematic, forecast, snapshot_time_s, spread_of_run
 from app.sim.loop import Emulator
 
@@ -350,21 +349,11 @@ second); the figures and the bag, drawn from them, may be cut short."""
 
 @contextlib.contextmanager
 def _interrupts_held():
-    """SIGINT and SIGTERM held off for the block (only the main thread sets handlers; the
-    signal is noted, not acted on): an interrupt that arrives meanwhile raises
-    KeyboardInterrupt as the block ends."""
-    if threading.current_thread() is not threading.main_thread():
+    """Ctrl+C and the stops taken as it held off for the block (:func:`held_stops`): one
+    that arrives meanwhile raises KeyboardInterrupt as the block ends."""
+    with held_stops() as came:
         yield
-        return
-    noted = []
-    held = {sig: signal.signal(sig, lambda signum, frame: noted.append(signum))
-            for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in held.items():
-            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
-    if noted:
+    if came:
         raise KeyboardInterrupt
 
 

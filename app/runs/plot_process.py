@@ -34,7 +34,6 @@ import functools
 import mmap
 import multiprocessing
 import pickle
-import signal
 import sys
 import time
 from pathlib import Path
@@ -42,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from app.runs.replicate_pool import apart
+from app.runs.signals import as_helper_process
 
 __all__ = ["FINISH_TIMEOUT_S", "PlotProcess", "prestart", "start"]
 
@@ -192,8 +192,7 @@ def _draw(conn, shared: mmap.mmap, shape: tuple[int, int], out_dir: Path, config
     reason) and ends it with exit status 1, quietly (the run then draws the figures).
     ``runs_end``: the run's end of the pipe, closed here (the fork's copy would keep
     the run's going away from being seen)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # an interrupt is the run's to handle
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # (not the run's "SIGTERM as Ctrl+C")
+    as_helper_process()  # an interrupt is the run's to handle
     if runs_end is not None:
         runs_end.close()
     try:

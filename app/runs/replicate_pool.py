@@ -27,6 +27,8 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
+from app.runs.signals import as_helper_process
+
 PR_SET_PDEATHSIG = 1
 """prctl's option: the signal a process gets when its parent ends (linux/prctl.h)."""
 _job: tuple | None = None
@@ -192,10 +194,9 @@ def _adopt(fn, args: tuple, noise, parent_pid: int) -> None:
 
 
 def _detach(parent_pid: int) -> None:
-    """A forked process's signals: Ctrl+C ignored (its parent's to handle), SIGTERM ends
-    it (not the run's "SIGTERM as Ctrl+C"), and it dies with its parent."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    """A forked process's signals (:func:`as_helper_process`), and it dies with its
+    parent."""
+    as_helper_process()
     _die_with(parent_pid)
 
 

@@ -93,10 +93,11 @@ def _alive(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("how", ["SIGTERM", "SIGINT twice", "SIGKILL"])
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGHUP", "SIGINT twice", "SIGKILL"])
 def test_a_run_stopped_during_its_replicates_keeps_its_record_and_leaves_no_process(
         how, tmp_path):
-    """SIGTERM (a scheduler's stop), or Ctrl+C twice in quick succession (the second while
+    """SIGTERM (a scheduler's stop), SIGHUP (its terminal closed), or Ctrl+C twice in
+    quick succession (the second while
     the files are written), while the interval's replicates run in their processes: the
     command exits 130 with the telemetry and metrics written whole (the interval said to
     be interrupted). Any of these or SIGKILL: neither the replicates' processes nor the
@@ -159,10 +160,10 @@ def test_a_worker_terminated_alone_does_not_interrupt_the_run():
     """With the run's SIGTERM-as-Ctrl+C in force (app/runs/signals.py), a SIGTERM that one
     replicate's process gets ends that process alone: the run computes the replicates
     itself, the same results, and is not interrupted."""
-    from app.runs.signals import interrupt_on_sigterm
+    from app.runs.signals import interrupt_on_termination
 
     before = signal.getsignal(signal.SIGTERM)
-    interrupt_on_sigterm()
+    interrupt_on_termination()
     try:
         got = run_replicates(_terminate_worker, (os.getpid(),), None, list(range(8)),
                              processes=2)
