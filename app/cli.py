@@ -38,7 +38,7 @@ def _cmd_propagate(args: argparse.Namespace) -> int:
     out = _output_dir(args.out)
     columns, rows = propagate(config, args.duration, args.dt)
     write_telemetry_csv(out / "telemetry.csv", columns, rows)
-    print(f"wrote {len(rows)} rows x {len(columns)} columns to {out / 'telemetry.csv'}")
+    _say(f"wrote {len(rows)} rows x {len(columns)} columns to {out / 'telemetry.csv'}")
     return 0
 
 
@@ -46,7 +46,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     scenarios = scenario_descriptions()
     width = max(map(len, scenarios), default=0)
     for name, desc in scenarios.items():
-        print(f"{name:{width}s}  {desc}")
+        _say(f"{name:{width}s}  {desc}")
     return 0
 
 
@@ -55,7 +55,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     from app.runs.headless import RunFailed, headless_config, run_scenario
     from app.runs.replicate_pool import cores
-    from app.runs.signals import interrupt_on_sigterm
+    from app.runs.signals import interrupt_on_termination
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
@@ -64,7 +64,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                                 overrides=[assignment_override(a) for a in args.set])
     duration = config.loop.duration_s
     _check_output_dir(default_out(args), bag=args.bag)  # before the pre-flight, not after
-    interrupt_on_sigterm()  # a scheduler's stop ends the run as Ctrl+C does: files written
+    interrupt_on_termination()  # a scheduler's stop ends the run as Ctrl+C does: files written
     ideal = None
     if config.loop.mode == "hil":  # refused before anything is created or moves
         from app.runs.headless import checked_reference
@@ -74,7 +74,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if ideal and ideal.get("forecast"):  # the fidelity forecast, before the arms move
             from app.runs.report import forecast_text
 
-            print(forecast_text(ideal["forecast"]), flush=True)
+            _say(forecast_text(ideal["forecast"]))
         from app.runs.metrics import noise_spin_warnings
 
         carried = [config.satellite_index(r.satellite) for r in config.robots]
@@ -139,23 +139,27 @@ def _report_run(result) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from app.campaign.leftovers import adopt_orphans, end_leftovers
     from app.campaign.sweep import load_spec, plan_sweep
     from app.campaign.sweep_ray import describe, parse_address, run_sweep
+    from app.runs.signals import interrupt_on_termination
 
     if args.address is not None:
         parse_address(args.address)
+    interrupt_on_termination()  # a scheduler's stop ends the sweep as Ctrl+C does
     plan = plan_sweep(load_spec(args.spec), Path(args.spec).parent, args.spec)
     out = _output_dir(args.out or f"sweeps/{Path(args.spec).stem}")
+    kept = None if args.address else adopt_orphans()  # a local Ray's, ended with it
     try:
         summary = run_sweep(plan, out, address=args.address, workers=args.workers,
                             resume=args.resume, keep=args.keep, quiet=args.quiet)
     except KeyboardInterrupt:
-        table = out / "results.csv"
-        kept = (f"the runs that ended are in {table} (--resume continues the sweep)"
-                if table.is_file() else "no run had ended")
-        print(f"interrupted: {kept}", file=sys.stderr)
+        print(f"interrupted: {_sweep_left(plan, out)}", file=sys.stderr)
         return 130
-    print(describe(summary, out))
+    finally:
+        if kept is not None:
+            end_leftovers(kept)
+    _say(describe(summary, out))
     failed = {s: summary["counts"].get(s, 0) for s in ("error", "lost")}
     if any(failed.values()):
         print(f"error: {failed['error']} run(s) ended in error and {failed['lost']} were lost "
@@ -165,11 +169,25 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sweep_left(plan, out: Path) -> str:
+    """What an interrupted sweep leaves: no table, a table of every run, or some rows."""
+    from app.campaign.sweep import read_results
+
+    table = out / "results.csv"
+    if not table.is_file():
+        return "no run had ended"
+    _, rows = read_results(table)
+    done = {r["run_id"] for r in rows if r["status"] != "lost"}
+    if all(run.run_id in done for run in plan.runs()):  # stops at the first missing
+        return f"every run had ended: {table} is whole"
+    return f"the runs that ended are in {table} (--resume continues the sweep)"
+
+
 def _cmd_sweep_plot(args: argparse.Namespace) -> int:
     from app.campaign.sweep_plot import plot_sweep
 
     path = plot_sweep(Path(args.dir), args.x, args.y, args.metric, args.out)
-    print(f"wrote {path}")
+    _say(f"wrote {path}")
     return 0
 
 
@@ -348,23 +366,23 @@ def _cmd_runs(args: argparse.Namespace) -> int:
         if args.id is None:
             raise ValueError("runs show: which run? give its ID (`orbit-emulator runs` "
                              "lists them)")
-        print(run_text(store.run(args.id), store.folder(args.id)))
+        _say(run_text(store.run(args.id), store.folder(args.id)))
         return 0
     if args.id is not None:
         raise ValueError(f"runs: unexpected {args.id!r} (did you mean `runs show {args.id}`?)")
     records = store.runs()
     if not records:
-        print(f"no runs in {store.root}")
+        _say(f"no runs in {store.root}")
         return 0
-    print(f"{'ID':34s} {'MODE':5s} {'SEED':>4s} {'SIM S':>6s} {'STATUS':11s} "
-          f"{'RESTITUTION':>11s} {'IDEAL':>6s} {'ERROR':>7s}")
+    _say(f"{'ID':34s} {'MODE':5s} {'SEED':>4s} {'SIM S':>6s} {'STATUS':11s} "
+         f"{'RESTITUTION':>11s} {'IDEAL':>6s} {'ERROR':>7s}")
     for r in records:
         h = r.get("headline") or {}
-        print(f"{r['id']:34s} {r.get('mode') or '-':5s} {_cell(r.get('seed'), 'd'):>4s} "
-              f"{_cell(r.get('duration_s'), '.2f'):>6s} {r.get('status') or '-':11s} "
-              f"{_cell(h.get('restitution'), '.3f'):>11s} "
-              f"{_cell(h.get('restitution_ideal'), '.3f'):>6s} "
-              f"{_cell(h.get('restitution_error'), '+.1%'):>7s}")
+        _say(f"{r['id']:34s} {r.get('mode') or '-':5s} {_cell(r.get('seed'), 'd'):>4s} "
+             f"{_cell(r.get('duration_s'), '.2f'):>6s} {r.get('status') or '-':11s} "
+             f"{_cell(h.get('restitution'), '.3f'):>11s} "
+             f"{_cell(h.get('restitution_ideal'), '.3f'):>6s} "
+             f"{_cell(h.get('restitution_error'), '+.1%'):>7s}")
     return 0
 
 
@@ -408,8 +426,8 @@ def program() -> None:
     args = build_parser().parse_args()
     try:
         status = _dispatch(args)
-    except BrokenPipeError:  # a command's last lines, to a reader that went away
-        _silence_stdout()
+    except BrokenPipeError as err:  # printed elsewhere than by _say, to a reader gone
+        _silence_stdout(err)
         status = 1
     if args.func is _cmd_run:
         _exit_at_once(status)
@@ -434,29 +452,34 @@ def _open_standard_streams() -> None:
             setattr(sys, name, open(fd, "r" if fd == 0 else "w", closefd=False))  # noqa: SIM115
 
 
-def _silence_stdout() -> None:
+def _silence_stdout(err: OSError) -> None:
     """What is left to print goes to /dev/null: stdout's reader went away (``run |
-    head``), which is no fault of the command (its files are written)."""
+    head``), which is no fault of the command (its files are written), or stdout cannot
+    be written (a full disk: said once on stderr)."""
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)
+    if not isinstance(err, BrokenPipeError):
+        print(f"warning: stdout: {err.strerror or err}; the rest of the report is not "
+              f"printed", file=sys.stderr)
 
 
 def _flush_stdout() -> None:
-    """stdout flushed; to a reader gone away, silenced (not a traceback at exit)."""
+    """stdout flushed; if it cannot be, silenced (not a traceback at exit)."""
     try:
         sys.stdout.flush()
-    except BrokenPipeError:
-        _silence_stdout()
+    except OSError as err:
+        _silence_stdout(err)
 
 
 def _say(text: str) -> None:
-    """``print(text)`` for a command's report: a reader gone away silences the rest of
-    stdout, and the command goes on (its status and its errors on stderr stay)."""
+    """``print(text)`` for a command's report: a stdout that cannot take it silences the
+    rest (:func:`_silence_stdout`), and the command goes on (its status and its errors
+    on stderr stay)."""
     try:
         print(text, flush=True)
-    except BrokenPipeError:
-        _silence_stdout()
+    except OSError as err:
+        _silence_stdout(err)
 
 
 def _dispatch(args) -> int:

@@ -422,22 +422,32 @@ def test_main_called_from_other_code_returns_after_run(tmp_path):
     assert (tmp_path / "out" / "metrics.json").is_file()
 
 
-def test_a_run_whose_output_reader_went_away_keeps_its_status_and_its_files(tmp_path):
-    """`run | head`: stdout's reader gone before the summary is printed is no failure of
-    the run: no traceback, the run's own exit status (3 for a safety stop, 0 otherwise),
-    its errors still on stderr, its files written."""
-    for setting, status in (("loop.seed=1", 0), ("loop.max_tracking_error_m=1e-5", 3)):
+@pytest.mark.parametrize("stdout", ["reader gone", "disk full"])
+def test_a_run_whose_stdout_fails_keeps_its_status_and_its_files(stdout, tmp_path):
+    """`run | head` (stdout's reader gone before anything is printed, the collision's
+    forecast first) or a stdout on a full disk is no failure of the run: no traceback,
+    the run's own exit status (3 for a safety stop, 0 otherwise), its errors still on
+    stderr (a full disk said once), its files written."""
+    for setting, status, duration in (("loop.seed=1", 0, "3.5"),
+                                      ("loop.max_tracking_error_m=1e-5", 3, "0.5")):
         out = tmp_path / setting.split("=")[0]
-        read, write = os.pipe()
-        os.close(read)  # nobody reads: the first write gets EPIPE
-        proc = subprocess.run([EXE, "run", "collision", "--duration", "0.5", "--quiet",
+        if stdout == "reader gone":
+            read, write = os.pipe()
+            os.close(read)  # nobody reads: the first write gets EPIPE
+        else:
+            write = os.open("/dev/full", os.O_WRONLY)
+        proc = subprocess.run([EXE, "run", "collision", "--duration", duration, "--quiet",
                                "--set", setting, "--out", str(out)],
-                              stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+                              stdout=write, stderr=subprocess.PIPE, text=True, timeout=300)
         os.close(write)
         assert proc.returncode == status, proc.stderr
         assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr
         assert (status == 3) == ("error: the run ended in a safety stop" in proc.stderr)
+        full = "warning: stdout: No space left on device; the rest of the report is not printed"
+        assert proc.stderr.count(full) == (stdout == "disk full")
         assert {p.name for p in out.iterdir()} >= {"metrics.json", "telemetry.csv"}
+        assert json.loads((out / "metrics.json").read_text())["status"] == (
+            "finished" if status == 0 else "safety_stop")
 
 
 @pytest.mark.parametrize("closed", [1, 2], ids=["stdout", "stderr"])

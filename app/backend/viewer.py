@@ -11,10 +11,12 @@ behind the app's Host/Origin checks and its token. One port for everything.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
 import http
 import http.client
 import inspect
+import io
 import logging
 import secrets
 import urllib.error
@@ -71,7 +73,9 @@ def start_viser(port: int = 0):
     import viser
 
     secret = secrets.token_urlsafe(32)
-    with _serve_behind(secret):
+    # viser prints its own address, which answers nobody without the secret: not shown
+    # (and a stdout gone away cannot fail the start)
+    with _serve_behind(secret), contextlib.redirect_stdout(io.StringIO()):
         server = viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
     try:
         urllib.request.urlopen(f"http://127.0.0.1:{server.get_port()}/", timeout=5)

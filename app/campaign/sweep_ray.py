@@ -17,14 +17,15 @@ from __future__ import annotations
 import os
 import pickle
 import re
-import signal
 import socket
 import sys
 import threading
 import time
 from collections import OrderedDict, deque
+from contextlib import contextmanager
 from pathlib import Path
 
+from app.campaign.leftovers import descendants, live_name
 from app.campaign.sweep import (
     ResultsTable,
     Run,
@@ -39,7 +40,7 @@ from app.campaign.sweep import (
 )
 from app.runs.replicate_pool import Apart, apart
 from app.runs.report import write_json
-from app.runs.signals import interrupt_on_sigterm
+from app.runs.signals import held_stops, reassert_handlers
 
 CONNECT_TIMEOUT_S = 20.0
 """How long joining a cluster may take before the sweep gives up (Ray's own connect
@@ -53,6 +54,9 @@ IDEAL_CACHE = 64
 IDEAL_APART_TIMEOUT_S = 300.0
 """How long the first ideal run, computed apart while Ray starts, is waited for (a
 pre-flight and its forecast take seconds) before a Ray task computes it instead."""
+RAY_STOP_WAIT_S = 0.5
+"""How long a stop that came while Ray starts waits to see whether Ray's own processes
+end with it (a SIGTERM ends them within a tenth of a second)."""
 LOOKAHEAD_RUNS = 256
 """How far ahead of the runs under way the sweep looks for ideal references to start."""
 
@@ -168,7 +172,7 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
             bar.close()
     finally:
         _drop(early)
-        ray.shutdown()
+        _shutdown(ray)
 
 
 class _Lookahead:
@@ -304,34 +308,67 @@ def start_ray(address: str | None, workers: int | None):
 
 
 def _init_holding_signals(ray, **options) -> None:
-    """``ray.init(**options)`` with a Ctrl+C or SIGTERM that comes meanwhile held until it
-    returns; then Ray is shut down again and the sweep ends as interrupted (no run has
-    started). Acted on where it came, it ended ``ray.init`` half-way: its agents were
-    left running, and its own SIGTERM handler exited at once (status 15) or, once its
-    core had started, aborted (134). Ray sets that handler through
-    ``ray._private.utils.set_sigterm_handler``, which is held to nothing meanwhile; the
-    sweep's own (:func:`interrupt_on_sigterm`) follows."""
-    came: list[int] = []
-    main = threading.current_thread() is threading.main_thread()
-    if main:
-        before = {sig: signal.signal(sig, lambda signum, frame: came.append(signum))
-                  for sig in (signal.SIGINT, signal.SIGTERM)}
+    """``ray.init(**options)`` with a stop that comes meanwhile held until it returns
+    (:func:`held_stops`); then Ray is shut down again and the sweep ends as interrupted
+    (no run has started). Acted on where it came, it ended ``ray.init`` half-way: its
+    agents were left running, and Ray's own SIGTERM handler exited at once (status 15).
+    That handler is set through ``ray._private.utils.set_sigterm_handler``, held to
+    nothing meanwhile. A stop that also ends Ray's own processes (one sent to the whole
+    process group) acts at once (:func:`_ray_stopped_too`): ``ray.init`` would fail, or
+    wait for them its 30 s. What a cut start leaves of Ray is ended with the sweep
+    (app/campaign/leftovers.py)."""
+    with held_stops("stopping once Ray has started (a few seconds)",
+                    act_now=_ray_stopped_too) as came, _ray_sigterm_handler_held(ray):
+        try:
+            ray.init(**options)
+        except (Exception, KeyboardInterrupt):  # the stop's doing, if one came
+            if not came:
+                raise
+    if came:
+        try:
+            _shutdown(ray)
+        except Exception:  # noqa: BLE001 - a Ray cut short by the stop: what is left of
+            pass  # it is ended with the sweep (app/campaign/leftovers.py)
+        raise KeyboardInterrupt
+
+
+def _ray_stopped_too(wait_s: float = RAY_STOP_WAIT_S) -> bool:
+    """Whether the stop reached Ray's own processes under this one too (a stop to the
+    whole process group): its GCS server is not alive, or no longer is ``wait_s`` later
+    (or has not started yet). ``ray.init`` would then wait for it its 30 s, in calls no
+    signal handler interrupts (the raylet outlives a SIGTERM while the GCS is gone)."""
+    deadline = time.monotonic() + wait_s
+    while any(live_name(pid) == "gcs_server" for pid in descendants()):
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+@contextmanager
+def _ray_sigterm_handler_held(ray):
+    """``ray.init``'s own SIGTERM handler (``sys.exit`` on the spot) not installed for the
+    block (main thread only: elsewhere Ray does not install it)."""
     utils = getattr(getattr(ray, "_private", None), "utils", None)
     own = getattr(utils, "set_sigterm_handler", None)
-    if own is not None:
-        utils.set_sigterm_handler = lambda handler: None
+    if own is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    utils.set_sigterm_handler = lambda handler: None
     try:
-        ray.init(**options)
+        yield
     finally:
-        if own is not None:
-            utils.set_sigterm_handler = own
-        if main:
-            for sig, handler in before.items():
-                signal.signal(sig, handler)
-            interrupt_on_sigterm()
-    if came:
+        utils.set_sigterm_handler = own
+
+
+def _shutdown(ray) -> None:
+    """``ray.shutdown()``, then the stop signals' handlers put back in force (Ray's core
+    resets SIGTERM's action to the default underneath Python: a SIGTERM then killed the
+    sweep before its summary was written)."""
+    try:
         ray.shutdown()
-        raise KeyboardInterrupt
+    finally:
+        reassert_handlers()
 
 
 def _auth_token_available() -> bool:
