@@ -202,7 +202,7 @@ def _sealed_run(seal: bool, seconds: float = 3.5):
     unreadable to the loop's lab side: of the interaction only the physics' own call
     (wrenches_W: the contact law and the hand acting on the mockups, which the sensors
     then measure), of the contact model only its geometry (the mockups' boxes at their
-    measured poses: clearances, frames) and the materials' friction setting."""
+    measured poses: apart, clearances, frames) and the materials' friction setting."""
     import numpy as np
 
     from app.config import merge_overrides
@@ -211,8 +211,8 @@ def _sealed_run(seal: bool, seconds: float = 3.5):
 
     em = Emulator(merge_overrides(load_scenario("collision"), {"loop": {"seed": 0}}))
     if seal:
-        contact = _Sealed(em.interaction.contact, {"clearances", "frames", "friction"},
-                          "contact")
+        contact = _Sealed(em.interaction.contact,
+                          {"apart", "clearances", "frames", "friction"}, "contact")
         interaction = em.interaction
         em.interaction = _Sealed(interaction, {"wrenches_W"}, "interaction")
         object.__setattr__(em.interaction, "contact", contact)  # for the gate's query
