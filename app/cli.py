@@ -424,15 +424,48 @@ def program() -> None:
     (:func:`_exit_at_once`)."""
     _open_standard_streams()
     args = build_parser().parse_args()
+    if args.func in (_cmd_run, _cmd_sweep):  # a stop before their own set-up: interrupted
+        from app.runs.signals import interrupt_on_termination  # (serve has its own)
+
+        interrupt_on_termination()
     try:
         status = _dispatch(args)
     except BrokenPipeError as err:  # printed elsewhere than by _say, to a reader gone
         _silence_stdout(err)
         status = 1
+    if status == 0 and _stdout_lost and args.func in (_cmd_scenarios, _cmd_runs):
+        status = 1  # a listing that could not be printed is a listing not given
     if args.func is _cmd_run:
         _exit_at_once(status)
     _flush_stdout()
     sys.exit(status)
+
+
+class _StderrOrNothing:
+    """``sys.stderr`` that goes silent once it cannot be written (a full disk, a reader
+    gone): a progress bar or a warning that cannot be shown is no reason for a command
+    to fail (``run 2>/dev/full`` ended before its run, exit 1)."""
+
+    def __init__(self, stream) -> None:
+        self._stream, self._lost = stream, False
+
+    def write(self, text: str) -> int:
+        if not self._lost:
+            try:
+                return self._stream.write(text)
+            except OSError:
+                self._lost = True
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._lost:
+            try:
+                self._stream.flush()
+            except OSError:
+                self._lost = True
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
 
 
 def _open_standard_streams() -> None:
@@ -450,12 +483,19 @@ def _open_standard_streams() -> None:
                 os.close(got)
         if getattr(sys, name) is None:
             setattr(sys, name, open(fd, "r" if fd == 0 else "w", closefd=False))  # noqa: SIM115
+    sys.stderr = _StderrOrNothing(sys.stderr)
+
+
+_stdout_lost = False
+"""Whether something the command printed could not be written (:func:`_silence_stdout`)."""
 
 
 def _silence_stdout(err: OSError) -> None:
     """What is left to print goes to /dev/null: stdout's reader went away (``run |
     head``), which is no fault of the command (its files are written), or stdout cannot
     be written (a full disk: said once on stderr)."""
+    global _stdout_lost
+    _stdout_lost = True
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)

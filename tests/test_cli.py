@@ -466,3 +466,22 @@ def test_a_run_with_a_closed_standard_stream_runs_and_writes_nothing_of_it_to_it
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["status"] == "finished"
     assert (out / "telemetry.csv").read_text().startswith("t_s,")
+
+
+def test_a_stderr_that_cannot_be_written_does_not_fail_the_run_and_a_listing_says_so(
+        tmp_path):
+    """`run 2>/dev/full`: the progress bar and the warnings cannot be shown, which is no
+    reason for the run to fail (it ended before its run, exit 1); `scenarios
+    >/dev/full`: a listing that could not be printed exits 1."""
+    out = tmp_path / "out"
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([EXE, "run", "free-floating-scripted", "--duration", "0.5",
+                               "--out", str(out)], stdout=subprocess.DEVNULL, stderr=full,
+                              timeout=120)
+        assert proc.returncode == 0
+        assert json.loads((out / "metrics.json").read_text())["status"] == "finished"
+        listing = subprocess.run([EXE, "scenarios"], stdout=full, stderr=subprocess.PIPE,
+                                 text=True, timeout=60)
+    assert listing.returncode == 1
+    assert listing.stderr.strip() == ("warning: stdout: No space left on device; the rest "
+                                      "of the report is not printed")

@@ -82,15 +82,20 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         for srv in getattr(server, "servers", []):  # the port bound, also for --port 0
             for sock in srv.sockets:
                 port = sock.getsockname()[1]
-        print(
-            f"\n  orbit-emulator web app   http://{shown}:{port}/{link}\n"
-            f"  REST API docs (OpenAPI)  http://{shown}:{port}/docs{link}\n"
-            f"  3D viewer (viser)        http://{shown}:{port}/viewer/{link}\n"
-            + ("" if token is None else
-               "  every request needs the token: the link sets a cookie; API clients send "
-               "Authorization: Bearer <token>\n"),
-            flush=True,
-        )
+        try:  # a stdout that cannot take it (a full disk, a reader gone) is no failure
+            print(
+                f"\n  orbit-emulator web app   http://{shown}:{port}/{link}\n"
+                f"  REST API docs (OpenAPI)  http://{shown}:{port}/docs{link}\n"
+                f"  3D viewer (viser)        http://{shown}:{port}/viewer/{link}\n"
+                + ("" if token is None else
+                   "  every request needs the token: the link sets a cookie; API clients "
+                   "send Authorization: Bearer <token>\n"),
+                flush=True,
+            )
+        except OSError as err:
+            logging.getLogger("orbit_emulator.server").warning(
+                "the app's addresses were not printed (stdout: %s); it serves at "
+                "http://%s:%s/", err.strerror or err, shown, port)
 
     server.startup = startup  # type: ignore[method-assign]
     interrupted = []

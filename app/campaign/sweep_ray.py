@@ -25,7 +25,7 @@ from collections import OrderedDict, deque
 from contextlib import contextmanager
 from pathlib import Path
 
-from app.campaign.leftovers import descendants, live_name
+from app.campaign.leftovers import descendants, end_leftovers, live_name
 from app.campaign.sweep import (
     ResultsTable,
     Run,
@@ -55,8 +55,8 @@ IDEAL_APART_TIMEOUT_S = 300.0
 """How long the first ideal run, computed apart while Ray starts, is waited for (a
 pre-flight and its forecast take seconds) before a Ray task computes it instead."""
 RAY_STOP_WAIT_S = 0.5
-"""How long a stop that came while Ray starts waits to see whether Ray's own processes
-end with it (a SIGTERM ends them within a tenth of a second)."""
+"""How long a stop that came while Ray starts waits to see whether Ray's GCS ends with it
+(a SIGTERM ends it within a tenth of a second)."""
 LOOKAHEAD_RUNS = 256
 """How far ahead of the runs under way the sweep looks for ideal references to start."""
 
@@ -171,8 +171,11 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         finally:
             bar.close()
     finally:
-        _drop(early)
-        _shutdown(ray)
+        with held_stops() as came:  # Ray stopped whole, then the stop acts
+            _drop(early)
+            _shutdown(ray)
+        if came:
+            raise KeyboardInterrupt
 
 
 class _Lookahead:
@@ -313,15 +316,17 @@ def _init_holding_signals(ray, **options) -> None:
     (no run has started). Acted on where it came, it ended ``ray.init`` half-way: its
     agents were left running, and Ray's own SIGTERM handler exited at once (status 15).
     That handler is set through ``ray._private.utils.set_sigterm_handler``, held to
-    nothing meanwhile. A stop that also ends Ray's own processes (one sent to the whole
-    process group) acts at once (:func:`_ray_stopped_too`): ``ray.init`` would fail, or
-    wait for them its 30 s. What a cut start leaves of Ray is ended with the sweep
-    (app/campaign/leftovers.py)."""
+    nothing meanwhile. A stop that also ends Ray's GCS (one sent to the whole process
+    group) cannot be held: ``ray.init`` would wait for the GCS, then fail or end the
+    process itself (exit 1 after 60 s); the sweep ends there
+    (:func:`_end_if_ray_stopped_too`), once its handler runs (a call that holds the
+    interpreter delays it, up to Ray's 30 s). What Ray leaves behind is ended with the
+    sweep (app/campaign/leftovers.py)."""
     with held_stops("stopping once Ray has started (a few seconds)",
-                    act_now=_ray_stopped_too) as came, _ray_sigterm_handler_held(ray):
+                    on_stop=_end_if_ray_stopped_too) as came, _ray_sigterm_handler_held(ray):
         try:
             ray.init(**options)
-        except (Exception, KeyboardInterrupt):  # the stop's doing, if one came
+        except Exception:  # the stop's doing, if one came
             if not came:
                 raise
     if came:
@@ -332,17 +337,20 @@ def _init_holding_signals(ray, **options) -> None:
         raise KeyboardInterrupt
 
 
-def _ray_stopped_too(wait_s: float = RAY_STOP_WAIT_S) -> bool:
-    """Whether the stop reached Ray's own processes under this one too (a stop to the
-    whole process group): its GCS server is not alive, or no longer is ``wait_s`` later
-    (or has not started yet). ``ray.init`` would then wait for it its 30 s, in calls no
-    signal handler interrupts (the raylet outlives a SIGTERM while the GCS is gone)."""
+def _end_if_ray_stopped_too(wait_s: float = RAY_STOP_WAIT_S) -> None:
+    """In a stop's handler while Ray starts: if Ray's GCS under this process is not alive
+    (the stop reached it too, or it has not started), or no longer is ``wait_s`` later,
+    the sweep ends at once as interrupted (130): no run has started and nothing is
+    written yet; what Ray had started is ended first. Raising from a handler could land
+    where Python ignores the exception (a lock's release); ``os._exit`` cannot."""
     deadline = time.monotonic() + wait_s
     while any(live_name(pid) == "gcs_server" for pid in descendants()):
         if time.monotonic() >= deadline:
-            return False
+            return
         time.sleep(0.02)
-    return True
+    print("interrupted: no run had ended", file=sys.stderr, flush=True)
+    end_leftovers(set())
+    os._exit(130)
 
 
 @contextmanager

@@ -156,23 +156,30 @@ def run_scenario(
         em.status = "interrupted"
     finally:
         wall_s = time.perf_counter() - t0
-        if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
-            if ideal is None:
-                ideal = ideal_collision(config, duration_s)
-        else:
-            ideal = None
-        error = None if failure is None else f"{type(failure).__name__}: {failure}"
-        metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
-        if plotter is not None:  # drawing while the replicates run
-            try:
-                plotter.begin(em.telemetry.rows(), em.telemetry.index, metrics,
-                              note=metrics["scaling"]["text"])
-            except OSError:  # it died: drawn here
-                plotter.close()
-                plotter = None
+        # a stop from here on waits for the record: the metrics first (the ideal run's
+        # comparison may take seconds), then the files; the interval is then left out
+        with held_stops("interrupted: the run's record is written first") as stopped:
+            if with_ideal and em.mode == "hil" and len(config.satellites) >= 2:
+                if ideal is None:
+                    ideal = ideal_collision(config, duration_s)
+            else:
+                ideal = None
+            error = None if failure is None else f"{type(failure).__name__}: {failure}"
+            metrics = compute_metrics(em, wall_s, ideal_collision=ideal, error=error)
+            if plotter is not None:  # drawing while the replicates run
+                try:
+                    plotter.begin(em.telemetry.rows(), em.telemetry.index, metrics,
+                                  note=metrics["scaling"]["text"])
+                except OSError:  # it died: drawn here
+                    plotter.close()
+                    plotter = None
         try:
             if failure is None and interrupted is None:
-                interrupted = _add_uncertainty(em, metrics, processes)
+                if stopped:
+                    interrupted = KeyboardInterrupt()
+                    _no_interval(em, metrics, "was interrupted: none")
+                else:
+                    interrupted = _add_uncertainty(em, metrics, processes)
             files, unwritten = [], None
             if out_dir is not None:
                 try:
@@ -203,14 +210,22 @@ def _add_uncertainty(em: Emulator, metrics: dict,
         spread_of_run(em, coll, processes=processes)
         add_systematic(coll, metrics.get("collision_forecast"))
     except (Exception, KeyboardInterrupt) as err:  # noqa: BLE001 - the record matters more
-        coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
-        coll["restitution_systematic"] = coll["restitution_bias_noisy"] = None
         if isinstance(err, KeyboardInterrupt):
-            coll["warnings"].append("the restitution's interval was interrupted: none")
+            _no_interval(em, metrics, "was interrupted: none")
             return err
-        coll["warnings"].append(f"the restitution's interval failed: {type(err).__name__}: "
-                                f"{err}")
+        _no_interval(em, metrics, f"failed: {type(err).__name__}: {err}")
     return None
+
+
+def _no_interval(em: Emulator, metrics: dict, why: str) -> None:
+    """A run with a contact to bound whose interval is not computed: no interval, and a
+    warning that says why (``the restitution's interval <why>``)."""
+    coll = metrics.get("collision")
+    if coll is None or em.snapshot is None:
+        return
+    coll["restitution_sd"] = coll["restitution_interval_95"] = coll["uncertainty"] = None
+    coll["restitution_systematic"] = coll["restitution_bias_noisy"] = None
+    coll["warnings"].append(f"the restitution's interval {why}")
 
 
 def _run(em: Emulator, duration_s: float, progress) -> Exception | None:

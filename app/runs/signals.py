@@ -35,13 +35,12 @@ def interrupt_on_termination() -> None:
 
 
 @contextmanager
-def held_stops(note: str | None = None, act_now=None):
+def held_stops(note: str | None = None, on_stop=None):
     """Ctrl+C, SIGTERM and SIGHUP held over the block (main thread only; an ignored one
     stays ignored): the block gets the list of those that came (the first prints
     ``note`` on stderr, if any), and the handlers in place before it are put back at its
     end (SIGINT last: a Ctrl+C then finds the others back). The caller acts on the
-    list. ``act_now``: asked at each stop; if it answers True, the stop acts after all
-    (KeyboardInterrupt where the block is)."""
+    list. ``on_stop``: called (without arguments) as each stop comes, in the handler."""
     came: list[int] = []
     if not _main_thread():
         yield came
@@ -51,8 +50,8 @@ def held_stops(note: str | None = None, act_now=None):
         if not came and note:
             print(note, file=sys.stderr, flush=True)
         came.append(signum)
-        if act_now is not None and act_now():
-            raise KeyboardInterrupt
+        if on_stop is not None:
+            on_stop()
 
     before = {sig: signal.getsignal(sig) for sig in STOPS}
     held = [sig for sig, handler in before.items() if handler is not signal.SIG_IGN]
@@ -79,7 +78,9 @@ def reassert_handlers() -> None:
 
 def as_helper_process() -> None:
     """A process forked to help a command (a replicate's, a figure's): Ctrl+C ignored (the
-    command's to handle), SIGTERM and SIGHUP end it (not the command's "as Ctrl+C")."""
+    command's to handle), SIGTERM and SIGHUP end it (not the command's "as Ctrl+C"); a
+    SIGHUP the command ignores (nohup) it ignores too."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)

@@ -189,6 +189,43 @@ def test_an_interrupt_while_the_record_is_written_acts_once_it_is_whole():
     assert reached_end
 
 
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGHUP], ids=["ctrl-c", "sighup"])
+def test_a_stop_after_the_loop_s_last_cycle_keeps_the_whole_record(stop, tmp_path,
+                                                                    monkeypatch):
+    """A stop that comes once the loop has ended, while the metrics are worked out (the
+    ideal run's comparison may take seconds), waits for the record: metrics.json and
+    telemetry.csv are written whole, the interval said to be interrupted, and then the
+    run raises KeyboardInterrupt (it lost the whole record before)."""
+    import json
+
+    import app.runs.headless as headless
+    from app.runs.signals import interrupt_on_termination
+    from app.scenarios import load_scenario
+
+    real = headless.compute_metrics
+
+    def stopped_first(*args, **kwargs):
+        os.kill(os.getpid(), stop)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(headless, "compute_metrics", stopped_first)
+    before = signal.getsignal(signal.SIGHUP)
+    interrupt_on_termination()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            headless.run_scenario(load_scenario("collision"), duration_s=3.5,
+                                  out_dir=tmp_path, plots_apart=False)
+    finally:
+        signal.signal(signal.SIGHUP, before)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["status"] == "finished"
+    rows = (tmp_path / "telemetry.csv").read_text().splitlines()
+    assert float(rows[-1].split(",")[0]) == pytest.approx(3.5)
+    coll = metrics["collision"]
+    assert coll["restitution"] is not None and coll["restitution_interval_95"] is None
+    assert "the restitution's interval was interrupted: none" in coll["warnings"]
+
+
 def test_a_call_apart_answers_ignores_ctrl_c_and_stops_at_once():
     """``apart``: the call's result comes back through the pipe; the process ignores a
     Ctrl+C (SIGINT) meant for its parent; ``stop`` ends one still under way at once (a
