@@ -51,11 +51,13 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from app.runs.signals import interrupt_on_termination
+
+    interrupt_on_termination()  # a scheduler's stop ends the run as Ctrl+C does: files written
     from tqdm import tqdm
 
     from app.runs.headless import RunFailed, headless_config, run_scenario
     from app.runs.replicate_pool import cores
-    from app.runs.signals import interrupt_on_termination
 
     if args.bag_rate is not None and not args.bag:
         raise ValueError("--bag-rate: only with --bag")
@@ -64,7 +66,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
                                 overrides=[assignment_override(a) for a in args.set])
     duration = config.loop.duration_s
     _check_output_dir(default_out(args), bag=args.bag)  # before the pre-flight, not after
-    interrupt_on_termination()  # a scheduler's stop ends the run as Ctrl+C does: files written
     ideal = None
     if config.loop.mode == "hil":  # refused before anything is created or moves
         from app.runs.headless import checked_reference
@@ -139,14 +140,15 @@ def _report_run(result) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from app.runs.signals import interrupt_on_termination
+
+    interrupt_on_termination()  # a scheduler's stop ends the sweep as Ctrl+C does
     from app.campaign.leftovers import adopt_orphans, end_leftovers
     from app.campaign.sweep import load_spec, plan_sweep
     from app.campaign.sweep_ray import describe, parse_address, run_sweep
-    from app.runs.signals import interrupt_on_termination
 
     if args.address is not None:
         parse_address(args.address)
-    interrupt_on_termination()  # a scheduler's stop ends the sweep as Ctrl+C does
     plan = plan_sweep(load_spec(args.spec), Path(args.spec).parent, args.spec)
     out = _output_dir(args.out or f"sweeps/{Path(args.spec).stem}")
     kept = None if args.address else adopt_orphans()  # a local Ray's, ended with it
@@ -424,10 +426,6 @@ def program() -> None:
     (:func:`_exit_at_once`)."""
     _open_standard_streams()
     args = build_parser().parse_args()
-    if args.func in (_cmd_run, _cmd_sweep):  # a stop before their own set-up: interrupted
-        from app.runs.signals import interrupt_on_termination  # (serve has its own)
-
-        interrupt_on_termination()
     try:
         status = _dispatch(args)
     except BrokenPipeError as err:  # printed elsewhere than by _say, to a reader gone

@@ -40,7 +40,7 @@ from app.campaign.sweep import (
 )
 from app.runs.replicate_pool import Apart, apart
 from app.runs.report import write_json
-from app.runs.signals import held_stops, reassert_handlers
+from app.runs.signals import held_stops, interrupts_held, reassert_handlers
 
 CONNECT_TIMEOUT_S = 20.0
 """How long joining a cluster may take before the sweep gives up (Ray's own connect
@@ -171,11 +171,9 @@ def _execute(plan, first: list[Run], pending, table, out_dir, summary, *, addres
         finally:
             bar.close()
     finally:
-        with held_stops() as came:  # Ray stopped whole, then the stop acts
+        with interrupts_held():  # Ray stopped whole, then the stop acts
             _drop(early)
             _shutdown(ray)
-        if came:
-            raise KeyboardInterrupt
 
 
 class _Lookahead:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import shutil
@@ -20,7 +19,7 @@ from app.runs.metrics import collision_metrics, compute_metrics, contact_pair
 from app.runs.plots import FIGURES, FIGURES_FILE, plot_run
 from app.runs.preflight import check_drift, preflight
 from app.runs.report import write_json, write_telemetry_csv
-from app.runs.signals import held_stops
+from app.runs.signals import held_stops, interrupts_held
 from app.runs.uncertainty import add_systematic, forecast, snapshot_time_s, spread_of_run
 from app.sim.loop import Emulator
 
@@ -343,7 +342,7 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
         except (OSError, ValueError) as err:
             problems.append(f"{problem}, nor in {fallback}: {_reason(err)}")
 
-    with _interrupts_held():  # the record itself whole before an interrupt acts
+    with interrupts_held():  # the record itself whole before an interrupt acts
         for what, write in writers:
             if what in RECORD_FILES:
                 write_one(what, write)
@@ -360,16 +359,6 @@ def write_run_files(em: Emulator, metrics: dict, out_dir: str | Path, telemetry:
 RECORD_FILES = ("metrics.json", "telemetry.csv")
 """What a run recorded: Ctrl+C or SIGTERM waits until each is whole (a fraction of a
 second); the figures and the bag, drawn from them, may be cut short."""
-
-
-@contextlib.contextmanager
-def _interrupts_held():
-    """Ctrl+C and the stops taken as it held off for the block (:func:`held_stops`): one
-    that arrives meanwhile raises KeyboardInterrupt as the block ends."""
-    with held_stops() as came:
-        yield
-    if came:
-        raise KeyboardInterrupt
 
 
 def _entries(folder: Path) -> dict[str, tuple[int, int, int]]:

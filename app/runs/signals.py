@@ -65,6 +65,16 @@ def held_stops(note: str | None = None, on_stop=None):
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)
 
 
+@contextmanager
+def interrupts_held():
+    """:func:`held_stops` over the block, then, if a stop came, KeyboardInterrupt as it
+    ends: the block is done whole before the stop acts."""
+    with held_stops() as came:
+        yield
+    if came:
+        raise KeyboardInterrupt
+
+
 def reassert_handlers() -> None:
     """Put the stop signals' Python handlers back in force at the system level: a library
     that resets a signal's action underneath Python (Ray's shutdown does, for SIGTERM)

@@ -178,11 +178,11 @@ def test_an_interrupt_while_the_record_is_written_acts_once_it_is_whole():
     as it ends the KeyboardInterrupt is."""
     import time
 
-    from app.runs.headless import _interrupts_held
+    from app.runs.signals import interrupts_held
 
     reached_end = False
     with pytest.raises(KeyboardInterrupt):
-        with _interrupts_held():
+        with interrupts_held():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)  # (an unheld SIGINT would have raised by now)
             reached_end = True
