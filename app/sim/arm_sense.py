@@ -95,37 +95,17 @@ def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
           gate_open: bool) -> ProcessedWrench:
     """:meth:`ArmRig.sense` of a rig whose sensor sits at the flange and samples every
     cycle, in one compiled call; the rig, its sensor and its chain end as after the
-    stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included).
-
-    The bookkeeping of a cycle with the delay ring filled, the loop's every cycle, is
-    written out here (``sensor.advance``'s every-cycle branch with ``next_normals``,
-    ``proc.gate``): the same updates, without their calls."""
+    stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included)."""
     sensor, proc = rig.sensor, rig.processor
     T_W_F = rig.mockup_state_W()[0]
-    head = sensor._head
-    if head >= 0 and sensor.every_cycles == 1.0:  # sensor.advance(): the ring filled,
-        # nothing held, the head moves on
-        k, block = sensor._normals_at, sensor._normals
-        if k == len(block):
-            normals = sensor.next_normals()
-        else:
-            sensor._normals_at, normals = k + 1, block[k]
-        head = sensor._head = (head + 1) % len(sensor._ring)
-        fill = False
-    else:
-        normals, fill, held = sensor.advance()
-        assert held is None  # a sensor that samples every cycle holds nothing
-        head = sensor._head
+    normals, fill, held = sensor.advance()
+    assert held is None  # a sensor that samples every cycle holds nothing
     age = proc.reading_age_cycles = sensor.age_cycles
-    # proc.gate(gate_open): begin's, but for the poses
-    db_force, db_torque = ((0.0, 0.0) if gate_open
-                           else (proc.deadband_force_N, proc.deadband_torque_Nm))
-    reset_slow = proc._gate_was_open and not gate_open and proc.contact_alpha != proc.alpha
-    proc._gate_was_open = gate_open
+    db_force, db_torque, reset_slow = proc.gate(gate_open)  # begin's, but for the poses
     out = np.empty(OUT_SIZE)
     arm_sense_packed(np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, v_W,
                      rig.v_W_prev, dt_s, first_cycle, normals, sensor.constants,
-                     sensor._ring, head, fill, proc._poses, proc._pose_at, age,
+                     sensor._ring, sensor._head, fill, proc._poses, proc._pose_at, age,
                      R_W_R, proc.constants, proc._x, gate_open, reset_slow, db_force,
                      db_torque, out)
     rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
