@@ -125,6 +125,7 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int,
               "| ratio of minima | median of chunk ratios | cycle p50 this / other (ratio) "
               "| cycle p99 this / other (ratio) |")
         print("|---|---|---:|---:|---:|---:|---:|---:|")
+        cold_rows = []
         def fresh(scenario, mode):  # both emulators, prepared and past their first cycles
             ems = [Emulator(load_scenario(scenario), mode=mode),
                    OtherEmulator(other_load(scenario), mode=mode)]
@@ -157,6 +158,30 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int,
                       f"| {np.median(a / b):.3f} | {pa[0]:.1f} / {pb[0]:.1f} "
                       f"({pa[0] / pb[0]:.3f}) | {pa[1]:.1f} / {pb[1]:.1f} "
                       f"({pa[1] / pb[1]:.3f}) |", flush=True)
+                cold_rows.append(_cold_row(scenario, mode, cycle_us))
+        _print_cold(cold_rows)
+
+
+def _cold_row(scenario: str, mode: str, cycle_us: list[list[np.ndarray]]) -> str:
+    """One row of :func:`_print_cold`: per tree, the median of each chunk's first cycle
+    (the one after the other tree's chunk) and the p99 of the cycles without it."""
+    firsts = [np.median([c[0] for c in tree if len(c)]) for tree in cycle_us]
+    warm = [np.percentile(np.concatenate([c[1:] for c in tree]), 99) for tree in cycle_us]
+    return (f"| {scenario} | {mode} | {firsts[0]:.1f} / {firsts[1]:.1f} "
+            f"({firsts[0] / firsts[1]:.3f}) | {warm[0]:.1f} / {warm[1]:.1f} "
+            f"({warm[0] / warm[1]:.3f}) |")
+
+
+def _print_cold(rows: list[str]) -> None:
+    """The p99 above, taken apart: with 100 cycles per chunk, each chunk's first cycle (1 %
+    of the samples) runs after the other tree's code has taken the CPU's caches, and it
+    sets the p99; the p99 of the other cycles is the warm loop's tail."""
+    print("\n### The cold cycle: each chunk's first, after the other tree's chunk\n")
+    print("| scenario | mode | first cycle of a chunk, median µs this / other (ratio) "
+          "| cycle p99 without it, this / other (ratio) |")
+    print("|---|---|---:|---:|")
+    for row in rows:
+        print(row)
 
 
 # --- per-stage breakdown --------------------------------------------------------------------

@@ -35,6 +35,17 @@ def test_loop_speed_quick():
         assert line in out, line
 
 
+def test_loop_speed_cold_row_takes_each_chunks_first_cycle_apart():
+    """The cold-cycle row: per tree, the median of each chunk's first cycle and the p99 of
+    the others (here every other cycle is 10 or 20 µs, every first 100 or 50 µs)."""
+    from benchmarks.loop_speed import _cold_row
+
+    this = [np.r_[100.0, np.full(99, 10.0)] for _ in range(5)]
+    other = [np.r_[50.0, np.full(99, 20.0)] for _ in range(5)]
+    assert _cold_row("collision", "hil", [this, other]) == (
+        "| collision | hil | 100.0 / 50.0 (2.000) | 10.0 / 20.0 (0.500) |")
+
+
 def test_ik_compare_quick():
     out = _run("benchmarks.ik_compare")
     assert "Pink" in out

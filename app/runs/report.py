@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -243,16 +242,17 @@ def sync_limits_text(sync: dict) -> str:
 
 def _chain_text(coll: dict) -> str:
     """Which estimate of the chain's systematic error widened the interval, and by how
-    much (app.runs.uncertainty.add_systematic: on each side, the one reaching furthest
-    toward the ideal); the other, for comparison. "" with neither."""
+    much (app.runs.uncertainty.widening: on each side, the one reaching furthest toward
+    the ideal); the other, for comparison. "" with neither."""
     known = [(d, name) for d, name in ((coll.get("restitution_systematic"), "noise-free twin"),
                                        (coll.get("restitution_bias_noisy"),
                                         "noisy replicates' mean")) if d is not None]
     if not known:
         return ""
-    high = max(known, key=itemgetter(0))  # (a tie goes to the twin, the first)
-    low = min(known, key=itemgetter(0))
-    used = ([high] if high[0] > 0 else []) + ([low] if low[0] < 0 else [])
+    from app.runs.uncertainty import widening  # (the loop's imports: only where it is used)
+
+    low, high = widening(known)
+    used = [e for e in (low, high) if e is not None]
     if not used:
         return ", no systematic error from the chain (" + ", ".join(n for _, n in known) + ")"
     rest = [(d, n) for d, n in known if (d, n) not in used]

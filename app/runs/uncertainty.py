@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from operator import itemgetter
 
 import numpy as np
 
@@ -425,18 +426,33 @@ def add_systematic(coll: dict | None, forecast_: dict | None) -> None:
     interval = coll.get("restitution_interval_95")
     if interval is None:
         return
-    deltas = [d for d in (delta, noisy) if d is not None]
-    if not deltas:
+    estimates = [(d, name) for d, name in ((delta, "noise-free twin"),
+                                           (noisy, "noisy replicates' mean")) if d is not None]
+    if not estimates:
         if coll.get("uncertainty") is not None:
             coll["uncertainty"]["systematic"] = (
                 "not included (no forecast)" if not forecast_ else
                 "not included (the forecast has neither the noise-free twin's nor the "
                 "noisy replicates' restitution)")
         return
-    coll["restitution_interval_95"] = [interval[0] - max(*deltas, 0.0),
-                                       interval[1] + max(*(-d for d in deltas), 0.0)]
+    low, high = widening(estimates)
+    coll["restitution_interval_95"] = [interval[0] - (0.0 if low is None else low[0]),
+                                       interval[1] + (0.0 if high is None else -high[0])]
     if coll.get("uncertainty") is not None:
         coll["uncertainty"]["systematic"] = systematic_text(delta, noisy)
+
+
+def widening(estimates: list[tuple[float, str]]
+             ) -> tuple[tuple[float, str] | None, tuple[float, str] | None]:
+    """Of the chain's systematic-error estimates ``(δ, name)``, the one that widens the
+    interval's low side (the largest δ, if > 0: the ideal lies below) and the one that
+    widens its high side (the smallest δ, if < 0); None where none does. A tie goes to
+    the first estimate (:func:`add_systematic` lists the noise-free twin first)."""
+    if not estimates:
+        return None, None
+    high = max(estimates, key=itemgetter(0))
+    low = min(estimates, key=itemgetter(0))
+    return (high if high[0] > 0 else None), (low if low[0] < 0 else None)
 
 
 def systematic_text(delta: float | None, noisy: float | None) -> str:

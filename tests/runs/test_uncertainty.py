@@ -19,6 +19,7 @@ from app.runs.uncertainty import (
     replicate,
     sd_standard_error,
     snapshot_time_s,
+    widening,
 )
 from app.scenarios import load_scenario
 from app.sim.loop import Emulator
@@ -266,6 +267,17 @@ def test_a_bias_the_noise_makes_widens_the_interval_to_the_ideal():
         f"restitution 95 % interval [{low:.3f}, {high:.3f}] (sd 0.030, 30 replicates of "
         "the contact with the noise measured at calibration, widened by the chain's "
         "systematic error -0.278 (noisy replicates' mean); the noise-free twin's -0.222)")
+
+
+def test_widening_names_each_sides_estimate():
+    """The low side takes the largest positive δ, the high side the most negative; a tie
+    goes to the first estimate; a δ of zero widens nothing."""
+    twin, noisy = "noise-free twin", "noisy replicates' mean"
+    assert widening([(0.03, twin), (0.03, noisy)]) == ((0.03, twin), None)
+    assert widening([(-0.01, twin), (-0.04, noisy)]) == (None, (-0.04, noisy))
+    assert widening([(-0.1, twin), (0.2, noisy)]) == ((0.2, noisy), (-0.1, twin))
+    assert widening([(0.0, twin)]) == (None, None)
+    assert widening([]) == (None, None)
 
 
 def test_where_the_twins_bias_is_the_larger_the_interval_is_the_twins():
