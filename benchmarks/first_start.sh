@@ -16,16 +16,21 @@ export PYTHONPATH=$T ORBIT_EMULATOR_CACHE=$OUT/cache
 cd "$T"
 PY=$T/.venv/bin/python
 now() { date +%s.%N; }
+SERVE_PID=""  # the serve under way, ended however the script ends (a closed pipe too)
+end_serve() { [[ -n "$SERVE_PID" ]] && kill "$SERVE_PID" 2>/dev/null; SERVE_PID=""; }
+trap 'end_serve' EXIT
+trap 'end_serve; exit 130' INT TERM HUP PIPE
 serve_ready() {
   local t0; t0=$(now)
   $PY -m app.cli serve --port "$PORT" --runs-dir "$OUT/web" >"$OUT/serve.log" 2>&1 &
   local pid=$!
+  SERVE_PID=$pid
   until curl -sf -o /dev/null "http://127.0.0.1:$PORT/"; do
     sleep 0.2
     kill -0 $pid 2>/dev/null || { echo "serve died (see $OUT/serve.log)"; break; }
   done
   echo "serve ready $(echo "$(now) - $t0" | bc) s"
-  kill $pid; wait $pid 2>/dev/null
+  end_serve; wait $pid 2>/dev/null
 }
 run_collision() {  # with "fresh": no kept forecast or pre-flight reference
   [[ "${1:-}" == fresh ]] && rm -rf "$OUT/cache"

@@ -84,14 +84,19 @@ def compare_trees(other: Path, scenarios: list[str], rounds: int, duration_s: fl
                 runs[name][s].append(res[s])
                 cells.append(f"{res[s]['rtf']:.2f} ({res[s]['p50']:.0f})")
             print(f"| {r + 1} | {name} | " + " | ".join(cells) + " |", flush=True)
-    print("\n| scenario | best RTF, this tree | best RTF, other | ratio | median ratio |")
-    print("|---|---:|---:|---:|---:|")
+    print("\n| scenario | best RTF, this tree | best RTF, other | ratio | median ratio "
+          "| run's cycle p50 this / other (ratio) | run's cycle p99 this / other (ratio) |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
     this, that = runs["this tree"], runs[f"{other}"]
     for s in scenarios:
         a = [x["rtf"] for x in this[s]]
         b = [x["rtf"] for x in that[s]]
+        cells = []
+        for q in ("p50", "p99"):  # each run's own, over all its cycles; median of the rounds
+            qa, qb = np.median([x[q] for x in this[s]]), np.median([x[q] for x in that[s]])
+            cells.append(f"{qa:.1f} / {qb:.1f} ({qa / qb:.3f})")
         print(f"| {s} | {max(a):.2f} | {max(b):.2f} | {max(a) / max(b):.3f} "
-              f"| {np.median(a) / np.median(b):.3f} |")
+              f"| {np.median(a) / np.median(b):.3f} | " + " | ".join(cells) + " |")
 
 
 def _import_other_app(tree: Path, tmp: Path):
