@@ -6,8 +6,8 @@
     .venv/bin/python -m benchmarks.loop_speed --against /tmp/old --steps-only  # cycle only
 
 Stages are timed by wrapping the very objects ``Emulator.step`` calls (instance attributes
-shadow the methods, so the loop runs unchanged); "rest (glue)" is everything else in the
-cycle. The real-time factor is the one ``run_scenario`` writes into metrics.json (simulated
+shadow the methods, so the loop runs unchanged but for its tail, which the breakdown runs
+as its stages: ``fuse_tail`` off); "rest (glue)" is everything else in the cycle. The real-time factor is the one ``run_scenario`` writes into metrics.json (simulated
 time over the wall time of the run, start-up included).
 
 ``--against TREE`` compares this tree with another checkout of the project (e.g.
@@ -206,6 +206,7 @@ def _timed(fn, acc: dict, key: str):
 def _with_stage_timers(em) -> dict[str, int]:
     """Wrap every timed stage of `em`; returns the accumulator of ns per stage."""
     acc: dict[str, int] = defaultdict(int)
+    em.fuse_tail = False  # the tail's stages one by one (app/sim/cycle_tail.py fuses them)
     em.bodies_W = _timed(em.bodies_W, acc, "actual mockups (arm FK + twist)")
     interaction = em.interaction  # the contact's part of it (free flight: its early-out)
     interaction._contact_W = _timed(interaction._contact_W, acc, "contact (coal)")
@@ -253,6 +254,8 @@ def print_breakdown(scenario: str, cycles: int, repeats: int) -> float:
     rest = total - sum(stages.values())
     print(f"| rest (glue) | {rest:.1f} | {100 * rest / total:.0f}% |")
     print(f"| **total cycle** | **{total:.1f}** | 100% |")
+    print("\n(the cycle's tail, ODS step to the arms' commands, as its stages: in a run "
+          "they are one compiled call, app/sim/cycle_tail.py)")
     print(f"\nloop-only real-time factor from this: {CYCLE_US / total:.1f}x "
           f"(cycle = {CYCLE_US:.0f} µs; stage timers included)")
     return total

@@ -556,6 +556,7 @@ def test_the_arms_predictions_made_in_the_step_call_are_the_staged_ones():
     compensation.predicted_state of the committed state, called after the step, does;
     cycle after cycle, every arm's joints and VFDM state and every telemetry row."""
     em = Emulator(load_scenario("collision"))
+    em.fuse_tail = False  # the stages (the fused tail: tests/test_cycle_tail.py)
     em.prepare()
     for _ in range(5):
         em.step()

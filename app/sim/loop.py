@@ -43,6 +43,7 @@ from app.sim.contact_gate import (
 )
 from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.coupling import OdsCoupling
+from app.sim.cycle_tail import tail_one_arm, tail_two_arms
 from app.sim.frames import ods_states_W, satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.gnc import GncParams, GncState, gnc_step, navigation
@@ -54,7 +55,7 @@ from app.sim.interaction import (
     body_torque_B,
     ods_bodies,
 )
-from app.sim.orbital import OdsParams, OrbitalSimulator, rk4_step
+from app.sim.orbital import OdsParams, OrbitalSimulator, _f64, _kernel_args, rk4_step
 from app.sim.rail_rig import build_cell
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig
@@ -104,6 +105,12 @@ def shared_constants(root) -> dict[int, object]:
         elif hasattr(x, "__dict__") and not isinstance(x, type):
             todo.extend(vars(x).values())
     return found
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """a, no longer writeable (an answer shared by every cycle)."""
+    a.flags.writeable = False
+    return a
 
 
 class StartPoseError(ValueError):
@@ -169,6 +176,10 @@ class Emulator:
             raise ValueError(f"mode must be 'hil' or 'ideal', got {self.mode!r}")
         if self.mode == "hil" and not config.robots:
             raise ValueError("hil mode needs at least one [[robots]] entry")
+        self.fuse_tail = True
+        """Whether a cycle's tail (the ODS step, the telemetry row, each arm's command) runs
+        as one compiled call where the configuration allows (app/sim/cycle_tail.py: the
+        same numbers); False: always the stages one by one, as :meth:`step` reads."""
         self.dt_s = 1.0 / config.loop.rate_hz
         self.T_W_R = make_transform(
             quat_to_matrix(config.lab.r_attitude_wxyz), config.lab.r_origin_m
@@ -206,6 +217,9 @@ class Emulator:
             list(self.ods.params.mass_kg), self.ods.params.force_scale,
             int(round(force_lag_s(config, hold=False) / self.dt_s)))
         self.gate = None
+        self._gate_closed = (_read_only(np.zeros(self.n_sat, dtype=bool)),
+                             _read_only(np.full(self.n_sat, -1, dtype=np.int64)))
+        """:meth:`_gate_open`'s answer without a gate: every chain closed, no nearest."""
         if config.wrench.contact_gate:
             alpha = lowpass_alpha(contact_cutoff_hz(config), config.loop.rate_hz)
             held = math.ceil(sample_every_cycles(config.sensor.sample_rate_hz,
@@ -224,6 +238,10 @@ class Emulator:
         self.rail_arms = [arm for arm in self.arms if getattr(arm, "rail_servo", None)]
         """The arms on a rail (app/sim/rail_rig.py), in robot order."""
         self.recorder = self._recorder(config.loop.telemetry_capacity)
+        self._tail_fusable = (self.mode == "hil" and 0 < len(self.arms) <= 2
+                              and config.capture is None and not self.rail_arms)
+        """Whether a cycle's tail can be the fused call (:meth:`_fused_tail`) in this
+        setting: one or two fixed arms, no capture (so no docked compound either)."""
         self.telemetry = self.recorder.buffer
         self.columns = self.telemetry.columns
         self.status = "idle"
@@ -288,18 +306,20 @@ class Emulator:
         if not self._within_sensor_range():
             return
         own = self.own_actuation()  # the satellites' GNC: thrusters, wheels (not sensed)
-        y_next, force_R, torque_B = self.ods_advance(force_R, torque_B, own)  # the ODS step
-        self.applied_force_R, self.applied_torque_B = force_R, torque_B
-        self._record()
-        self.ods.commit(y_next, self.dt_s)
-        self._capture()
-        if own is not None:  # the prediction holds the whole input, own actuation included
-            force_R, torque_B = force_R + own[0], torque_B + own[1]
-        predicted = self._predicted(force_R, torque_B) if self.arms else ()  # at each lead
-        for arm, y_ahead in zip(self.arms, predicted, strict=True):  # TCP target (where
-            arm.command_towards(y_ahead)  # the satellite will be) -> VFDM -> servo
-            if arm.servo.stopped:
-                self._safety_stop(arm, arm.servo.reason)
+        if own is not None or not self._fused_tail(force_R, torque_B):  # (else all of the
+            # below in one compiled call, on the same numbers: app/sim/cycle_tail.py)
+            y_next, force_R, torque_B = self.ods_advance(force_R, torque_B, own)  # ODS step
+            self.applied_force_R, self.applied_torque_B = force_R, torque_B
+            self._record()
+            self.ods.commit(y_next, self.dt_s)
+            self._capture()
+            if own is not None:  # the prediction holds the whole input, own actuation too
+                force_R, torque_B = force_R + own[0], torque_B + own[1]
+            predicted = self._predicted(force_R, torque_B) if self.arms else ()  # each lead
+            for arm, y_ahead in zip(self.arms, predicted, strict=True):  # TCP target (where
+                arm.command_towards(y_ahead)  # the satellite will be) -> VFDM -> servo
+                if arm.servo.stopped:
+                    self._safety_stop(arm, arm.servo.reason)
         self._cycle_time_ns[self.cycles % len(self._cycle_time_ns)] = time.perf_counter_ns() - t0
         self.cycles += 1
 
@@ -440,8 +460,8 @@ class Emulator:
         """((N,) whether each body's chain lets a contact below the deadband through,
         (N,) its nearest body or -1): :mod:`app.sim.contact_gate`; all closed without
         ``[wrench] contact_gate``."""
-        if self.gate is None:  # (np.array of a list: a third of np.full's cost)
-            return np.zeros(self.n_sat, dtype=bool), np.array([-1] * self.n_sat, dtype=np.int64)
+        if self.gate is None:
+            return self._gate_closed
         identified = self.config.wrench.contact_force == "identified"
         geometry, gate = self.lab_geometry, self.gate
         if geometry.apart(bodies.T_W_C, gate.margin_m):  # free flight: nothing to measure
@@ -568,6 +588,49 @@ class Emulator:
                               if from_step and lead in self._lead_slot
                               else predicted_state(self.ods, force_R, torque_B, lead))
         return [made[arm.lead_s] for arm in self.arms]
+
+    def _fused_tail(self, force_R: np.ndarray, torque_B: np.ndarray) -> bool:
+        """The rest of a cycle without own actuation, as :meth:`step` reads it (the ODS
+        step and its predictions, the telemetry row, each arm's command), in one compiled
+        call (app/sim/cycle_tail.py) where it is those stages and nothing else
+        (``_tail_fusable``: a hil run of one or two fixed arms, no capture to check, no
+        rail; and each arm's command fused, its lead none or among the ODS step's);
+        False, with nothing done, where it is not."""
+        if not (self.fuse_tail and self._tail_fusable):
+            return False
+        arms, rec = self.arms, self.recorder
+        commands, rows, targets = [], [], []
+        for arm in arms:  # its target: the step's state (no lead) or its prediction
+            target = 0 if arm.lead_s <= 0.0 else 1 + self._lead_slot.get(arm.lead_s, -2)
+            args = None if target < 0 else arm.fused_command_args()
+            if args is None:
+                return False
+            commands.append(args)
+            targets.append(target)
+            _, T_W_C, v_W, _ = arm.mockup_state_W()
+            rows.append((T_W_C, v_W, arm.last_raw_S, arm.last_processed))
+        self.applied_force_R, self.applied_torque_B = force_R, torque_B
+        ods, leads = self.ods, self._leads
+        ods_out = np.empty((1 + len(leads),) + ods.y.shape)
+        head = (*_kernel_args(ods.params), ods.y, _f64(force_R), _f64(torque_B), self.dt_s,
+                leads, ods_out, ods.t_s, rec.orbit_rate_radps, self.true_force_R,
+                rec._no_gnc, rec._no_rails, rec.n_arms, rec.buffer._data,
+                rec.buffer._counters, rec.T_R_W)
+        if len(arms) == 1:
+            at, *done = tail_one_arm(*head, *rows[0], targets[0], *commands[0])
+        else:
+            at, *done = tail_two_arms(*head, *rows[0], *rows[1], *targets, *commands[0],
+                                      *commands[1])
+        if at < 0:  # a shape that does not fit the row: the stages' error, nothing written
+            self._record()
+        rec.buffer.commit()
+        ods.commit(ods_out[0], self.dt_s)
+        for k, arm in enumerate(arms):
+            slot, out = commands[k][7], commands[k][-1]
+            arm.commanded(done[2 * k], done[2 * k + 1], slot, out)
+            if arm.servo.stopped:
+                self._safety_stop(arm, arm.servo.reason)
+        return True
 
     def _advance_compound(self, y_next: np.ndarray, force_R: np.ndarray,
                           torque_B: np.ndarray) -> np.ndarray:
@@ -815,6 +878,18 @@ class Emulator:
                          rig.last_processed)] * len(self.arms),
                        zeros, None, np.zeros((len(self.rail_arms), 3)) if self.rail_arms
                        else None)
+        if self._tail_fusable:  # the cycle's tail in one call (:meth:`_fused_tail`)
+            row = (T_W_C, v_W, rig.last_raw_S, rig.last_processed)
+            head = (*_kernel_args(ods.params), ods.y, zeros, zeros, self.dt_s,
+                    np.array([self.dt_s]), np.empty((2,) + ods.y.shape), 0.0,
+                    scratch.orbit_rate_radps, zeros, scratch._no_gnc, scratch._no_rails,
+                    scratch.n_arms, scratch.buffer._data, scratch.buffer._counters,
+                    scratch.T_R_W)
+            if len(self.arms) == 1:
+                tail_one_arm(*head, *row, 1, *rig.fused_command_args())
+            else:
+                tail_two_arms(*head, *row, *row, 1, 1, *rig.fused_command_args(),
+                              *rig.fused_command_args())
         for k, robot in enumerate(self.config.robots):
             if robot.rail is not None:  # the rail's kernels too
                 rig = build_cell(k, robot, self.config, self.T_W_R, np.random.default_rng(0))

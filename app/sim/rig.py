@@ -193,27 +193,45 @@ class ArmRig:
         the target is worked out in the same compiled call).
 
         The fused path, the loop's every cycle, calls :func:`arm_command_towards` itself
-        and does what :meth:`ArmCommand.__call__` and :meth:`_keep_state` do after theirs:
-        the VFDM's ``last_scale`` and ``last_error``, the servo's ring slot, new state
-        arrays and stop (:meth:`UR10eServo.commit`), the forward kinematics cache, all as
-        those calls leave them, for a third of their Python."""
+        (:meth:`fused_command_args`) and does what :meth:`ArmCommand.__call__` and
+        :meth:`_keep_state` do after theirs (:meth:`commanded`), for a third of their
+        Python."""
+        args = self.fused_command_args()
+        if args is None:
+            self.command(self.tcp_target_B(ods_y))
+            return
+        T_B_R, satellite, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot, sp_prev, q, qd, \
+            stopped, out = args
+        scale, code = arm_command_towards(T_B_R, ods_y, satellite, vfdm_c, vfdm_x, servo_c,
+                                          chain_c, ring, slot, sp_prev, q, qd, stopped, out)
+        self.commanded(scale, code, slot, out)
+
+    def fused_command_args(self) -> tuple | None:
+        """:func:`arm_command_towards`'s arguments but the ODS state, in its order, with a
+        new ``out`` (None where the command takes the stages: the servo feedforward)."""
         fused = self._fused
         if (fused is None or self.feedforward is not None or fused.vfdm is not self.vfdm
                 or fused.servo is not self.servo or fused.chain is not self.chain):
             fused = self._fused_command()
             if fused is None:
-                self.command(self.tcp_target_B(ods_y))
-                return
+                return None
         vfdm, servo = self.vfdm, self.servo
-        st, ring, out = servo.state, servo._ring, np.empty(OUT_SIZE)
-        slot = servo._slot if len(ring) else -1  # servo.delay_slot
-        vfdm.last_scale, code = arm_command_towards(
-            self.T_B_R, ods_y, self.satellite, vfdm.constants, vfdm._x,
-            fused.servo_constants, fused.chain_constants, ring, slot, servo._sp_prev,
-            st.q_rad, st.qd_radps, st.stopped, out)
+        st, ring = servo.state, servo._ring
+        return (self.T_B_R, self.satellite, vfdm.constants, vfdm._x, fused.servo_constants,
+                fused.chain_constants, ring, servo._slot if len(ring) else -1,  # delay_slot
+                servo._sp_prev, st.q_rad, st.qd_radps, st.stopped, np.empty(OUT_SIZE))
+
+    def commanded(self, scale: float, code: int, slot: int, out: np.ndarray) -> None:
+        """After :func:`arm_command_towards` on :meth:`fused_command_args` (``slot``,
+        ``out``): the VFDM's ``last_scale`` and ``last_error``, the servo's ring slot, new
+        state arrays and stop (:meth:`UR10eServo.commit`), the forward kinematics cache,
+        all as the stages leave them."""
+        vfdm, servo = self.vfdm, self.servo
+        st = servo.state
+        vfdm.last_scale = scale
         vfdm.last_error = out[18:24]
         if slot >= 0:
-            servo._slot = (slot + 1) % len(ring)
+            servo._slot = (slot + 1) % len(servo._ring)
         q, qd = st.q_rad, st.qd_radps = out[0:6], out[6:12]
         st.qdd_radps2 = out[12:18]
         if code:

@@ -1,0 +1,127 @@
+"""The cycle's fused tail (app/sim/cycle_tail.py) against the stages of Emulator.step."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import app.sim.loop as loop
+from app.scenarios import load_scenario, scenario_names
+from app.sim.loop import Emulator
+from app.sim.servo import SafetyBox
+from app.sim.telemetry import Recorder
+
+
+def _arm_state(em: Emulator) -> list:
+    """What the tail writes of each arm: the VFDM's and the servo's state, the forward
+    kinematics the next cycle reads."""
+    out = []
+    for arm in em.arms:
+        v, s = arm.vfdm, arm.servo
+        out += [v._x, v.last_error, v.last_scale, s.state.q_rad, s.state.qd_radps,
+                s.state.qdd_radps2, s.state.stopped, s.state.reason, s._ring, s._slot,
+                s._sp_prev, *arm.mockup_state_W()]
+    return out
+
+
+def _stepped(config, fuse: bool, cycles: int, calls: dict | None = None) -> Emulator:
+    """An emulator of config prepared and stepped `cycles` times (fewer if the run ends);
+    ``calls`` (:func:`_counting`'s) counts from the first step on: building the emulator
+    loads the tail's kernels with one call on scratch data."""
+    em = Emulator(config, mode="hil")
+    em.fuse_tail = fuse
+    em.prepare()
+    if calls is not None:
+        calls["tail"] = 0
+    for _ in range(cycles):
+        em.step()
+        if em.status != "running":
+            break
+    return em
+
+
+def _counting(monkeypatch) -> dict:
+    """Count the fused tail's compiled calls (the kernels themselves run)."""
+    calls = {"tail": 0}
+    for name in ("tail_one_arm", "tail_two_arms"):
+        kernel = getattr(loop, name)
+
+        def counted(*args, _kernel=kernel):
+            calls["tail"] += 1
+            return _kernel(*args)
+
+        monkeypatch.setattr(loop, name, counted)
+    return calls
+
+
+def _assert_same(fused: Emulator, stages: Emulator) -> None:
+    assert (fused.status, fused.cycles, fused.safety_stop) == (
+        stages.status, stages.cycles, stages.safety_stop)
+    assert fused.ods.t_s == stages.ods.t_s
+    np.testing.assert_array_equal(fused.ods.y, stages.ods.y)
+    np.testing.assert_array_equal(fused.telemetry.rows(), stages.telemetry.rows())
+    for a, b in zip(_arm_state(fused), _arm_state(stages), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", scenario_names())
+def test_the_fused_tail_is_the_stages_to_the_last_bit(name, monkeypatch):
+    """Every shipped scenario, hil, 1,800 cycles (the collision's contact among them):
+    the same telemetry, ODS state and arm states with the fused tail as with the stages;
+    where the setting allows it, every cycle took the fused call."""
+    config = load_scenario(name)
+    calls = _counting(monkeypatch)
+    fused = _stepped(config, True, 1800, calls)
+    taken = calls["tail"]
+    stages = _stepped(config, False, 1800, calls)
+    assert calls["tail"] == 0  # the stages never call it
+    _assert_same(fused, stages)
+    if fused._tail_fusable and not fused.gnc:
+        assert taken == fused.cycles > 1000  # (prepare() moves the arms, steps none)
+    else:  # a rail, a capture to check or a GNC's own actuation: the stages
+        assert taken == 0
+
+
+def test_a_servo_stop_in_the_fused_tail_stops_the_run_as_the_stages_do(monkeypatch):
+    """A safety box 1 cm around the TCP once the run has started: the servo stops the
+    arm inside the fused call, and the run ends with the stages' safety stop, at the
+    same cycle, for the same reason."""
+    calls = _counting(monkeypatch)
+    ems, taken = [], []
+    for fuse in (True, False):
+        em = _stepped(load_scenario("free-floating-scripted"), fuse, 10, calls)
+        servo = em.arms[0].servo
+        p_W = servo.safety.tcp_position_W(servo.state.q_rad)
+        servo.safety = SafetyBox(p_W - 0.01, p_W + 0.01, servo.safety.chain)
+        em.arms[0]._fused = None  # the command path reads the servo's box anew
+        for _ in range(20000):
+            em.step()
+            if em.status != "running":
+                break
+        ems.append(em)
+        taken.append(calls["tail"])
+    assert taken[0] == ems[0].cycles > 10 and taken[1] == 0
+    assert ems[0].status == "safety_stop"
+    assert ems[0].safety_stop["reason"] == "TCP left safety volume"
+    _assert_same(*ems)
+
+
+def test_a_row_that_does_not_fit_raises_the_stages_error_and_writes_nothing():
+    """A recorder of another width (three satellites' columns for a two-satellite run):
+    the fused call claims no row, and the cycle raises the stages' ValueError with the
+    ODS not advanced, as the stages do."""
+    errors, ts = [], []
+    for fuse in (True, False):
+        em = Emulator(load_scenario("collision"), mode="hil")
+        em.fuse_tail = fuse
+        em.prepare()
+        em.step()
+        em.recorder = Recorder(3, 2, 10, em.T_R_W, em.ods.params.orbit_rate_radps)
+        t0 = em.ods.t_s
+        with pytest.raises(ValueError) as err:
+            em.step()
+        errors.append(str(err.value))
+        ts.append((t0, em.ods.t_s, em.recorder.buffer.count))
+    assert errors[0] == errors[1]
+    assert "recorder of 3 satellites and 2 arms" in errors[0]
+    assert ts[0] == ts[1] and ts[0][0] == ts[0][1] and ts[0][2] == 0
