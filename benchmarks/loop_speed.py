@@ -7,8 +7,9 @@
 
 Stages are timed by wrapping the very objects ``Emulator.step`` calls (instance attributes
 shadow the methods, so the loop runs unchanged but for its tail, which the breakdown runs
-as its stages: ``fuse_tail`` off); "rest (glue)" is everything else in the cycle. The real-time factor is the one ``run_scenario`` writes into metrics.json (simulated
-time over the wall time of the run, start-up included).
+as its stages: ``fuse_tail`` off); "rest (glue)" is everything else in the cycle. The
+real-time factor is the one ``run_scenario`` writes into metrics.json (simulated time over
+the wall time of the run, start-up included).
 
 ``--against TREE`` compares this tree with another checkout of the project (e.g.
 ``git worktree add /tmp/old <commit>``) in two ways: (1) the real-time factor, in a fresh

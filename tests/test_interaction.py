@@ -262,3 +262,26 @@ def test_body_torque_B_against_a_hand_computed_rotation():
     T_W_C2 = make_transform(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
                             [0.0, 0.0, 0.0])
     np.testing.assert_allclose(body_torque_B(wrench_W, T_W_C2), [2.0, 3.0, 1.0], atol=1e-15)
+
+
+def test_actual_bodies_of_one_carried_satellite_are_its_arms_forward_kinematics():
+    """One arm, one satellite (free-floating): the bodies are the arm's forward kinematics
+    as (1, ...) arrays, bit for bit what the general path copies, and a later command (new
+    kinematics) leaves them as they were."""
+    cfg = load_scenario("free-floating")
+    T_W_R_cfg = make_transform(quat_to_matrix(cfg.lab.r_attitude_wxyz), cfg.lab.r_origin_m)
+    rig = build_rig(0, cfg.robots[0], cfg, T_W_R_cfg, np.random.default_rng(0))
+    ods = OrbitalSimulator.from_config(cfg)
+    bodies = actual_bodies(T_W_R_cfg, ods, [rig])
+    _, T_W_C, v_W, w_W = rig.mockup_state_W()
+    assert bodies.T_W_C.shape == (1, 4, 4) and bodies.v_W.shape == bodies.w_W.shape == (1, 3)
+    for got, fk in ((bodies.T_W_C[0], T_W_C), (bodies.v_W[0], v_W), (bodies.w_W[0], w_W)):
+        assert got.tobytes() == fk.tobytes()
+    kept = [a.copy() for a in bodies]
+    y = ods.y.copy()
+    y[0, 0] += 0.05  # the satellite 5 cm along x: the arm moves
+    for _ in range(5):
+        rig.command_towards(y)
+    assert rig.mockup_state_W()[1].tobytes() != kept[0][0].tobytes()
+    for a, b in zip(bodies, kept, strict=True):
+        assert a.tobytes() == b.tobytes()

@@ -36,6 +36,9 @@ def actual_bodies(T_W_R: np.ndarray, ods: OrbitalSimulator, rigs: Sequence) -> B
     """The actual mockups: each carried one where its arm holds it (forward kinematics);
     a satellite without an arm where the ODS has it, not turning."""
     n = ods.y.shape[0]
+    if n == 1 and len(rigs) == 1:  # the arm's forward kinematics, as (1, ...) views
+        _, T, v, w = rigs[0].mockup_state_W()  # (kept arrays, which nothing writes into)
+        return Bodies(T[None], v[None], w[None])
     T_W_C, v_W, w_W = np.empty((n, 4, 4)), np.empty((n, 3)), np.zeros((n, 3))
     if len(rigs) < n:  # else every satellite is carried (one robot each): all FK below
         ods_states_W(T_W_R, ods.y, T_W_C, v_W)
