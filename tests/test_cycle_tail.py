@@ -125,3 +125,22 @@ def test_a_row_that_does_not_fit_raises_the_stages_error_and_writes_nothing():
     assert errors[0] == errors[1]
     assert "recorder of 3 satellites and 2 arms" in errors[0]
     assert ts[0] == ts[1] and ts[0][0] == ts[0][1] and ts[0][2] == 0
+
+
+def test_a_copy_of_the_loop_takes_the_fused_tail_on_its_own_buffers(monkeypatch):
+    """copy_state (the replicates' and the forecast's twin of a run): the twin's fused
+    tail writes the twin's telemetry and moves the twin's arms, bit for bit as a twin on
+    the stages, and leaves the original as it was."""
+    em = _stepped(load_scenario("collision"), True, 200)
+    before = em.telemetry.rows().copy(), em.ods.y.copy()
+    twins = [em.copy_state(capacity=2000), em.copy_state(capacity=2000)]
+    twins[1].fuse_tail = False
+    calls = _counting(monkeypatch)
+    for twin in twins:
+        for _ in range(1500):
+            twin.step()
+    assert calls["tail"] == 1500
+    _assert_same(*twins)
+    assert twins[0].telemetry.count == 1500
+    np.testing.assert_array_equal(em.telemetry.rows(), before[0])
+    np.testing.assert_array_equal(em.ods.y, before[1])
