@@ -106,6 +106,24 @@ def test_a_servo_stop_in_the_fused_tail_stops_the_run_as_the_stages_do(monkeypat
     _assert_same(*ems)
 
 
+@pytest.mark.parametrize("n_arms", [1, 3])
+def test_a_recorder_of_other_arms_raises_the_stages_error_and_writes_nothing(n_arms):
+    """A recorder of one arm or three for the collision's two: the cycle raises the
+    stages' ValueError (the fused call would write the second arm's columns outside the
+    row's), with the ODS not advanced and no row claimed."""
+    for fuse in (True, False):
+        em = Emulator(load_scenario("collision"), mode="hil")
+        em.fuse_tail = fuse
+        em.prepare()
+        em.step()
+        em.recorder = Recorder(2, n_arms, 10, em.T_R_W, em.ods.params.orbit_rate_radps)
+        t0 = em.ods.t_s
+        with pytest.raises(ValueError, match=f"recorder of 2 satellites and {n_arms} arms "
+                                             r"got .*, 2 arms$"):
+            em.step()
+        assert em.ods.t_s == t0 and em.recorder.buffer.count == 0
+
+
 def test_a_row_that_does_not_fit_raises_the_stages_error_and_writes_nothing():
     """A recorder of another width (three satellites' columns for a two-satellite run):
     the fused call claims no row, and the cycle raises the stages' ValueError with the

@@ -596,9 +596,10 @@ class Emulator:
         (``_tail_fusable``: a hil run of one or two fixed arms, no capture to check, no
         rail; and each arm's command fused, its lead none or among the ODS step's);
         False, with nothing done, where it is not."""
-        if not (self.fuse_tail and self._tail_fusable):
-            return False
         arms, rec = self.arms, self.recorder
+        if not (self.fuse_tail and self._tail_fusable) or rec.n_arms != len(arms) \
+                or rec.n_rails:  # (a recorder of other arms: the stages' error)
+            return False
         commands, rows, targets = [], [], []
         for arm in arms:  # its target: the step's state (no lead) or its prediction
             target = 0 if arm.lead_s <= 0.0 else 1 + self._lead_slot.get(arm.lead_s, -2)
