@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import app.sim.loop as loop
+from app.config import merge_overrides
 from app.scenarios import load_scenario, scenario_names
 from app.sim.loop import Emulator
 from app.sim.servo import SafetyBox
@@ -162,3 +163,25 @@ def test_a_copy_of_the_loop_takes_the_fused_tail_on_its_own_buffers(monkeypatch)
     assert twins[0].telemetry.count == 1500
     np.testing.assert_array_equal(em.telemetry.rows(), before[0])
     np.testing.assert_array_equal(em.ods.y, before[1])
+
+
+@pytest.mark.parametrize(("name", "overrides"), [
+    ("collision", {"servo": {"model": "servoj"}}),
+    ("free-floating", {"compensation": {"enabled": True, "servo_feedforward": True}}),
+])
+def test_a_setting_with_the_servo_feedforward_takes_the_stages(name, overrides, monkeypatch):
+    """The servo feedforward (servoj) is not fused: the loop builds, and every cycle
+    takes the stages, bit for bit as with the fused tail off."""
+    config = merge_overrides(load_scenario(name), overrides)
+    calls = _counting(monkeypatch)
+    fused = _stepped(config, True, 300, calls)
+    assert calls["tail"] == 0 and fused.arms[0].feedforward is not None
+    _assert_same(fused, _stepped(config, False, 300))
+
+
+def test_a_copy_shares_the_read_only_answer_of_a_loop_without_a_gate():
+    em = _stepped(merge_overrides(load_scenario("collision"),
+                                  {"wrench": {"contact_gate": False}}), True, 5)
+    twin = em.copy_state()
+    assert twin._gate_closed is em._gate_closed
+    assert not any(a.flags.writeable for a in twin._gate_closed)

@@ -624,6 +624,7 @@ class Emulator:
                                       *commands[1])
         if at < 0:  # a shape that does not fit the row: the stages' error, nothing written
             self._record()
+            raise RuntimeError("the fused tail's telemetry row did not fit, the stages' did")
         rec.buffer.commit()
         ods.commit(ods_out[0], self.dt_s)
         for k, arm in enumerate(arms):
@@ -734,7 +735,8 @@ class Emulator:
         memo.update({id(self.recorder): recorder, id(self.telemetry): recorder.buffer,
                      id(self.columns): recorder.buffer.columns,
                      id(self._cycle_time_ns): np.zeros(capacity, dtype=np.int64),
-                     id(self.snapshot): None, id(self._shared): None})
+                     id(self.snapshot): None, id(self._shared): None,
+                     id(self._gate_closed): self._gate_closed})  # (read-only, shared)
         twin = copy.deepcopy(self, memo)
         twin.snapshot_at_s = None
         return twin
@@ -879,7 +881,8 @@ class Emulator:
                          rig.last_processed)] * len(self.arms),
                        zeros, None, np.zeros((len(self.rail_arms), 3)) if self.rail_arms
                        else None)
-        if self._tail_fusable:  # the cycle's tail in one call (:meth:`_fused_tail`)
+        command = rig.fused_command_args()  # (None: the servo feedforward's stages)
+        if self._tail_fusable and command is not None:  # the tail in one call (_fused_tail)
             row = (T_W_C, v_W, rig.last_raw_S, rig.last_processed)
             head = (*_kernel_args(ods.params), ods.y, zeros, zeros, self.dt_s,
                     np.array([self.dt_s]), np.empty((2,) + ods.y.shape), 0.0,
@@ -887,10 +890,9 @@ class Emulator:
                     scratch.n_arms, scratch.buffer._data, scratch.buffer._counters,
                     scratch.T_R_W)
             if len(self.arms) == 1:
-                tail_one_arm(*head, *row, 1, *rig.fused_command_args())
+                tail_one_arm(*head, *row, 1, *command)
             else:
-                tail_two_arms(*head, *row, *row, 1, 1, *rig.fused_command_args(),
-                              *rig.fused_command_args())
+                tail_two_arms(*head, *row, *row, 1, 1, *command, *rig.fused_command_args())
         for k, robot in enumerate(self.config.robots):
             if robot.rail is not None:  # the rail's kernels too
                 rig = build_cell(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
