@@ -4,17 +4,20 @@ build run it).
 
 The kernels (app/sim, ``@njit(cache=True)``) compile on their first call and numba keeps
 the machine code in its cache: ``app/sim/__pycache__``, or under ``NUMBA_CACHE_DIR``,
-keyed on each source file's contents and on the CPU. Warming steps every shipped
-scenario a few cycles, ideal and hil (fixed arms and rails; start-up, calibration, the
-cycle, the uncertainty's state copy), so that each kernel is compiled with the argument
-types the loop gives it; matplotlib's font cache is built too (a first run's plots
-would), and the shipped collision's pre-flight reference and fidelity forecast are
-computed and kept (app/runs/forecast_cache.py; unless kept already), which a first run
+keyed on the CPU and on the source file that defines the kernel, that file alone: a kernel
+that calls into another module (the fused command, sensor and tail paths) would be loaded
+as compiled against that module's old code once it changed. So a cache whose stamp (below)
+is not this tree's is deleted before the warm-up (:func:`clear_stale`). Warming steps
+every shipped scenario a few cycles, ideal and hil (fixed arms and rails; start-up,
+calibration, the cycle, the uncertainty's state copy), so that each kernel is compiled
+with the argument types the loop gives it; matplotlib's font cache is built too (a first
+run's plots would), and the shipped collision's pre-flight reference and fidelity forecast
+are computed and kept (app/runs/forecast_cache.py; unless kept already), which a first run
 would otherwise spend ten seconds or more on.
 
 A stamp beside the cache (``orbit-emulator-warm.json``) records what was warmed: the
-Python, numba's version, the CPU name numba targets and each kernel source file's SHA-256
-(numba's own key). When it matches and every kernel module still has its index files,
+Python, numba's version, the CPU name numba targets and each kernel source file's SHA-256.
+When it matches and every kernel module still has its index files,
 nothing is done and numba is not even imported (a tenth of a second: scripts/install
 stays fast when nothing changed). The forecast is computed with the kernels (a fresh
 install, new kernels), not after every change of the code that would call for a new one
@@ -79,6 +82,27 @@ def is_warm(folder: Path | None = None) -> bool:
     if kept != stamp():
         return False
     return all(any(folder.glob(f"{p.stem}.*.nbi")) for p in kernel_sources())
+
+
+def clear_stale(folder: Path | None = None) -> int:
+    """Delete app/sim's compiled kernels from the cache unless its stamp is this tree's
+    (an older tree's, or none: compiled from other sources, numba would load a kernel
+    against the old code of the modules it calls); the number of files deleted."""
+    folder = folder or cache_folder()
+    try:
+        if json.loads((folder / STAMP_NAME).read_text()) == stamp():
+            return 0
+    except (OSError, ValueError):
+        pass
+    deleted = 0
+    for source in kernel_sources():
+        for path in folder.glob(f"{source.stem}.*.nb[ic]"):
+            try:
+                path.unlink()
+                deleted += 1
+            except OSError:  # (gone already: another process cleared it)
+                pass
+    return deleted
 
 
 def forecasts_kept() -> bool:
@@ -151,6 +175,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if warm_already else 1
     if warm_already and not args.force:
         return 0
+    deleted = clear_stale(folder)
+    if deleted:
+        print(f"warm: {deleted} compiled files of other sources deleted", file=sys.stderr)
     print(f"warm: compiling the loop's numba kernels into {folder} (once; up to a minute)",
           file=sys.stderr, flush=True)
     seconds = warm()

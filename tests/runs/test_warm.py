@@ -60,6 +60,33 @@ def test_a_stamp_of_another_numba_or_source_or_a_missing_index_is_not_warm(tmp_p
     assert not warm.is_warm(tmp_path)
 
 
+def test_a_cache_compiled_from_other_sources_is_deleted_before_the_warm_up(tmp_path):
+    """numba keys a kernel's cache on its own file alone: a cache whose stamp is another
+    tree's (a source changed) or missing loses app/sim's compiled files, and nothing
+    else; with this tree's stamp it is kept."""
+    stamp = warm.stamp()
+    names = [f"{source.stem}.kernel-1.py311.nb{kind}"
+             for source in warm.kernel_sources() for kind in "ic"]
+    (tmp_path / "other.kernel-1.py311.nbi").write_bytes(b"")  # not a kernel module's
+
+    def cache(kept: dict | None) -> None:
+        for name in names:
+            (tmp_path / name).write_bytes(b"")
+        if kept is None:
+            (tmp_path / warm.STAMP_NAME).unlink(missing_ok=True)
+        else:
+            (tmp_path / warm.STAMP_NAME).write_text(json.dumps(kept))
+
+    cache(stamp)
+    assert warm.clear_stale(tmp_path) == 0
+    assert all((tmp_path / name).exists() for name in names)
+    for kept in ({**stamp, "sources": {**stamp["sources"], "ur10e.py": "0"}}, None):
+        cache(kept)
+        assert warm.clear_stale(tmp_path) == len(names)
+        assert not any((tmp_path / name).exists() for name in names)
+    assert (tmp_path / "other.kernel-1.py311.nbi").exists()
+
+
 def test_a_warm_cache_is_recognised_in_well_under_a_second():
     assert _python("-m", "app.runs.warm").returncode == 0
     import time
