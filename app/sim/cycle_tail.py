@@ -15,8 +15,9 @@ three stages, each its own compiled kernel called from Python:
 the same inputs, so the result is the same to the last bit; what they save is the Python
 between the stages. The loop takes this path where the tail is those three stages and
 nothing else (:meth:`Emulator._fused_tail`: a hil run of one or two fixed arms, no GNC,
-no capture, no rail, each arm's lead among the ODS step's); ``Emulator.fuse_tail =
-False`` runs the stages one by one, the oracle the tests hold this path to.
+no capture, no rail, no servo feedforward, each arm's lead none or among the ODS
+step's); ``Emulator.fuse_tail = False`` runs the stages one by one, the oracle the tests
+hold this path to (tests/test_cycle_tail.py).
 """
 
 from __future__ import annotations
