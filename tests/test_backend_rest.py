@@ -850,7 +850,9 @@ def test_a_push_while_the_run_starts_is_a_409(live):
         "/api/scenarios/collision/start",
         json={"mode": "hil", "wrench": {"calibration_s": 30.0}}, timeout=60))
     starter.start()
-    live.wait_for(lambda s: s["status"] == "starting", timeout_s=20.0, poll_s=0.005)
+    # (before "starting", the setting's pre-flight and forecast: seconds, more on a
+    # loaded machine, the state still the last run's)
+    live.wait_for(lambda s: s["status"] == "starting", timeout_s=60.0, poll_s=0.005)
     r = _push(live, [0.0, 57.0, 0.0], 1.0)
     assert r.status_code == 409, r.text
     assert r.json() == {"detail": "the scenario is starting: push once it runs"}
