@@ -113,6 +113,22 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _call_tail(ods: OrbitalSimulator, rec: Recorder, force_R: np.ndarray,
+               torque_B: np.ndarray, dt_s: float, leads: np.ndarray, ods_out: np.ndarray,
+               true_force_R: np.ndarray, rows: list, targets: list, commands: list) -> tuple:
+    """The fused tail's compiled call (app/sim/cycle_tail.py) for one or two arms, in its
+    argument order: ods's step and predictions into ods_out, the row into rec, each arm's
+    command (``rows``: its (T_W_C, v_W, raw, processed); ``targets``: its row of ods_out;
+    ``commands``: :meth:`ArmRig.fused_command_args`). (the row's index, then each arm's
+    VFDM scale and servo stop code)."""
+    head = (*_kernel_args(ods.params), ods.y, _f64(force_R), _f64(torque_B), dt_s, leads,
+            ods_out, ods.t_s, rec.orbit_rate_radps, true_force_R, rec._no_gnc,
+            rec._no_rails, rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W)
+    if len(commands) == 1:
+        return tail_one_arm(*head, *rows[0], targets[0], *commands[0])
+    return tail_two_arms(*head, *rows[0], *rows[1], *targets, *commands[0], *commands[1])
+
+
 class StartPoseError(ValueError):
     """A satellite's start pose is out of its arm's reach (a configuration mistake)."""
 
@@ -611,17 +627,10 @@ class Emulator:
             _, T_W_C, v_W, _ = arm.mockup_state_W()
             rows.append((T_W_C, v_W, arm.last_raw_S, arm.last_processed))
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
-        ods, leads = self.ods, self._leads
-        ods_out = np.empty((1 + len(leads),) + ods.y.shape)
-        head = (*_kernel_args(ods.params), ods.y, _f64(force_R), _f64(torque_B), self.dt_s,
-                leads, ods_out, ods.t_s, rec.orbit_rate_radps, self.true_force_R,
-                rec._no_gnc, rec._no_rails, rec.n_arms, rec.buffer._data,
-                rec.buffer._counters, rec.T_R_W)
-        if len(arms) == 1:
-            at, *done = tail_one_arm(*head, *rows[0], targets[0], *commands[0])
-        else:
-            at, *done = tail_two_arms(*head, *rows[0], *rows[1], *targets, *commands[0],
-                                      *commands[1])
+        ods = self.ods
+        ods_out = np.empty((1 + len(self._leads),) + ods.y.shape)
+        at, *done = _call_tail(ods, rec, force_R, torque_B, self.dt_s, self._leads, ods_out,
+                               self.true_force_R, rows, targets, commands)
         if at < 0:  # a shape that does not fit the row: the stages' error, nothing written
             self._record()
             raise RuntimeError("the fused tail's telemetry row did not fit, the stages' did")
@@ -883,16 +892,11 @@ class Emulator:
                        else None)
         command = rig.fused_command_args()  # (None: the servo feedforward's stages)
         if self._tail_fusable and command is not None:  # the tail in one call (_fused_tail)
-            row = (T_W_C, v_W, rig.last_raw_S, rig.last_processed)
-            head = (*_kernel_args(ods.params), ods.y, zeros, zeros, self.dt_s,
-                    np.array([self.dt_s]), np.empty((2,) + ods.y.shape), 0.0,
-                    scratch.orbit_rate_radps, zeros, scratch._no_gnc, scratch._no_rails,
-                    scratch.n_arms, scratch.buffer._data, scratch.buffer._counters,
-                    scratch.T_R_W)
-            if len(self.arms) == 1:
-                tail_one_arm(*head, *row, 1, *command)
-            else:
-                tail_two_arms(*head, *row, *row, 1, 1, *command, *rig.fused_command_args())
+            n = len(self.arms)
+            _call_tail(ods, scratch, zeros, zeros, self.dt_s, np.array([self.dt_s]),
+                       np.empty((2,) + ods.y.shape), zeros,
+                       [(T_W_C, v_W, rig.last_raw_S, rig.last_processed)] * n, [1] * n,
+                       [command, rig.fused_command_args()][:n])
         for k, robot in enumerate(self.config.robots):
             if robot.rail is not None:  # the rail's kernels too
                 rig = build_cell(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
