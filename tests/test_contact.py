@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import coal
 import numpy as np
 import pytest
 
 from app.config import DEFAULT_MATERIALS, ContactMaterial, SatelliteConfig
-from app.sim.contact import BoxContactModel, combine_materials, hunt_crossley_force
+from app.sim.contact import (
+    APART_GAP_M,
+    APART_SLACK,
+    BoxContactModel,
+    boxes_apart,
+    combine_materials,
+    hunt_crossley_force,
+)
 from app.sim.rotations import make_transform, rotvec_to_matrix
 
 SIZE = (0.2, 0.2, 0.1)
@@ -289,11 +297,17 @@ def test_clearance_frames_are_the_array_formulas_on_coal_s_own_answer():
     assert framed > 100
 
 
-def test_apart_is_true_only_where_every_bounding_sphere_test_skips_its_pair():
+def _spheres_apart(model: BoxContactModel, poses: np.ndarray, within_m: float) -> bool:
+    """apart()'s bounding-sphere test alone (its face test off: no gap exceeds inf)."""
+    return boxes_apart(poses, model._pair_index, model._half_m, model._radii_m, within_m,
+                       1.0 + APART_SLACK, np.inf)
+
+
+def test_apart_by_the_bounding_spheres_only_where_every_arrays_test_skips_its_pair():
     """Centre distances at the bounding spheres' reach (+ a margin) and a few ulps either
-    side, and clearly beyond: where apart() holds, the arrays' test of geometry() and
-    clearances() skips the pair (compute and clearances report nothing); next to the
-    boundary it leaves the decision to them."""
+    side, and clearly beyond: where apart()'s sphere test holds, the arrays' test of
+    geometry() and clearances() skips the pair (compute and clearances report nothing);
+    next to the boundary it leaves the decision to them."""
     model = _pair()
     reach = 2 * 0.5 * float(np.sqrt(sum(x * x for x in SIZE)))
     rng = np.random.default_rng(3)
@@ -307,8 +321,9 @@ def test_apart_is_true_only_where_every_bounding_sphere_test_skips_its_pair():
                                     rng.normal(0.0, 0.3, 3))])
             d_ab = poses[1][:3, 3] - poses[0][:3, 3]
             arrays_skip = float(d_ab.dot(d_ab)) > boundary * boundary
-            if model.apart(poses, within_m):
+            if _spheres_apart(model, poses, within_m):
                 assert arrays_skip and scale > 1.0 + 1e-12
+                assert model.apart(poses, within_m)
                 assert model.compute(poses).contacts == ()
                 clearance, nearest, crowd = model.clearances(poses, within_m)
                 assert np.isinf(clearance).all() and (nearest == -1).all() and not crowd.any()
@@ -319,3 +334,38 @@ def test_apart_is_true_only_where_every_bounding_sphere_test_skips_its_pair():
     assert BoxContactModel([SIZE], [RIGID]).apart(np.array([_pose([0, 0, 0])]))
     # a pose gone NaN is no free flight: the arrays' test, which does not skip it, decides
     assert not model.apart(np.array([_pose([0, 0, 0]), _pose([np.nan, 0, 0])]))
+    assert not model.apart(np.array([_pose([0, 0, 0]), _pose([0.25, 0, 0], [np.nan, 0, 0])]))
+
+
+def test_apart_by_a_face_only_where_coal_finds_the_boxes_apart():
+    """Boxes of other sizes, turned at random, their bounding spheres overlapping, from
+    touching to a few cm apart: wherever apart() holds, coal's distance is more than
+    within_m and compute and clearances report nothing; face to face it holds from
+    within_m + APART_GAP_M on, not before."""
+    sizes = [(0.2, 0.2, 0.1), (0.3, 0.15, 0.25)]
+    model = BoxContactModel(sizes, [RIGID, SPONGE])
+    shape = [coal.Box(*s) for s in sizes]
+    solver, request = coal.ComputeDistance(*shape), coal.DistanceRequest()
+    rng = np.random.default_rng(11)
+    by_face = 0
+    for k in range(3000):
+        within_m = (0.0, 0.001)[k % 2]
+        poses = np.array([_pose(rng.normal(0.0, 0.1, 3), rng.normal(0.0, 1.0, 3)),
+                          _pose(rng.normal(0.0, 0.2, 3), rng.normal(0.0, 1.0, 3))])
+        tf = [coal.Transform3s(T[:3, :3], T[:3, 3]) for T in poses]
+        distance_m = solver(tf[0], tf[1], request, coal.DistanceResult())
+        if _spheres_apart(model, poses, within_m) or not model.apart(poses, within_m):
+            continue
+        by_face += 1
+        assert distance_m > within_m + 0.5 * APART_GAP_M, (k, distance_m)
+        assert model.compute(poses).contacts == ()
+        clearance, nearest, crowd = model.clearances(poses, within_m)
+        assert np.isinf(clearance).all() and (nearest == -1).all() and not crowd.any()
+    assert by_face > 300
+    thin = 0.5 * (sizes[0][2] + sizes[1][2])  # face to face along z, the spheres overlapping
+    for within_m in (0.0, 0.001):
+        edge = thin + within_m + APART_GAP_M
+        for gap, expected in ((-1e-9, False), (1e-9, True)):
+            poses = np.array([_pose([0.0, 0.0, 0.0]), _pose([0.02, -0.01, edge + gap])])
+            assert not _spheres_apart(model, poses, within_m)
+            assert model.apart(poses, within_m) is expected

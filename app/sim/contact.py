@@ -38,17 +38,18 @@ from itertools import combinations
 
 import coal
 import numpy as np
+from numba import njit
 
 from app.config import DEFAULT_MATERIALS, ContactMaterial, SatelliteConfig
 from app.sim.rotations import cross3_floats, minus3_floats, point_velocity_floats
 
 __all__ = [
+    "APART_GAP_M",
     "APART_SLACK",
     "BoxContactModel",
     "ContactGeometry",
     "ContactResult",
     "PairContact",
-    "centres_W",
     "combine_friction",
     "combine_materials",
     "coulomb_friction",
@@ -151,12 +152,52 @@ APART_SLACK = 1e-9
 last bits by which its sum of three squares can differ from the arrays' dot product (a
 few ulps, ~1e-16 relative: the terms are all ≥ 0, nothing cancels)."""
 
+APART_GAP_M = 1e-4
+"""How much further apart than asked two boxes must be for :meth:`BoxContactModel.apart`
+to vouch for them where their bounding spheres overlap (m): over a hundred times the
+error of coal's box–box distance (up to 6e-7 m measured here: its GJK stops at a
+tolerance), so that a pair it calls apart is one that coal's queries find apart too
+(tests/test_contact.py)."""
 
-def centres_W(T_W_C: Sequence[np.ndarray]) -> list[list[float]]:
-    """The bodies' COM positions (the poses' translations) as plain floats."""
-    if isinstance(T_W_C, np.ndarray):
-        return T_W_C[:, :3, 3].tolist()
-    return [T[:3, 3].tolist() for T in T_W_C]
+
+@njit(cache=True, fastmath=False)
+def _faces_separate(T_a, T_b, half_a, half_b, dx, dy, dz, gap_m):
+    """Whether a face axis of box a or of box b (poses T_a, T_b (4, 4), half edge lengths
+    half_a, half_b, centre offset (dx, dy, dz) from a to b) separates them by more than
+    gap_m: the separating-axis theorem's face axes, whose gaps are lower bounds of the
+    boxes' distance. NaN separates nothing."""
+    for box in range(2):
+        T = T_a if box == 0 else T_b
+        for k in range(3):
+            ux, uy, uz = T[0, k], T[1, k], T[2, k]
+            gap = abs(dx * ux + dy * uy + dz * uz)
+            for j in range(3):
+                gap -= half_a[j] * abs(ux * T_a[0, j] + uy * T_a[1, j] + uz * T_a[2, j])
+                gap -= half_b[j] * abs(ux * T_b[0, j] + uy * T_b[1, j] + uz * T_b[2, j])
+            if gap > gap_m:
+                return True
+    return False
+
+
+@njit(cache=True, fastmath=False)
+def boxes_apart(T_W_C, pairs, half_m, radii_m, within_m, slack, gap_m):
+    """Whether each pair (a, b) of pairs (P, 2) is clearly out of reach at the COM poses
+    T_W_C (N, 4, 4): its bounding spheres (radii_m) more than within_m apart by a relative
+    ``slack`` in the squared distance, or a face axis of one box separating the boxes
+    (half edge lengths half_m (N, 3)) by more than ``within_m + gap_m``
+    (:func:`_faces_separate`). A NaN pose is never apart."""
+    for k in range(pairs.shape[0]):
+        a, b = pairs[k, 0], pairs[k, 1]
+        dx = T_W_C[b, 0, 3] - T_W_C[a, 0, 3]
+        dy = T_W_C[b, 1, 3] - T_W_C[a, 1, 3]
+        dz = T_W_C[b, 2, 3] - T_W_C[a, 2, 3]
+        reach = radii_m[a] + radii_m[b] + within_m
+        if dx * dx + dy * dy + dz * dz > reach * reach * slack:
+            continue
+        if not _faces_separate(T_W_C[a], T_W_C[b], half_m[a], half_m[b], dx, dy, dz,
+                               within_m + gap_m):
+            return False
+    return True
 
 
 def _holds_coal(value) -> bool:
@@ -189,6 +230,9 @@ class BoxContactModel:
         if pairs is None:
             pairs = list(combinations(range(self.n), 2))
         self.pairs = [(min(a, b), max(a, b)) for a, b in pairs]
+        self._pair_index = np.array(self.pairs, dtype=np.int64).reshape(-1, 2)
+        self._half_m = 0.5 * np.array(self._sizes_m)
+        self._radii_m = np.array(self._radii)
         self._law = {(a, b): combine_materials(materials[a], materials[b]) for a, b in self.pairs}
         self._mu = {(a, b): combine_friction(materials[a], materials[b]) for a, b in self.pairs}
         self._exponent = {(a, b): max(materials[a].exponent, materials[b].exponent)
@@ -245,6 +289,7 @@ class BoxContactModel:
         """Bodies a and b no longer touch (they were latched together: their contact is
         internal to one body)."""
         self.pairs = [p for p in self.pairs if p != (min(a, b), max(a, b))]
+        self._pair_index = np.array(self.pairs, dtype=np.int64).reshape(-1, 2)
 
     def law(self, a: int, b: int) -> tuple[float, float]:
         """(k_eff, c_eff) used for the pair (a, b)."""
@@ -280,22 +325,20 @@ class BoxContactModel:
 
     def apart(self, T_W_C: Sequence[np.ndarray], within_m: float = 0.0) -> bool:
         """Whether every pair that may touch is clearly out of reach at the COM poses
-        T_W_C: its bounding spheres more than ``within_m`` apart, beyond APART_SLACK.
-        Where it holds, the arrays' bounding-sphere tests of :meth:`geometry` (within_m
-        0) and :meth:`clearances` (their within_m) skip every pair too: the same
-        differences (exact IEEE subtractions), a sum of squares within a few ulps of the
-        arrays' dot product. It only saves the arrays' calls in free flight (the loop's
-        contact gate, :class:`app.sim.interaction.PhysicalInteraction`)."""
+        T_W_C (:func:`boxes_apart`): its bounding spheres more than ``within_m`` apart,
+        beyond APART_SLACK, or a face of one box turned to the other with more than
+        ``within_m`` + APART_GAP_M between them. Where it holds, :meth:`geometry` (within_m
+        0) and :meth:`clearances` (their within_m) find nothing: the arrays' bounding-sphere
+        test skips the pair (the same differences, exact IEEE subtractions; a sum of squares
+        within a few ulps of the arrays' dot product), or coal measures the boxes further
+        apart than within_m. It saves their calls in free flight and on the approach (the
+        loop's contact gate, :class:`app.sim.interaction.PhysicalInteraction`)."""
         if not self.pairs:
             return True
-        c, radii, slack = centres_W(T_W_C), self._radii, 1.0 + APART_SLACK
-        for a, b in self.pairs:
-            pa, pb = c[a], c[b]
-            dx, dy, dz = pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]
-            reach = radii[a] + radii[b] + within_m
-            if not dx * dx + dy * dy + dz * dz > reach * reach * slack:  # NaN: not apart
-                return False
-        return True
+        if type(T_W_C) is not np.ndarray:  # (the kernel's one layout: (N, 4, 4) C-ordered)
+            T_W_C = np.array(T_W_C, dtype=float)
+        return boxes_apart(T_W_C, self._pair_index, self._half_m, self._radii_m, within_m,
+                           1.0 + APART_SLACK, APART_GAP_M)
 
     def overlapping(self, T_W_C: Sequence[np.ndarray]) -> bool:
         """Whether any pair that may touch overlaps at the COM poses T_W_C: whether

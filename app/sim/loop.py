@@ -874,6 +874,7 @@ class Emulator:
             ods.advance_and_ahead(zeros, zeros, self.dt_s, np.array([self.dt_s]))
         scratch = self._recorder(1)
         bodies = ods_bodies(self.T_W_R, ods)
+        self.interaction.contact.apart(bodies.T_W_C)  # (and the gate's, on the same model)
         if not self.arms:
             scratch.record(0.0, ods.y, zeros, zeros, [], zeros)
             return
