@@ -9,6 +9,7 @@ import pytest
 
 from app.config import merge_overrides
 from app.scenarios import load_scenario
+from app.sim.frames import Bodies
 from app.sim.ft_sensor import NORMALS_BLOCK
 from app.sim.rig import ArmRig, build_rig
 from app.sim.rotations import make_transform, quat_to_matrix
@@ -149,3 +150,48 @@ def test_a_packed_attribute_refuses_a_value_of_the_wrong_shape_and_keeps_its_own
     np.testing.assert_array_equal(rig.sensor.constants, before)
     rig.sensor.range_S = np.arange(1.0, 7.0)  # an assignment writes the buffer
     np.testing.assert_array_equal(rig.sensor.constants[16:22], np.arange(1.0, 7.0))
+
+
+@pytest.mark.parametrize("overrides", [
+    {},  # one call (app/sim/arm_sense.py sense_rows)
+    {"sensor": {"placement": "mockup"}},  # the stages, their output put in the rows
+])
+def test_sense_rows_writes_what_sense_returns_into_its_satellites_rows_only(overrides):
+    """ArmRig.sense_rows on the cycle's (N, ...) arrays of three bodies, against
+    ArmRig.sense on the rig's own rows, on a deep copy: the same force and torque to the
+    last bit in the satellite's rows of force_R and torque_B, every other row untouched,
+    and the rig left in the same state, through a contact and the gate's opening."""
+    rig, R_W_R = _calibrated(overrides)
+    rig.satellite = 2  # (not the first row: a kernel writing row 0 would fail here)
+    other = copy.deepcopy(rig)
+    s = rig.satellite
+    rng = np.random.default_rng(5)
+    rate = np.array([0.3, -0.2, 0.4, 0.2, -0.3, 0.5])
+    moved = 0.0
+    for k in range(80):
+        for r in (rig, other):
+            r.servo.step(r.q_start_rad + rate * k * r.servo.dt_s)
+        _, T_W_C, v_W, w_W = rig.mockup_state_W()
+        bodies = Bodies(rng.normal(size=(3, 4, 4)), rng.normal(size=(3, 3)),
+                        rng.normal(size=(3, 3)))
+        bodies.T_W_C[s], bodies.v_W[s], bodies.w_W[s] = T_W_C, v_W, w_W
+        wrench_W = rng.normal(0.0, 5.0, (3, 6))
+        if 20 <= k < 50:
+            wrench_W[s, :3] += 30.0 * np.array([0.6, -0.3, 0.74])
+        force_R, torque_B = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+        before = force_R.copy(), torque_B.copy()
+        gate = 15 <= k < 60
+        rig.sense_rows(wrench_W, bodies, R_W_R, rig.servo.dt_s, k == 0, gate, force_R,
+                       torque_B)
+        _, T_W_C2, v_W2, _ = other.mockup_state_W()
+        out = other.sense(wrench_W[s].copy(), T_W_C2, v_W2, R_W_R, other.servo.dt_s, k == 0,
+                          gate)
+        assert force_R[s].tobytes() == out.force_R_N.tobytes(), k
+        assert torque_B[s].tobytes() == out.torque_B_Nm.tobytes(), k
+        rest = [i for i in range(3) if i != s]
+        assert force_R[rest].tobytes() == before[0][rest].tobytes()
+        assert torque_B[rest].tobytes() == before[1][rest].tobytes()
+        for x, y in zip(_fields(rig, out)[3:], _fields(other, out)[3:], strict=True):
+            np.testing.assert_array_equal(x, y, err_msg=f"cycle {k}")
+        moved = max(moved, float(np.linalg.norm(force_R[s])))
+    assert moved > 20.0  # the contact came through

@@ -33,7 +33,8 @@ from numba import njit
 
 from app.sim.ft_sensor import ProcessedWrench, process_cycle, push_pose, sensor_step
 
-__all__ = ["OUT_SIZE", "arm_sense", "arm_sense_packed", "sense"]
+__all__ = ["OUT_SIZE", "arm_sense", "arm_sense_packed", "arm_sense_rows", "sense",
+           "sense_rows"]
 
 OUT_SIZE = 24
 """arm_sense's out: the chain's (12,) output (force in R, torque in B, wrench in S), the
@@ -90,6 +91,21 @@ def arm_sense_packed(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, n
               px[12:24], out)
 
 
+@njit(cache=True, fastmath=False)
+def arm_sense_rows(s, wrench_W, T_W_C, v_W, T_W_F, v_W_prev, dt_s, first_cycle, normals, sc,
+                   ring, head, fill, poses, pose_at, age, R_W_R, pc, px, gate_open,
+                   reset_slow, db_force, db_torque, out, force_R, torque_B):
+    """:func:`arm_sense_packed` on body s's rows of the cycle's arrays (wrench_W (N, 6),
+    T_W_C (N, 4, 4), v_W (N, 3)); then force_R[s], torque_B[s] := the ODS's part of the
+    processed wrench (out[0:6])."""
+    arm_sense_packed(wrench_W[s], T_W_C[s], T_W_F, v_W[s], v_W_prev, dt_s, first_cycle,
+                     normals, sc, ring, head, fill, poses, pose_at, age, R_W_R, pc, px,
+                     gate_open, reset_slow, db_force, db_torque, out)
+    for a in range(3):
+        force_R[s, a] = out[a]
+        torque_B[s, a] = out[3 + a]
+
+
 def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
           R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
           gate_open: bool) -> ProcessedWrench:
@@ -110,3 +126,23 @@ def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
                      db_torque, out)
     rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
     return ProcessedWrench(out[0:3], out[3:6], out[6:12])
+
+
+def sense_rows(rig, wrench_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
+               R_W_R: np.ndarray, dt_s: float, first_cycle: bool, gate_open: bool,
+               force_R: np.ndarray, torque_B: np.ndarray) -> None:
+    """:func:`sense` on the rig's satellite's rows of the cycle's arrays (wrench_W (N, 6),
+    T_W_C (N, 4, 4), v_W (N, 3), all C-ordered), its ODS input written into that row of
+    force_R and torque_B (N, 3): one call, no views or wrench object in between."""
+    sensor, proc = rig.sensor, rig.processor
+    normals, fill, held = sensor.advance()
+    assert held is None  # a sensor that samples every cycle holds nothing
+    age = proc.reading_age_cycles = sensor.age_cycles
+    db_force, db_torque, reset_slow = proc.gate(gate_open)
+    out = np.empty(OUT_SIZE)
+    arm_sense_rows(rig.satellite, wrench_W, T_W_C, v_W, rig.mockup_state_W()[0],
+                   rig.v_W_prev, dt_s, first_cycle, normals, sensor.constants, sensor._ring,
+                   sensor._head, fill, proc._poses, proc._pose_at, age, R_W_R,
+                   proc.constants, proc._x, gate_open, reset_slow, db_force, db_torque, out,
+                   force_R, torque_B)
+    rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]

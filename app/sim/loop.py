@@ -396,13 +396,11 @@ class Emulator:
         near, nearest = self._gate_open(bodies) if self.arms else (None, None)
         first_cycle = self.cycles == 0 and not self._sensed_before
         any_near = False
-        for arm in self.arms:
-            s = arm.satellite
-            gate_open = bool(near[s])
+        for arm in self.arms:  # its F/T chain's output into its satellite's rows
+            gate_open = bool(near[arm.satellite])
             any_near |= gate_open
-            measured = arm.sense(external_W[s], bodies.T_W_C[s], bodies.v_W[s], self.R_W_R,
-                                 self.dt_s, first_cycle=first_cycle, gate_open=gate_open)
-            force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
+            arm.sense_rows(external_W, bodies, self.R_W_R, self.dt_s, first_cycle, gate_open,
+                           force_R, torque_B)
         self.consistent_pairs = []
         if any_near or (self.arms and self._uncarried and near.any()):
             self._contact_estimate(force_R, torque_B, near, nearest, bodies)
@@ -884,6 +882,8 @@ class Emulator:
                         np.random.default_rng(0))
         T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
         rig.sense(np.zeros(6), T_W_C, v_W, self.R_W_R, self.dt_s, first_cycle=True)
+        rig.sense_rows(np.zeros((self.n_sat, 6)), bodies, self.R_W_R, self.dt_s, False, False,
+                       zeros.copy(), zeros.copy())  # the cycle's, on its rows
         rig.command(rig.tcp_target_B(ods.y))  # the run-up's
         rig.command_towards(ods.y)  # the cycle's
         scratch.record(0.0, ods.y, zeros, zeros,

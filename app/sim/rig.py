@@ -153,6 +153,22 @@ class ArmRig:
         return self.sense_in_stages(wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
                                     gate_open)
 
+    def sense_rows(self, wrench_ext_W: np.ndarray, bodies, R_W_R: np.ndarray, dt_s: float,
+                   first_cycle: bool, gate_open: bool, force_R: np.ndarray,
+                   torque_B: np.ndarray) -> None:
+        """:meth:`sense` of this rig's satellite s on the cycle's arrays (wrench_ext_W
+        (N, 6), the :class:`~app.sim.frames.Bodies`): its ODS input (force in R, torque in
+        B) into force_R[s] and torque_B[s] (:func:`arm_sense.sense_rows` where
+        :meth:`sense` is one call)."""
+        s = self.satellite
+        if self.T_C_S is None and self.sensor.every_cycles == 1.0:
+            arm_sense.sense_rows(self, wrench_ext_W, bodies.T_W_C, bodies.v_W, R_W_R, dt_s,
+                                 first_cycle, gate_open, force_R, torque_B)
+            return
+        measured = self.sense_in_stages(wrench_ext_W[s], bodies.T_W_C[s], bodies.v_W[s],
+                                        R_W_R, dt_s, first_cycle, gate_open)
+        force_R[s], torque_B[s] = measured.force_R_N, measured.torque_B_Nm
+
     def sense_in_stages(self, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
                         R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
                         gate_open: bool = False) -> ProcessedWrench:
