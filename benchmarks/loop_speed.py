@@ -117,7 +117,7 @@ def _import_other_app(tree: Path, tmp: Path):
 
 
 def compare_steps(other: Path, scenarios: list[str], chunks: int,
-                  modes: tuple[str, ...] = ("hil",)) -> None:
+                  modes: tuple[str, ...] = ("hil",), chunk_cycles: int = 100) -> None:
     """µs per Emulator.step of both trees in one process, stepped in turn (each chunk's
     mean, and the p50 / p99 of the single cycles' compute times the emulators record)."""
     from app.scenarios import load_scenario
@@ -126,7 +126,7 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int,
     with tempfile.TemporaryDirectory() as tmp:
         OtherEmulator, other_load = _import_other_app(other, Path(tmp))  # noqa: N806
         print(f"\n## Emulator.step, this tree vs {other}, one process, {chunks} chunks of "
-              "100 cycles each in turn\n")
+              f"{chunk_cycles} cycles each in turn\n")
         print("| scenario | mode | this tree µs (min / median) | other µs (min / median) "
               "| ratio of minima | median of chunk ratios | cycle p50 this / other (ratio) "
               "| cycle p99 this / other (ratio) |")
@@ -151,9 +151,9 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int,
                     for k, em in enumerate(ems):
                         n0 = em.cycles
                         t0 = time.perf_counter_ns()
-                        for _ in range(100):
+                        for _ in range(chunk_cycles):
                             em.step()
-                        us[k].append((time.perf_counter_ns() - t0) / 100 / 1e3)
+                        us[k].append((time.perf_counter_ns() - t0) / chunk_cycles / 1e3)
                         # each cycle's own compute time, as the emulator records it
                         cycle_us[k].append(em.cycle_time_ns[n0:em.cycles] / 1e3)
                 a, b = np.array(us[0]), np.array(us[1])
@@ -165,7 +165,7 @@ def compare_steps(other: Path, scenarios: list[str], chunks: int,
                       f"({pa[0] / pb[0]:.3f}) | {pa[1]:.1f} / {pb[1]:.1f} "
                       f"({pa[1] / pb[1]:.3f}) |", flush=True)
                 cold_rows.append(_cold_row(scenario, mode, cycle_us))
-        _print_cold(cold_rows)
+        _print_cold(cold_rows, chunk_cycles)
 
 
 def _cold_row(scenario: str, mode: str, cycle_us: list[list[np.ndarray]]) -> str:
@@ -178,10 +178,11 @@ def _cold_row(scenario: str, mode: str, cycle_us: list[list[np.ndarray]]) -> str
             f"({warm[0] / warm[1]:.3f}) |")
 
 
-def _print_cold(rows: list[str]) -> None:
-    """The p99 above, taken apart: with 100 cycles per chunk, each chunk's first cycle (1 %
-    of the samples) runs after the other tree's code has taken the CPU's caches, and it
-    sets the p99; the p99 of the other cycles is the warm loop's tail."""
+def _print_cold(rows: list[str], chunk_cycles: int) -> None:
+    """The p99 above, taken apart: each chunk's first cycle runs after the other tree's
+    code has taken the CPU's caches; with 100 cycles per chunk (1 % of the samples, and
+    the next few cycles are not warm either) those set the p99, with 1,000
+    (``--chunk-cycles``) the warm loop's tail does. The p99 of the other cycles."""
     print("\n### The cold cycle: each chunk's first, after the other tree's chunk\n")
     print("| scenario | mode | first cycle of a chunk, median µs this / other (ratio) "
           "| cycle p99 without it, this / other (ratio) |")
@@ -300,7 +301,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="another checkout: compare real-time factors, this tree vs that")
     ap.add_argument("--rounds", type=int, default=5, help="rounds of --against")
     ap.add_argument("--chunks", type=int, default=200,
-                    help="chunks of 100 cycles per tree in --against's one-process comparison")
+                    help="chunks per tree in --against's one-process comparison")
+    ap.add_argument("--chunk-cycles", type=int, default=100,
+                    help="cycles per chunk in --against's one-process comparison")
     ap.add_argument("--steps-only", action="store_true",
                     help="--against: the one-process Emulator.step comparison only")
     ap.add_argument("--scenarios", nargs="+", default=None,
@@ -324,7 +327,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             print("(the other tree has no free-floating-scripted; its free-floating is the "
                   "scripted one, this tree's is hand-driven: compared on collision only)")
-        compare_steps(other, scenarios, args.chunks, ("hil", "ideal"))
+        compare_steps(other, scenarios, args.chunks, ("hil", "ideal"), args.chunk_cycles)
         if not args.steps_only:
             compare_trees(other, scenarios, args.rounds, args.duration)
         return 0
