@@ -208,7 +208,8 @@ def _timed(fn, acc: dict, key: str):
 def _with_stage_timers(em) -> dict[str, int]:
     """Wrap every timed stage of `em`; returns the accumulator of ns per stage."""
     acc: dict[str, int] = defaultdict(int)
-    em.fuse_tail = False  # the tail's stages one by one (app/sim/cycle_tail.py fuses them)
+    em.fuse_tail = False  # the stages one by one (app/sim/cycle_tail.py fuses the tail,
+    # and in a one-arm run without passivity or gate the F/T chain with it)
     em.bodies_W = _timed(em.bodies_W, acc, "actual mockups (arm FK + twist)")
     interaction = em.interaction  # the contact's part of it (free flight: its early-out)
     interaction._contact_W = _timed(interaction._contact_W, acc, "contact (coal)")
@@ -218,7 +219,7 @@ def _with_stage_timers(em) -> dict[str, int]:
     em.ods_advance = _timed(em.ods_advance, acc, "ODS step")
     em._tracking = _timed(em._tracking, acc, "tracking watchdog")
     for arm in em.arms:  # each arm's sensor path and command path (each one compiled call)
-        arm.sense = _timed(arm.sense, acc, "F/T sensor + processing")
+        arm.sense_rows = _timed(arm.sense_rows, acc, "F/T sensor + processing")
         arm.command_towards = _timed(arm.command_towards, acc,
                                      f"arm {arm.index + 1}: target, VFDM, servo, FK")
     return acc
@@ -257,7 +258,8 @@ def print_breakdown(scenario: str, cycles: int, repeats: int) -> float:
     print(f"| rest (glue) | {rest:.1f} | {100 * rest / total:.0f}% |")
     print(f"| **total cycle** | **{total:.1f}** | 100% |")
     print("\n(the cycle's tail, ODS step to the arms' commands, as its stages: in a run "
-          "they are one compiled call, app/sim/cycle_tail.py)")
+          "they are one compiled call, app/sim/cycle_tail.py, and in a one-arm run without "
+          "passivity or contact gate the F/T chain is in that call too)")
     print(f"\nloop-only real-time factor from this: {CYCLE_US / total:.1f}x "
           f"(cycle = {CYCLE_US:.0f} µs; stage timers included)")
     return total

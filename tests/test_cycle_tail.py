@@ -1,4 +1,5 @@
-"""The cycle's fused tail (app/sim/cycle_tail.py) against the stages of Emulator.step."""
+"""The cycle's fused tail and fused rest (app/sim/cycle_tail.py) against the stages of
+Emulator.step."""
 
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def _stepped(config, fuse: bool, cycles: int, calls: dict | None = None) -> Emul
     em.fuse_tail = fuse
     em.prepare()
     if calls is not None:
-        calls["tail"] = 0
+        calls["tail"] = calls["rest"] = 0
     for _ in range(cycles):
         em.step()
         if em.status != "running":
@@ -42,13 +43,15 @@ def _stepped(config, fuse: bool, cycles: int, calls: dict | None = None) -> Emul
 
 
 def _counting(monkeypatch) -> dict:
-    """Count the fused tail's compiled calls (the kernels themselves run)."""
-    calls = {"tail": 0}
-    for name in ("tail_one_arm", "tail_two_arms"):
+    """Count the fused tail's compiled calls ("tail") and the fused rest's, the chain and
+    the tail in one ("rest"); the kernels themselves run."""
+    calls = {"tail": 0, "rest": 0}
+    for name, key in (("tail_one_arm", "tail"), ("tail_two_arms", "tail"),
+                      ("sensed_tail_one_arm", "rest")):
         kernel = getattr(loop, name)
 
-        def counted(*args, _kernel=kernel):
-            calls["tail"] += 1
+        def counted(*args, _kernel=kernel, _key=key):
+            calls[_key] += 1
             return _kernel(*args)
 
         monkeypatch.setattr(loop, name, counted)
@@ -68,19 +71,23 @@ def _assert_same(fused: Emulator, stages: Emulator) -> None:
 @pytest.mark.parametrize("name", scenario_names())
 def test_the_fused_tail_is_the_stages_to_the_last_bit(name, monkeypatch):
     """Every shipped scenario, hil, 1,800 cycles (the collision's contact among them):
-    the same telemetry, ODS state and arm states with the fused tail as with the stages;
-    where the setting allows it, every cycle took the fused call."""
+    the same telemetry, ODS state and arm states with the fused calls as with the
+    stages; where the setting allows it, every cycle took one: the rest (one arm, no
+    passivity, no gate: the free-floating runs) or the tail."""
     config = load_scenario(name)
     calls = _counting(monkeypatch)
     fused = _stepped(config, True, 1800, calls)
-    taken = calls["tail"]
+    taken, rest = calls["tail"], calls["rest"]
     stages = _stepped(config, False, 1800, calls)
-    assert calls["tail"] == 0  # the stages never call it
+    assert calls["tail"] == calls["rest"] == 0  # the stages never call them
     _assert_same(fused, stages)
     if fused._tail_fusable and not fused.gnc:
-        assert taken == fused.cycles > 1000  # (prepare() moves the arms, steps none)
+        assert taken + rest == fused.cycles > 1000  # (prepare() moves the arms, steps none)
+        assert rest == (fused.cycles if fused._rest_fusable else 0)
     else:  # a rail, a capture to check or a GNC's own actuation: the stages
-        assert taken == 0
+        assert taken == rest == 0
+    if name.startswith("free-floating"):
+        assert rest == fused.cycles
 
 
 def test_a_servo_stop_in_the_fused_tail_stops_the_run_as_the_stages_do(monkeypatch):
@@ -100,8 +107,8 @@ def test_a_servo_stop_in_the_fused_tail_stops_the_run_as_the_stages_do(monkeypat
             if em.status != "running":
                 break
         ems.append(em)
-        taken.append(calls["tail"])
-    assert taken[0] == ems[0].cycles > 10 and taken[1] == 0
+        taken.append(calls["tail"] + calls["rest"])
+    assert taken[0] == ems[0].cycles > 10 and taken[1] == 0  # (the rest: free-floating)
     assert ems[0].status == "safety_stop"
     assert ems[0].safety_stop["reason"] == "TCP left safety volume"
     _assert_same(*ems)
@@ -175,7 +182,7 @@ def test_a_setting_with_the_servo_feedforward_takes_the_stages(name, overrides, 
     config = merge_overrides(load_scenario(name), overrides)
     calls = _counting(monkeypatch)
     fused = _stepped(config, True, 300, calls)
-    assert calls["tail"] == 0 and fused.arms[0].feedforward is not None
+    assert calls["tail"] == calls["rest"] == 0 and fused.arms[0].feedforward is not None
     _assert_same(fused, _stepped(config, False, 300))
 
 
@@ -185,3 +192,43 @@ def test_a_copy_shares_the_read_only_answer_of_a_loop_without_a_gate():
     twin = em.copy_state()
     assert twin._gate_closed is em._gate_closed
     assert not any(a.flags.writeable for a in twin._gate_closed)
+
+
+def test_a_reading_at_the_sensors_range_stops_the_fused_rest_as_the_stages_do(monkeypatch):
+    """A 20 N range on the free-floating-scripted run, whose push goes past it: the fused
+    rest ends its call after the chain, and the run stops at the same cycle, for the same
+    reason, with the same readings, ODS state and telemetry as the stages'; with
+    ``stop_at_sensor_range`` off the run goes on, the same in both."""
+    for stop in (True, False):
+        config = merge_overrides(load_scenario("free-floating-scripted"),
+                                 {"sensor": {"range_force_N": 20.0},
+                                  "loop": {"stop_at_sensor_range": stop}})
+        calls = _counting(monkeypatch)
+        fused = _stepped(config, True, 4000, calls)
+        assert calls["rest"] == fused.cycles + stop > 100  # (the stopping call)
+        stages = _stepped(config, False, 4000)
+        _assert_same(fused, stages)
+        assert fused.arms[0].last_raw_S.tobytes() == stages.arms[0].last_raw_S.tobytes()
+        assert fused.applied_force_R.tobytes() == stages.applied_force_R.tobytes()
+        if stop:
+            assert fused.status == "safety_stop"
+            assert fused.safety_stop["reason"].startswith("F/T force reading at the sensor's")
+        else:
+            assert fused.status == "running" and fused.cycles == 4000
+
+
+@pytest.mark.parametrize("overrides", [
+    {"passivity": {"enabled": True}},  # the coupling changes the chain's output
+    {"wrench": {"contact_gate": True}},  # a gate may open: the estimate
+    {"sensor": {"placement": "mockup"}},  # the chain's stages: the wrench to the face
+    {"sensor": {"sample_rate_hz": 125.0}},  # a held reading
+])
+def test_a_setting_the_fused_rest_does_not_cover_takes_the_tail(overrides, monkeypatch):
+    """One-arm settings where the chain's output is not the ODS input as it is, or the
+    chain is not one call: every cycle takes the fused tail after the stages of the
+    chain, bit for bit as the stages."""
+    config = merge_overrides(load_scenario("free-floating-scripted"), overrides)
+    calls = _counting(monkeypatch)
+    fused = _stepped(config, True, 600, calls)
+    assert calls["rest"] == 0 and calls["tail"] == fused.cycles == 600
+    _assert_same(fused, _stepped(config, False, 600))

@@ -33,8 +33,8 @@ from numba import njit
 
 from app.sim.ft_sensor import ProcessedWrench, process_cycle, push_pose, sensor_step
 
-__all__ = ["OUT_SIZE", "arm_sense", "arm_sense_packed", "arm_sense_rows", "sense",
-           "sense_rows"]
+__all__ = ["OUT_SIZE", "arm_sense", "arm_sense_packed", "arm_sense_rows", "chain_args",
+           "sense", "sense_rows", "sensed"]
 
 OUT_SIZE = 24
 """arm_sense's out: the chain's (12,) output (force in R, torque in B, wrench in S), the
@@ -106,25 +106,39 @@ def arm_sense_rows(s, wrench_W, T_W_C, v_W, T_W_F, v_W_prev, dt_s, first_cycle, 
         torque_B[s, a] = out[3 + a]
 
 
+def chain_args(rig, gate_open: bool) -> tuple:
+    """The Python side of a cycle of the rig's chain, before its kernel: the sensor's
+    bookkeeping (:meth:`~app.sim.ft_sensor.VirtualFTSensor.advance`: the noise draws, the
+    delay ring's head) and the gate's (:meth:`~app.sim.ft_sensor.WrenchProcessor.gate`);
+    returns the kernels' arguments from the noise on, in their order: (normals, sensor
+    constants, delay ring, head, fill, poses, pose_at, age, then — after R_W_R — chain
+    constants, chain state, reset_slow, force deadband, torque deadband)."""
+    sensor, proc = rig.sensor, rig.processor
+    normals, fill, held = sensor.advance()
+    assert held is None  # a sensor that samples every cycle holds nothing
+    age = proc.reading_age_cycles = sensor.age_cycles
+    db_force, db_torque, reset_slow = proc.gate(gate_open)  # begin's, but for the poses
+    return ((normals, sensor.constants, sensor._ring, sensor._head, fill, proc._poses,
+             proc._pose_at, age), (proc.constants, proc._x, reset_slow, db_force, db_torque))
+
+
+def sensed(rig, out: np.ndarray) -> None:
+    """The rig's readings of the cycle from a kernel's out (:data:`OUT_SIZE`)."""
+    rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
+
+
 def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
           R_W_R: np.ndarray, dt_s: float, first_cycle: bool,
           gate_open: bool) -> ProcessedWrench:
     """:meth:`ArmRig.sense` of a rig whose sensor sits at the flange and samples every
     cycle, in one compiled call; the rig, its sensor and its chain end as after the
     stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included)."""
-    sensor, proc = rig.sensor, rig.processor
-    T_W_F = rig.mockup_state_W()[0]
-    normals, fill, held = sensor.advance()
-    assert held is None  # a sensor that samples every cycle holds nothing
-    age = proc.reading_age_cycles = sensor.age_cycles
-    db_force, db_torque, reset_slow = proc.gate(gate_open)  # begin's, but for the poses
+    sensor_part, (pc, px, reset_slow, db_force, db_torque) = chain_args(rig, gate_open)
     out = np.empty(OUT_SIZE)
-    arm_sense_packed(np.asarray(wrench_ext_W, dtype=float), T_W_C, T_W_F, v_W,
-                     rig.v_W_prev, dt_s, first_cycle, normals, sensor.constants,
-                     sensor._ring, sensor._head, fill, proc._poses, proc._pose_at, age,
-                     R_W_R, proc.constants, proc._x, gate_open, reset_slow, db_force,
-                     db_torque, out)
-    rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
+    arm_sense_packed(np.asarray(wrench_ext_W, dtype=float), T_W_C, rig.mockup_state_W()[0],
+                     v_W, rig.v_W_prev, dt_s, first_cycle, *sensor_part, R_W_R, pc, px,
+                     gate_open, reset_slow, db_force, db_torque, out)
+    sensed(rig, out)
     return ProcessedWrench(out[0:3], out[3:6], out[6:12])
 
 
@@ -134,15 +148,9 @@ def sense_rows(rig, wrench_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
     """:func:`sense` on the rig's satellite's rows of the cycle's arrays (wrench_W (N, 6),
     T_W_C (N, 4, 4), v_W (N, 3), all C-ordered), its ODS input written into that row of
     force_R and torque_B (N, 3): one call, no views or wrench object in between."""
-    sensor, proc = rig.sensor, rig.processor
-    normals, fill, held = sensor.advance()
-    assert held is None  # a sensor that samples every cycle holds nothing
-    age = proc.reading_age_cycles = sensor.age_cycles
-    db_force, db_torque, reset_slow = proc.gate(gate_open)
+    sensor_part, (pc, px, reset_slow, db_force, db_torque) = chain_args(rig, gate_open)
     out = np.empty(OUT_SIZE)
     arm_sense_rows(rig.satellite, wrench_W, T_W_C, v_W, rig.mockup_state_W()[0],
-                   rig.v_W_prev, dt_s, first_cycle, normals, sensor.constants, sensor._ring,
-                   sensor._head, fill, proc._poses, proc._pose_at, age, R_W_R,
-                   proc.constants, proc._x, gate_open, reset_slow, db_force, db_torque, out,
-                   force_R, torque_B)
-    rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]
+                   rig.v_W_prev, dt_s, first_cycle, *sensor_part, R_W_R, pc, px, gate_open,
+                   reset_slow, db_force, db_torque, out, force_R, torque_B)
+    sensed(rig, out)

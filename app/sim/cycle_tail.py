@@ -25,10 +25,15 @@ from __future__ import annotations
 from numba import njit
 
 from app.sim.arm_command import arm_command_towards
+from app.sim.arm_sense import arm_sense_rows
 from app.sim.orbital import _rk4_then_leads
 from app.sim.telemetry import record_row_arm, record_row_arms
 
-__all__ = ["tail_one_arm", "tail_two_arms"]
+__all__ = ["RANGE_STOP", "sensed_tail_one_arm", "tail_one_arm", "tail_two_arms"]
+
+RANGE_STOP = -2
+""":func:`sensed_tail_one_arm`'s row index when the raw force reading is at the sensor's
+range: the run stops there, before the ODS step."""
 
 
 @njit(cache=True, fastmath=False)
@@ -82,3 +87,32 @@ def tail_two_arms(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, d
                                         vfdm_x2, servo_c2, chain_c2, ring2, slot2, sp_prev2,
                                         q2, qd2, stopped2, out2)
     return at, scale, code, scale2, code2
+
+
+@njit(cache=True, fastmath=False)
+def sensed_tail_one_arm(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, first_cycle,
+                        normals, sc, sensor_ring, head, fill, poses, pose_at, age, R_W_R, pc,
+                        px, reset_slow, db_force, db_torque, sensed, range_N,
+                        W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, leads,
+                        ods_out, t_s, orbit_rate, true_force, gnc, rails, n_arms, data,
+                        counters, T_R_W, T_W_C, v_W, target,
+                        T_B_R, satellite, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot,
+                        sp_prev, q, qd, stopped, out):
+    """A one-arm cycle from its F/T chain on, where the chain's output is the ODS input as
+    it is (no passivity, no contact gate): the chain of body s with its gate closed
+    (:func:`arm_sense_rows`, its readings into ``sensed`` and force[s], torque[s]); a raw
+    force reading at the sensor's range ``range_N`` (> 0: ``[loop] stop_at_sensor_range``)
+    ends the call there with :data:`RANGE_STOP`; else :func:`tail_one_arm` on the readings
+    just taken. Returns tail_one_arm's (row index, VFDM scale, servo stop code)."""
+    arm_sense_rows(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, dt, first_cycle,
+                   normals, sc, sensor_ring, head, fill, poses, pose_at, age, R_W_R, pc, px,
+                   False, reset_slow, db_force, db_torque, sensed, force, torque)
+    if range_N > 0.0:
+        for a in range(3):
+            if abs(sensed[12 + a]) >= range_N:
+                return RANGE_STOP, 1.0, 0
+    return tail_one_arm(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt,
+                        leads, ods_out, t_s, orbit_rate, true_force, gnc, rails, n_arms, data,
+                        counters, T_R_W, T_W_C, v_W, sensed[12:18], sensed[18:24], target,
+                        T_B_R, satellite, vfdm_c, vfdm_x, servo_c, chain_c, ring, slot,
+                        sp_prev, q, qd, stopped, out)

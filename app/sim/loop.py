@@ -30,6 +30,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from app.config import EmulatorConfig
+from app.sim import arm_sense
 from app.sim.capture import Compound, compound_wrench, join, relative_state, spread
 from app.sim.compensation import contact_cutoff_hz, force_lag_s, lag_model, predicted_state
 from app.sim.contact import BoxContactModel
@@ -43,7 +44,7 @@ from app.sim.contact_gate import (
 )
 from app.sim.contact_identification import HuntCrossleyFit
 from app.sim.coupling import OdsCoupling
-from app.sim.cycle_tail import tail_one_arm, tail_two_arms
+from app.sim.cycle_tail import RANGE_STOP, sensed_tail_one_arm, tail_one_arm, tail_two_arms
 from app.sim.frames import ods_states_W, satellite_pose, tracking_errors
 from app.sim.ft_sensor import lowpass_alpha
 from app.sim.gnc import GncParams, GncState, gnc_step, navigation
@@ -284,6 +285,10 @@ class Emulator:
         self.gnc_wrench = np.zeros((self.n_sat, 6))
         """Each satellite's own GNC wrench of the cycle, orbit units: force in R, torque in
         body axes (zeros without a GNC)."""
+        self._rest_fusable = (len(self.arms) == 1 and not self.coupling.enabled
+                              and self.gate is None and not self.gnc)
+        """Whether a cycle from its F/T chain on can be one compiled call
+        (:meth:`_fused_rest`): one arm, its chain's output the ODS input as it is."""
         self._final_recorded_at = -1
         self._sensed_before = False  # the F/T chains ran in a run-up before t = 0
         self.snapshot_at_s: float | None = None
@@ -317,25 +322,29 @@ class Emulator:
             return
         external_W = self.interaction.wrenches_W(bodies, t_s)  # contact + operator's hand
         self.true_force_R = external_W[:, :3].dot(self._R_W_R_c)  # `@ self.R_W_R`
-        force_R, torque_B = self.ods_input(bodies, external_W,  # F/T chains + coupling
-                                           self.true_force_R)
-        if not self._within_sensor_range():
+        fused = self._fused_rest(bodies, external_W)  # None: the stages below (one arm,
+        if fused is None:  # no passivity, no gate: one compiled call, app/sim/cycle_tail.py)
+            force_R, torque_B = self.ods_input(bodies, external_W,  # F/T chains + coupling
+                                               self.true_force_R)
+            if not self._within_sensor_range():
+                return
+            own = self.own_actuation()  # the satellites' GNC: thrusters, wheels (not sensed)
+            if own is not None or not self._fused_tail(force_R, torque_B):  # (else the
+                # tail below in one compiled call, on the same numbers)
+                y_next, force_R, torque_B = self.ods_advance(force_R, torque_B, own)  # ODS
+                self.applied_force_R, self.applied_torque_B = force_R, torque_B
+                self._record()
+                self.ods.commit(y_next, self.dt_s)
+                self._capture()
+                if own is not None:  # the prediction holds the whole input, own actuation
+                    force_R, torque_B = force_R + own[0], torque_B + own[1]
+                predicted = self._predicted(force_R, torque_B) if self.arms else ()  # a lead
+                for arm, y_ahead in zip(self.arms, predicted, strict=True):  # TCP target
+                    arm.command_towards(y_ahead)  # (where the satellite will be) -> VFDM
+                    if arm.servo.stopped:  # -> servo
+                        self._safety_stop(arm, arm.servo.reason)
+        elif not fused:  # a reading at the sensor's range stopped the run
             return
-        own = self.own_actuation()  # the satellites' GNC: thrusters, wheels (not sensed)
-        if own is not None or not self._fused_tail(force_R, torque_B):  # (else all of the
-            # below in one compiled call, on the same numbers: app/sim/cycle_tail.py)
-            y_next, force_R, torque_B = self.ods_advance(force_R, torque_B, own)  # ODS step
-            self.applied_force_R, self.applied_torque_B = force_R, torque_B
-            self._record()
-            self.ods.commit(y_next, self.dt_s)
-            self._capture()
-            if own is not None:  # the prediction holds the whole input, own actuation too
-                force_R, torque_B = force_R + own[0], torque_B + own[1]
-            predicted = self._predicted(force_R, torque_B) if self.arms else ()  # each lead
-            for arm, y_ahead in zip(self.arms, predicted, strict=True):  # TCP target (where
-                arm.command_towards(y_ahead)  # the satellite will be) -> VFDM -> servo
-                if arm.servo.stopped:
-                    self._safety_stop(arm, arm.servo.reason)
         self._cycle_time_ns[self.cycles % len(self._cycle_time_ns)] = time.perf_counter_ns() - t0
         self.cycles += 1
 
@@ -376,21 +385,22 @@ class Emulator:
         for arm in self.arms:
             raw = arm.last_raw_S  # three scalar tests: an array call costs more here
             if abs(raw[0]) >= limit or abs(raw[1]) >= limit or abs(raw[2]) >= limit:
-                self._safety_stop(arm, f"F/T force reading at the sensor's {limit:g} N range: "
-                                       f"the contact pushes harder than it can measure")
+                self._range_stop(arm)
                 return False
         return True
+
+    def _range_stop(self, arm: ArmRig) -> None:
+        """The stop of :meth:`_within_sensor_range` at arm's reading."""
+        self._safety_stop(arm, f"F/T force reading at the sensor's "
+                               f"{self.config.sensor.range_force_N:g} N range: the contact "
+                               f"pushes harder than it can measure")
 
     def ods_input(self, bodies: Bodies, external_W: np.ndarray,
                   true_force_R: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
         measured, the others the external wrench exactly; then the coupling (passivity).
         ``true_force_R``: the external force in R if already at hand (not written)."""
-        force_R = (external_W[:, :3] @ self.R_W_R if true_force_R is None
-                   else true_force_R.copy())
-        torque_B = np.zeros((self.n_sat, 3))
-        for i in self._uncarried:
-            torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
+        force_R, torque_B = self._unsensed_input(bodies, external_W, true_force_R)
         # the gate lifts the arms' deadbands and names the contacts their estimate takes:
         # without an arm (an ideal run) it has nothing to act on
         near, nearest = self._gate_open(bodies) if self.arms else (None, None)
@@ -405,6 +415,17 @@ class Emulator:
         if any_near or (self.arms and self._uncarried and near.any()):
             self._contact_estimate(force_R, torque_B, near, nearest, bodies)
         return self.coupling.ods_input(force_R, torque_B, self.ods, bodies, self.R_W_R)
+
+    def _unsensed_input(self, bodies: Bodies, external_W: np.ndarray,
+                        true_force_R: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`ods_input` before the F/T chains: (force in R, torque in B) with every
+        satellite's external wrench exactly; the chains' rows are written over."""
+        force_R = (external_W[:, :3] @ self.R_W_R if true_force_R is None
+                   else true_force_R.copy())
+        torque_B = np.zeros((self.n_sat, 3))
+        for i in self._uncarried:
+            torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
+        return force_R, torque_B
 
     def _contact_estimate(self, force_R: np.ndarray, torque_B: np.ndarray, near: np.ndarray,
                           partner: np.ndarray, bodies: Bodies) -> None:
@@ -607,39 +628,102 @@ class Emulator:
         """The rest of a cycle without own actuation, as :meth:`step` reads it (the ODS
         step and its predictions, the telemetry row, each arm's command), in one compiled
         call (app/sim/cycle_tail.py) where it is those stages and nothing else
+        (:meth:`_tail_commands`); False, with nothing done, where it is not."""
+        tail = self._tail_commands()
+        if tail is None:
+            return False
+        targets, commands = tail
+        rows = []
+        for arm in self.arms:
+            _, T_W_C, v_W, _ = arm.mockup_state_W()
+            rows.append((T_W_C, v_W, arm.last_raw_S, arm.last_processed))
+        self.applied_force_R, self.applied_torque_B = force_R, torque_B
+        ods_out = self._ods_out()
+        at, *done = _call_tail(self.ods, self.recorder, force_R, torque_B, self.dt_s,
+                               self._leads, ods_out, self.true_force_R, rows, targets,
+                               commands)
+        self._tail_done(at, ods_out, commands, done)
+        return True
+
+    def _fused_rest(self, bodies: Bodies, external_W: np.ndarray) -> bool | None:
+        """A one-arm cycle from its F/T chain on, as :meth:`step` reads it, in one compiled
+        call (app/sim/cycle_tail.py :func:`sensed_tail_one_arm`) where the chain's output
+        is the ODS input as it is (no passivity, no contact gate, no GNC), the chain is
+        one call (:meth:`ArmRig.fused_sense`) and the tail one too (:meth:`_tail_commands`):
+        True when the cycle ran, False when a reading at the sensor's range stopped it
+        (``[loop] stop_at_sensor_range``); None, with nothing done, where it is not."""
+        if not self._rest_fusable:
+            return None
+        arm = self.arms[0]
+        if not arm.fused_sense():
+            return None
+        tail = self._tail_commands()
+        if tail is None:
+            return None
+        (target,), (command,) = tail
+        force_R, torque_B = self._unsensed_input(bodies, external_W, self.true_force_R)
+        self.consistent_pairs = []
+        first_cycle = self.cycles == 0 and not self._sensed_before
+        sensor_part, chain_part = arm_sense.chain_args(arm, False)
+        sensed = np.empty(arm_sense.OUT_SIZE)
+        T_W_F, T_W_C, v_W, _ = arm.mockup_state_W()
+        loop, ods, rec = self.config.loop, self.ods, self.recorder
+        range_N = self.config.sensor.range_force_N if loop.stop_at_sensor_range else 0.0
+        ods_out = self._ods_out()
+        at, *done = sensed_tail_one_arm(
+            arm.satellite, external_W, bodies.T_W_C, bodies.v_W, T_W_F, arm.v_W_prev,
+            first_cycle, *sensor_part, self.R_W_R, *chain_part, sensed, range_N,
+            *_kernel_args(ods.params), ods.y, force_R, torque_B, self.dt_s, self._leads,
+            ods_out, ods.t_s, rec.orbit_rate_radps, self.true_force_R, rec._no_gnc,
+            rec._no_rails, rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W,
+            T_W_C, v_W, target, *command)
+        arm_sense.sensed(arm, sensed)
+        if at == RANGE_STOP:
+            self._range_stop(arm)
+            return False
+        self.applied_force_R, self.applied_torque_B = force_R, torque_B
+        self._tail_done(at, ods_out, [command], done)
+        return True
+
+    def _tail_commands(self) -> tuple[list[int], list[tuple]] | None:
+        """(each arm's row of the fused tail's ODS output, its
+        :meth:`ArmRig.fused_command_args`) where the tail can be one compiled call
         (``_tail_fusable``: a hil run of one or two fixed arms, no capture to check, no
-        rail; and each arm's command fused, its lead none or among the ODS step's);
-        False, with nothing done, where it is not."""
+        rail; a recorder of these arms; and each arm's command fused, its lead none or
+        among the ODS step's); None where not."""
         arms, rec = self.arms, self.recorder
         if not (self.fuse_tail and self._tail_fusable) or rec.n_arms != len(arms) \
                 or rec.n_rails:  # (a recorder of other arms: the stages' error)
-            return False
-        commands, rows, targets = [], [], []
+            return None
+        commands, targets = [], []
         for arm in arms:  # its target: the step's state (no lead) or its prediction
             target = 0 if arm.lead_s <= 0.0 else 1 + self._lead_slot.get(arm.lead_s, -2)
             args = None if target < 0 else arm.fused_command_args()
             if args is None:
-                return False
+                return None
             commands.append(args)
             targets.append(target)
-            _, T_W_C, v_W, _ = arm.mockup_state_W()
-            rows.append((T_W_C, v_W, arm.last_raw_S, arm.last_processed))
-        self.applied_force_R, self.applied_torque_B = force_R, torque_B
-        ods = self.ods
-        ods_out = np.empty((1 + len(self._leads),) + ods.y.shape)
-        at, *done = _call_tail(ods, rec, force_R, torque_B, self.dt_s, self._leads, ods_out,
-                               self.true_force_R, rows, targets, commands)
+        return targets, commands
+
+    def _ods_out(self) -> np.ndarray:
+        """A new array for the fused tail's ODS step and its predictions (one per lead)."""
+        return np.empty((1 + len(self._leads),) + self.ods.y.shape)
+
+    def _tail_done(self, at: int, ods_out: np.ndarray, commands: list[tuple],
+                   done: list) -> None:
+        """After a fused tail's call (its row's index ``at``, each arm's VFDM scale and
+        servo stop code in ``done``): the row and the ODS state taken, each arm's command
+        (:meth:`ArmRig.commanded`), a stop where its servo stopped."""
         if at < 0:  # a shape that does not fit the row: the stages' error, nothing written
             self._record()
             raise RuntimeError("the fused tail's telemetry row did not fit, the stages' did")
-        rec.buffer.commit()
-        ods.commit(ods_out[0], self.dt_s)
-        for k, arm in enumerate(arms):
+        self.recorder.buffer.commit()
+        self.ods.commit(ods_out[0], self.dt_s)
+        for k, arm in enumerate(self.arms):
             slot, out = commands[k][7], commands[k][-1]
             arm.commanded(done[2 * k], done[2 * k + 1], slot, out)
             if arm.servo.stopped:
                 self._safety_stop(arm, arm.servo.reason)
-        return True
 
     def _advance_compound(self, y_next: np.ndarray, force_R: np.ndarray,
                           torque_B: np.ndarray) -> np.ndarray:
@@ -898,12 +982,30 @@ class Emulator:
                        np.empty((2,) + ods.y.shape), zeros,
                        [(T_W_C, v_W, rig.last_raw_S, rig.last_processed)] * n, [1] * n,
                        [command, rig.fused_command_args()][:n])
+            if self._rest_fusable and rig.fused_sense():  # the cycle from the chain on
+                self._load_rest_kernel(rig, ods, scratch, bodies)
         for k, robot in enumerate(self.config.robots):
             if robot.rail is not None:  # the rail's kernels too
                 rig = build_cell(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
                 rig.mockup_state_W()
                 rig.command(rig.tcp_target_B(ods.y))
                 break
+
+    def _load_rest_kernel(self, rig: ArmRig, ods: OrbitalSimulator, rec: Recorder,
+                          bodies: Bodies) -> None:
+        """:meth:`_load_kernels`' call of :func:`sensed_tail_one_arm`, on a scratch rig,
+        ODS and recorder, with the argument types of :meth:`_fused_rest`'s."""
+        T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
+        sensor_part, chain_part = arm_sense.chain_args(rig, False)
+        zeros = np.zeros((self.n_sat, 3))
+        sensed_tail_one_arm(
+            rig.satellite, np.zeros((self.n_sat, 6)), bodies.T_W_C, bodies.v_W, T_W_F,
+            rig.v_W_prev, False, *sensor_part, self.R_W_R, *chain_part,
+            np.empty(arm_sense.OUT_SIZE), 1.0, *_kernel_args(ods.params), ods.y, zeros,
+            zeros.copy(), self.dt_s, np.array([self.dt_s]), np.empty((2,) + ods.y.shape),
+            ods.t_s, rec.orbit_rate_radps, zeros, rec._no_gnc, rec._no_rails, rec.n_arms,
+            rec.buffer._data, rec.buffer._counters, rec.T_R_W, T_W_C, v_W, 1,
+            *rig.fused_command_args())
 
     # --- views for the web app and the metrics ------------------------------------------------
 

@@ -147,11 +147,17 @@ class ArmRig:
         (app/sim/arm_sense.py, the same kernels on the same buffers); :meth:`sense_in_stages`
         is the same cycle stage by stage.
         """
-        if self.T_C_S is None and self.sensor.every_cycles == 1.0:
+        if self.fused_sense():
             return arm_sense.sense(self, wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
                                    gate_open)
         return self.sense_in_stages(wrench_ext_W, T_W_C, v_W, R_W_R, dt_s, first_cycle,
                                     gate_open)
+
+    def fused_sense(self) -> bool:
+        """Whether :meth:`sense` is one compiled call (app/sim/arm_sense.py): a sensor at
+        the flange that samples every cycle (else the stages: a held reading, the wrench
+        shifted to the mockup's face)."""
+        return self.T_C_S is None and self.sensor.every_cycles == 1.0
 
     def sense_rows(self, wrench_ext_W: np.ndarray, bodies, R_W_R: np.ndarray, dt_s: float,
                    first_cycle: bool, gate_open: bool, force_R: np.ndarray,
@@ -161,7 +167,7 @@ class ArmRig:
         B) into force_R[s] and torque_B[s] (:func:`arm_sense.sense_rows` where
         :meth:`sense` is one call)."""
         s = self.satellite
-        if self.T_C_S is None and self.sensor.every_cycles == 1.0:
+        if self.fused_sense():
             arm_sense.sense_rows(self, wrench_ext_W, bodies.T_W_C, bodies.v_W, R_W_R, dt_s,
                                  first_cycle, gate_open, force_R, torque_B)
             return
