@@ -92,12 +92,13 @@ def arm_sense_packed(wrench_W, T_W_C, T_W_F, v_W, v_W_prev, dt_s, first_cycle, n
 
 
 @njit(cache=True, fastmath=False)
-def arm_sense_rows(s, wrench_W, T_W_C, v_W, T_W_F, v_W_prev, dt_s, first_cycle, normals, sc,
-                   ring, head, fill, poses, pose_at, age, R_W_R, pc, px, gate_open,
-                   reset_slow, db_force, db_torque, out, force_R, torque_B):
+def arm_sense_rows(s, wrench_W, T_W_C, v_W, T_W_F, v_W_prev, dt_s, first_cycle, R_W_R,
+                   gate_open, out, force_R, torque_B, normals, sc, ring, head, fill, poses,
+                   pose_at, age, pc, px, reset_slow, db_force, db_torque):
     """:func:`arm_sense_packed` on body s's rows of the cycle's arrays (wrench_W (N, 6),
     T_W_C (N, 4, 4), v_W (N, 3)); then force_R[s], torque_B[s] := the ODS's part of the
-    processed wrench (out[0:6])."""
+    processed wrench (out[0:6]). The arguments from ``normals`` on are
+    :func:`chain_args`'."""
     arm_sense_packed(wrench_W[s], T_W_C[s], T_W_F, v_W[s], v_W_prev, dt_s, first_cycle,
                      normals, sc, ring, head, fill, poses, pose_at, age, R_W_R, pc, px,
                      gate_open, reset_slow, db_force, db_torque, out)
@@ -110,16 +111,16 @@ def chain_args(rig, gate_open: bool) -> tuple:
     """The Python side of a cycle of the rig's chain, before its kernel: the sensor's
     bookkeeping (:meth:`~app.sim.ft_sensor.VirtualFTSensor.advance`: the noise draws, the
     delay ring's head) and the gate's (:meth:`~app.sim.ft_sensor.WrenchProcessor.gate`);
-    returns the kernels' arguments from the noise on, in their order: (normals, sensor
-    constants, delay ring, head, fill, poses, pose_at, age, then — after R_W_R — chain
+    returns the kernels' arguments that follow from them, in :func:`arm_sense_rows`'
+    order: (normals, sensor constants, delay ring, head, fill, poses, pose_at, age, chain
     constants, chain state, reset_slow, force deadband, torque deadband)."""
     sensor, proc = rig.sensor, rig.processor
     normals, fill, held = sensor.advance()
     assert held is None  # a sensor that samples every cycle holds nothing
     age = proc.reading_age_cycles = sensor.age_cycles
     db_force, db_torque, reset_slow = proc.gate(gate_open)  # begin's, but for the poses
-    return ((normals, sensor.constants, sensor._ring, sensor._head, fill, proc._poses,
-             proc._pose_at, age), (proc.constants, proc._x, reset_slow, db_force, db_torque))
+    return (normals, sensor.constants, sensor._ring, sensor._head, fill, proc._poses,
+            proc._pose_at, age, proc.constants, proc._x, reset_slow, db_force, db_torque)
 
 
 def sensed(rig, out: np.ndarray) -> None:
@@ -133,11 +134,13 @@ def sense(rig, wrench_ext_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
     """:meth:`ArmRig.sense` of a rig whose sensor sits at the flange and samples every
     cycle, in one compiled call; the rig, its sensor and its chain end as after the
     stages (``last_raw_S``, ``last_processed``, ``v_W_prev`` included)."""
-    sensor_part, (pc, px, reset_slow, db_force, db_torque) = chain_args(rig, gate_open)
+    (normals, sc, ring, head, fill, poses, pose_at, age, pc, px, reset_slow, db_force,
+     db_torque) = chain_args(rig, gate_open)
     out = np.empty(OUT_SIZE)
     arm_sense_packed(np.asarray(wrench_ext_W, dtype=float), T_W_C, rig.mockup_state_W()[0],
-                     v_W, rig.v_W_prev, dt_s, first_cycle, *sensor_part, R_W_R, pc, px,
-                     gate_open, reset_slow, db_force, db_torque, out)
+                     v_W, rig.v_W_prev, dt_s, first_cycle, normals, sc, ring, head, fill,
+                     poses, pose_at, age, R_W_R, pc, px, gate_open, reset_slow, db_force,
+                     db_torque, out)
     sensed(rig, out)
     return ProcessedWrench(out[0:3], out[3:6], out[6:12])
 
@@ -148,9 +151,8 @@ def sense_rows(rig, wrench_W: np.ndarray, T_W_C: np.ndarray, v_W: np.ndarray,
     """:func:`sense` on the rig's satellite's rows of the cycle's arrays (wrench_W (N, 6),
     T_W_C (N, 4, 4), v_W (N, 3), all C-ordered), its ODS input written into that row of
     force_R and torque_B (N, 3): one call, no views or wrench object in between."""
-    sensor_part, (pc, px, reset_slow, db_force, db_torque) = chain_args(rig, gate_open)
     out = np.empty(OUT_SIZE)
     arm_sense_rows(rig.satellite, wrench_W, T_W_C, v_W, rig.mockup_state_W()[0],
-                   rig.v_W_prev, dt_s, first_cycle, *sensor_part, R_W_R, pc, px, gate_open,
-                   reset_slow, db_force, db_torque, out, force_R, torque_B)
-    sensed(rig, out)
+                   rig.v_W_prev, dt_s, first_cycle, R_W_R, gate_open, out, force_R,
+                   torque_B, *chain_args(rig, gate_open))
+    rig.last_raw_S, rig.last_processed = out[12:18], out[18:24]  # (sensed(), inline)

@@ -90,9 +90,10 @@ def tail_two_arms(W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, d
 
 
 @njit(cache=True, fastmath=False)
-def sensed_tail_one_arm(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, first_cycle,
-                        normals, sc, sensor_ring, head, fill, poses, pose_at, age, R_W_R, pc,
-                        px, reset_slow, db_force, db_torque, sensed, range_N,
+def sensed_tail_one_arm(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, first_cycle, R_W_R,
+                        sensed, range_N,
+                        normals, sc, sensor_ring, head, fill, poses, pose_at, age, pc, px,
+                        reset_slow, db_force, db_torque,
                         W, mass, inertia, gg_on, f_scale, t_scale, y, force, torque, dt, leads,
                         ods_out, t_s, orbit_rate, true_force, gnc, rails, n_arms, data,
                         counters, T_R_W, T_W_C, v_W, target,
@@ -100,13 +101,14 @@ def sensed_tail_one_arm(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, first_
                         sp_prev, q, qd, stopped, out):
     """A one-arm cycle from its F/T chain on, where the chain's output is the ODS input as
     it is (no passivity, no contact gate): the chain of body s with its gate closed
-    (:func:`arm_sense_rows`, its readings into ``sensed`` and force[s], torque[s]); a raw
+    (:func:`arm_sense_rows`, its readings into ``sensed`` and force[s], torque[s]; the
+    arguments from ``normals`` to ``db_torque`` are :func:`arm_sense.chain_args`'); a raw
     force reading at the sensor's range ``range_N`` (> 0: ``[loop] stop_at_sensor_range``)
     ends the call there with :data:`RANGE_STOP`; else :func:`tail_one_arm` on the readings
     just taken. Returns tail_one_arm's (row index, VFDM scale, servo stop code)."""
-    arm_sense_rows(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, dt, first_cycle,
-                   normals, sc, sensor_ring, head, fill, poses, pose_at, age, R_W_R, pc, px,
-                   False, reset_slow, db_force, db_torque, sensed, force, torque)
+    arm_sense_rows(s, wrench_W, T_W_C_all, v_W_all, T_W_F, v_W_prev, dt, first_cycle, R_W_R,
+                   False, sensed, force, torque, normals, sc, sensor_ring, head, fill, poses,
+                   pose_at, age, pc, px, reset_slow, db_force, db_torque)
     if range_N > 0.0:
         for a in range(3):
             if abs(sensed[12 + a]) >= range_N:

@@ -56,7 +56,7 @@ from app.sim.interaction import (
     body_torque_B,
     ods_bodies,
 )
-from app.sim.orbital import OdsParams, OrbitalSimulator, _f64, _kernel_args, rk4_step
+from app.sim.orbital import OdsParams, OrbitalSimulator, _kernel_args, rk4_step
 from app.sim.rail_rig import build_cell
 from app.sim.reference import substepped_advance
 from app.sim.rig import ArmRig
@@ -121,8 +121,9 @@ def _call_tail(ods: OrbitalSimulator, rec: Recorder, force_R: np.ndarray,
     argument order: ods's step and predictions into ods_out, the row into rec, each arm's
     command (``rows``: its (T_W_C, v_W, raw, processed); ``targets``: its row of ods_out;
     ``commands``: :meth:`ArmRig.fused_command_args`). (the row's index, then each arm's
-    VFDM scale and servo stop code)."""
-    head = (*_kernel_args(ods.params), ods.y, _f64(force_R), _f64(torque_B), dt_s, leads,
+    VFDM scale and servo stop code). force_R and torque_B: the cycle's own (N, 3) float64
+    arrays, passed as they are."""
+    head = (*_kernel_args(ods.params), ods.y, force_R, torque_B, dt_s, leads,
             ods_out, ods.t_s, rec.orbit_rate_radps, true_force_R, rec._no_gnc,
             rec._no_rails, rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W)
     if len(commands) == 1:
@@ -638,7 +639,7 @@ class Emulator:
             _, T_W_C, v_W, _ = arm.mockup_state_W()
             rows.append((T_W_C, v_W, arm.last_raw_S, arm.last_processed))
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
-        ods_out = self._ods_out()
+        ods_out = np.empty((1 + len(self._leads),) + self.ods.y.shape)
         at, *done = _call_tail(self.ods, self.recorder, force_R, torque_B, self.dt_s,
                                self._leads, ods_out, self.true_force_R, rows, targets,
                                commands)
@@ -664,15 +665,15 @@ class Emulator:
         force_R, torque_B = self._unsensed_input(bodies, external_W, self.true_force_R)
         self.consistent_pairs = []
         first_cycle = self.cycles == 0 and not self._sensed_before
-        sensor_part, chain_part = arm_sense.chain_args(arm, False)
         sensed = np.empty(arm_sense.OUT_SIZE)
         T_W_F, T_W_C, v_W, _ = arm.mockup_state_W()
-        loop, ods, rec = self.config.loop, self.ods, self.recorder
-        range_N = self.config.sensor.range_force_N if loop.stop_at_sensor_range else 0.0
-        ods_out = self._ods_out()
+        ods, rec = self.ods, self.recorder
+        range_N = (self.config.sensor.range_force_N if self.config.loop.stop_at_sensor_range
+                   else 0.0)
+        ods_out = np.empty((1 + len(self._leads),) + ods.y.shape)
         at, *done = sensed_tail_one_arm(
             arm.satellite, external_W, bodies.T_W_C, bodies.v_W, T_W_F, arm.v_W_prev,
-            first_cycle, *sensor_part, self.R_W_R, *chain_part, sensed, range_N,
+            first_cycle, self.R_W_R, sensed, range_N, *arm_sense.chain_args(arm, False),
             *_kernel_args(ods.params), ods.y, force_R, torque_B, self.dt_s, self._leads,
             ods_out, ods.t_s, rec.orbit_rate_radps, self.true_force_R, rec._no_gnc,
             rec._no_rails, rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W,
@@ -704,10 +705,6 @@ class Emulator:
             commands.append(args)
             targets.append(target)
         return targets, commands
-
-    def _ods_out(self) -> np.ndarray:
-        """A new array for the fused tail's ODS step and its predictions (one per lead)."""
-        return np.empty((1 + len(self._leads),) + self.ods.y.shape)
 
     def _tail_done(self, at: int, ods_out: np.ndarray, commands: list[tuple],
                    done: list) -> None:
@@ -996,12 +993,11 @@ class Emulator:
         """:meth:`_load_kernels`' call of :func:`sensed_tail_one_arm`, on a scratch rig,
         ODS and recorder, with the argument types of :meth:`_fused_rest`'s."""
         T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
-        sensor_part, chain_part = arm_sense.chain_args(rig, False)
         zeros = np.zeros((self.n_sat, 3))
         sensed_tail_one_arm(
             rig.satellite, np.zeros((self.n_sat, 6)), bodies.T_W_C, bodies.v_W, T_W_F,
-            rig.v_W_prev, False, *sensor_part, self.R_W_R, *chain_part,
-            np.empty(arm_sense.OUT_SIZE), 1.0, *_kernel_args(ods.params), ods.y, zeros,
+            rig.v_W_prev, False, self.R_W_R, np.empty(arm_sense.OUT_SIZE), 1.0,
+            *arm_sense.chain_args(rig, False), *_kernel_args(ods.params), ods.y, zeros,
             zeros.copy(), self.dt_s, np.array([self.dt_s]), np.empty((2,) + ods.y.shape),
             ods.t_s, rec.orbit_rate_radps, zeros, rec._no_gnc, rec._no_rails, rec.n_arms,
             rec.buffer._data, rec.buffer._counters, rec.T_R_W, T_W_C, v_W, 1,
