@@ -114,21 +114,39 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _call_tail(ods: OrbitalSimulator, rec: Recorder, force_R: np.ndarray,
+def _tail_head(ods: OrbitalSimulator, rec: Recorder, force_R: np.ndarray,
                torque_B: np.ndarray, dt_s: float, leads: np.ndarray, ods_out: np.ndarray,
-               true_force_R: np.ndarray, rows: list, targets: list, commands: list) -> tuple:
-    """The fused tail's compiled call (app/sim/cycle_tail.py) for one or two arms, in its
-    argument order: ods's step and predictions into ods_out, the row into rec, each arm's
-    command (``rows``: its (T_W_C, v_W, raw, processed); ``targets``: its row of ods_out;
-    ``commands``: :meth:`ArmRig.fused_command_args`). (the row's index, then each arm's
-    VFDM scale and servo stop code). force_R and torque_B: the cycle's own (N, 3) float64
-    arrays, passed as they are."""
-    head = (*_kernel_args(ods.params), ods.y, force_R, torque_B, dt_s, leads,
-            ods_out, ods.t_s, rec.orbit_rate_radps, true_force_R, rec._no_gnc,
-            rec._no_rails, rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W)
+               true_force_R: np.ndarray) -> tuple:
+    """The fused tail's arguments up to the arms' (app/sim/cycle_tail.py): ods's step and
+    predictions into ods_out under force_R, torque_B (the cycle's own (N, 3) float64
+    arrays, passed as they are), the row into rec."""
+    return (*_kernel_args(ods.params), ods.y, force_R, torque_B, dt_s, leads, ods_out,
+            ods.t_s, rec.orbit_rate_radps, true_force_R, rec._no_gnc, rec._no_rails,
+            rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W)
+
+
+def _call_tail(head: tuple, rows: list, targets: list, commands: list) -> tuple:
+    """The fused tail's compiled call for one or two arms, in its argument order
+    (``head``: :func:`_tail_head`'s; ``rows``: each arm's (T_W_C, v_W, raw, processed);
+    ``targets``: its row of the ODS output; ``commands``: :meth:`ArmRig.fused_command_args`).
+    (the row's index, then each arm's VFDM scale and servo stop code)."""
     if len(commands) == 1:
         return tail_one_arm(*head, *rows[0], targets[0], *commands[0])
     return tail_two_arms(*head, *rows[0], *rows[1], *targets, *commands[0], *commands[1])
+
+
+def _call_rest(rig: ArmRig, external_W: np.ndarray, bodies: Bodies, first_cycle: bool,
+               R_W_R: np.ndarray, sensed: np.ndarray, range_N: float, head: tuple,
+               target: int, command: tuple) -> tuple:
+    """:func:`sensed_tail_one_arm` in its argument order: rig's chain on its satellite's
+    rows of the cycle's external wrench and bodies (its readings into ``sensed``; a stop at
+    ``range_N`` > 0), then the fused tail (``head``: :func:`_tail_head`'s, with the ODS
+    input the chain writes its rows into)."""
+    T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
+    return sensed_tail_one_arm(rig.satellite, external_W, bodies.T_W_C, bodies.v_W, T_W_F,
+                               rig.v_W_prev, first_cycle, R_W_R, sensed, range_N,
+                               *arm_sense.chain_args(rig, False), *head, T_W_C, v_W, target,
+                               *command)
 
 
 class StartPoseError(ValueError):
@@ -640,9 +658,9 @@ class Emulator:
             rows.append((T_W_C, v_W, arm.last_raw_S, arm.last_processed))
         self.applied_force_R, self.applied_torque_B = force_R, torque_B
         ods_out = np.empty((1 + len(self._leads),) + self.ods.y.shape)
-        at, *done = _call_tail(self.ods, self.recorder, force_R, torque_B, self.dt_s,
-                               self._leads, ods_out, self.true_force_R, rows, targets,
-                               commands)
+        at, *done = _call_tail(_tail_head(self.ods, self.recorder, force_R, torque_B,
+                                          self.dt_s, self._leads, ods_out, self.true_force_R),
+                               rows, targets, commands)
         self._tail_done(at, ods_out, commands, done)
         return True
 
@@ -666,18 +684,13 @@ class Emulator:
         self.consistent_pairs = []
         first_cycle = self.cycles == 0 and not self._sensed_before
         sensed = np.empty(arm_sense.OUT_SIZE)
-        T_W_F, T_W_C, v_W, _ = arm.mockup_state_W()
-        ods, rec = self.ods, self.recorder
         range_N = (self.config.sensor.range_force_N if self.config.loop.stop_at_sensor_range
                    else 0.0)
-        ods_out = np.empty((1 + len(self._leads),) + ods.y.shape)
-        at, *done = sensed_tail_one_arm(
-            arm.satellite, external_W, bodies.T_W_C, bodies.v_W, T_W_F, arm.v_W_prev,
-            first_cycle, self.R_W_R, sensed, range_N, *arm_sense.chain_args(arm, False),
-            *_kernel_args(ods.params), ods.y, force_R, torque_B, self.dt_s, self._leads,
-            ods_out, ods.t_s, rec.orbit_rate_radps, self.true_force_R, rec._no_gnc,
-            rec._no_rails, rec.n_arms, rec.buffer._data, rec.buffer._counters, rec.T_R_W,
-            T_W_C, v_W, target, *command)
+        ods_out = np.empty((1 + len(self._leads),) + self.ods.y.shape)
+        at, *done = _call_rest(arm, external_W, bodies, first_cycle, self.R_W_R, sensed,
+                               range_N, _tail_head(self.ods, self.recorder, force_R, torque_B,
+                                                   self.dt_s, self._leads, ods_out,
+                                                   self.true_force_R), target, command)
         arm_sense.sensed(arm, sensed)
         if at == RANGE_STOP:
             self._range_stop(arm)
@@ -975,33 +988,20 @@ class Emulator:
         command = rig.fused_command_args()  # (None: the servo feedforward's stages)
         if self._tail_fusable and command is not None:  # the tail in one call (_fused_tail)
             n = len(self.arms)
-            _call_tail(ods, scratch, zeros, zeros, self.dt_s, np.array([self.dt_s]),
-                       np.empty((2,) + ods.y.shape), zeros,
-                       [(T_W_C, v_W, rig.last_raw_S, rig.last_processed)] * n, [1] * n,
+            head = _tail_head(ods, scratch, zeros, zeros.copy(), self.dt_s,
+                              np.array([self.dt_s]), np.empty((2,) + ods.y.shape), zeros)
+            _call_tail(head, [(T_W_C, v_W, rig.last_raw_S, rig.last_processed)] * n, [1] * n,
                        [command, rig.fused_command_args()][:n])
             if self._rest_fusable and rig.fused_sense():  # the cycle from the chain on
-                self._load_rest_kernel(rig, ods, scratch, bodies)
+                _call_rest(rig, np.zeros((self.n_sat, 6)), bodies, False, self.R_W_R,
+                           np.empty(arm_sense.OUT_SIZE), 1.0, head, 1,
+                           rig.fused_command_args())
         for k, robot in enumerate(self.config.robots):
             if robot.rail is not None:  # the rail's kernels too
                 rig = build_cell(k, robot, self.config, self.T_W_R, np.random.default_rng(0))
                 rig.mockup_state_W()
                 rig.command(rig.tcp_target_B(ods.y))
                 break
-
-    def _load_rest_kernel(self, rig: ArmRig, ods: OrbitalSimulator, rec: Recorder,
-                          bodies: Bodies) -> None:
-        """:meth:`_load_kernels`' call of :func:`sensed_tail_one_arm`, on a scratch rig,
-        ODS and recorder, with the argument types of :meth:`_fused_rest`'s."""
-        T_W_F, T_W_C, v_W, _ = rig.mockup_state_W()
-        zeros = np.zeros((self.n_sat, 3))
-        sensed_tail_one_arm(
-            rig.satellite, np.zeros((self.n_sat, 6)), bodies.T_W_C, bodies.v_W, T_W_F,
-            rig.v_W_prev, False, self.R_W_R, np.empty(arm_sense.OUT_SIZE), 1.0,
-            *arm_sense.chain_args(rig, False), *_kernel_args(ods.params), ods.y, zeros,
-            zeros.copy(), self.dt_s, np.array([self.dt_s]), np.empty((2,) + ods.y.shape),
-            ods.t_s, rec.orbit_rate_radps, zeros, rec._no_gnc, rec._no_rails, rec.n_arms,
-            rec.buffer._data, rec.buffer._counters, rec.T_R_W, T_W_C, v_W, 1,
-            *rig.fused_command_args())
 
     # --- views for the web app and the metrics ------------------------------------------------
 
