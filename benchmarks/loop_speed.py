@@ -295,6 +295,14 @@ def vfdm_cost(iterations: int, cycles: int) -> float:
     return best
 
 
+def _positive(text: str) -> int:
+    """An argument that must be a whole number of at least 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke test)")
@@ -302,9 +310,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--against", type=Path, default=None,
                     help="another checkout: compare real-time factors, this tree vs that")
     ap.add_argument("--rounds", type=int, default=5, help="rounds of --against")
-    ap.add_argument("--chunks", type=int, default=200,
+    ap.add_argument("--chunks", type=_positive, default=200,
                     help="chunks per tree in --against's one-process comparison")
-    ap.add_argument("--chunk-cycles", type=int, default=100,
+    ap.add_argument("--chunk-cycles", type=_positive, default=100,
                     help="cycles per chunk in --against's one-process comparison")
     ap.add_argument("--steps-only", action="store_true",
                     help="--against: the one-process Emulator.step comparison only")

@@ -195,3 +195,18 @@ def test_sense_rows_writes_what_sense_returns_into_its_satellites_rows_only(over
             np.testing.assert_array_equal(x, y, err_msg=f"cycle {k}")
         moved = max(moved, float(np.linalg.norm(force_R[s])))
     assert moved > 20.0  # the contact came through
+
+
+def test_sense_rows_refuses_a_satellite_outside_the_cycles_arrays():
+    """A rig whose satellite is no row of the cycle's arrays: an IndexError, and the
+    arrays' rows as they were (the kernel reads and writes nothing outside them)."""
+    rig, R_W_R = _calibrated({})
+    _, T_W_C, v_W, w_W = rig.mockup_state_W()
+    bodies = Bodies(T_W_C[None].copy(), v_W[None].copy(), w_W[None].copy())
+    for s in (1, 3, -1):
+        rig.satellite = s
+        force_R, torque_B = np.ones((1, 3)), np.ones((1, 3))
+        with pytest.raises(IndexError, match="not a row of the cycle's arrays"):
+            rig.sense_rows(np.zeros((1, 6)), bodies, R_W_R, rig.servo.dt_s, False, False,
+                           force_R, torque_B)
+        assert (force_R == 1.0).all() and (torque_B == 1.0).all()

@@ -137,3 +137,14 @@ def test_replicate_speed_quick():
             assert int(cells[4]) == replicates, row  # every replicate counted
             assert float(cells[5]) > 20, row  # each steps its contact window
             assert all(float(c) > 0 for c in cells[6:10]), row
+
+
+@pytest.mark.parametrize("flag", ["--chunks", "--chunk-cycles"])
+def test_loop_speed_refuses_chunks_of_nothing(flag):
+    """--chunks / --chunk-cycles 0: argparse's usage error at once, not a division by
+    zero after the emulators were built."""
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.loop_speed", "--against",
+                           str(ROOT), flag, "0"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2
+    assert f"argument {flag}: must be at least 1, got 0" in proc.stderr

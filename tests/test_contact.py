@@ -369,3 +369,22 @@ def test_apart_by_a_face_only_where_coal_finds_the_boxes_apart():
             poses = np.array([_pose([0.0, 0.0, 0.0]), _pose([0.02, -0.01, edge + gap])])
             assert not _spheres_apart(model, poses, within_m)
             assert model.apart(poses, within_m) is expected
+
+
+def test_apart_refuses_poses_of_another_shape_and_follows_new_pairs():
+    """Fewer poses than bodies, or poses that are not 4 x 4: a ValueError (the arrays'
+    indexing raised before), not an answer read from outside the array; (N, 3, 4) poses
+    answer as their (N, 4, 4); pairs set anew are the ones apart() tests."""
+    model = BoxContactModel([SIZE] * 3, [RIGID] * 3)
+    poses = np.array([_pose([0, 0, 0]), _pose([1.0, 0, 0]), _pose([0, 1.0, 0])])
+    for bad in (poses[:2], poses[:, :3, :3].copy(), poses[:, :, :3].copy()):
+        with pytest.raises(ValueError, match="one \\(4, 4\\) per body"):
+            model.apart(bad)
+    assert model.apart(poses[:, :3, :].copy()) is model.apart(poses) is True
+    near = poses.copy()
+    near[1, 0, 3] = 0.15  # bodies 0 and 1 overlap
+    assert not model.apart(near)
+    model.exclude(0, 1)
+    assert model.apart(near) and model.compute(near).contacts == ()
+    model.pairs = [(0, 1), (0, 2), (1, 2)]
+    assert not model.apart(near) and len(model.compute(near).contacts) == 1

@@ -159,3 +159,16 @@ def test_pose_distance_and_tracking_error_against_numpy():
     T = make_transform(np.eye(3), np.array([1.1, 0.2, 0.3 + 0.04]))
     d, a = tracking_error(T_W_R, y, 1, T)
     assert d == pytest.approx(0.04, abs=1e-12) and a == 0.0
+
+
+def test_satellite_pose_refuses_a_satellite_outside_the_state():
+    """An index that is no row of the ODS state: an IndexError, not a pose read from
+    outside the array (the compiled code checks no bounds itself)."""
+    y = np.zeros((2, 13))
+    y[:, 6] = 1.0
+    out = np.zeros((4, 4))
+    satellite_pose(np.eye(4), y, 1, out)
+    np.testing.assert_array_equal(out, np.eye(4))
+    for i in (2, 7, -1):
+        with pytest.raises(IndexError, match="no such satellite"):
+            satellite_pose(np.eye(4), y, i, out)

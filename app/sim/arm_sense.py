@@ -98,7 +98,12 @@ def arm_sense_rows(s, wrench_W, T_W_C, v_W, T_W_F, v_W_prev, dt_s, first_cycle, 
     """:func:`arm_sense_packed` on body s's rows of the cycle's arrays (wrench_W (N, 6),
     T_W_C (N, 4, 4), v_W (N, 3)); then force_R[s], torque_B[s] := the ODS's part of the
     processed wrench (out[0:6]). The arguments from ``normals`` on are
-    :func:`chain_args`'."""
+    :func:`chain_args`'. IndexError: s not a row of every one of those arrays."""
+    if (s < 0 or s >= wrench_W.shape[0] or s >= T_W_C.shape[0] or s >= v_W.shape[0]
+            or s >= force_R.shape[0] or s >= torque_B.shape[0] or wrench_W.shape[1] != 6
+            or T_W_C.shape[1] != 4 or T_W_C.shape[2] != 4 or v_W.shape[1] != 3
+            or force_R.shape[1] != 3 or torque_B.shape[1] != 3):
+        raise IndexError("arm_sense_rows: the satellite is not a row of the cycle's arrays")
     arm_sense_packed(wrench_W[s], T_W_C[s], T_W_F, v_W[s], v_W_prev, dt_s, first_cycle,
                      normals, sc, ring, head, fill, poses, pose_at, age, R_W_R, pc, px,
                      gate_open, reset_slow, db_force, db_torque, out)

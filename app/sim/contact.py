@@ -185,7 +185,11 @@ def boxes_apart(T_W_C, pairs, half_m, radii_m, within_m, slack, gap_m):
     T_W_C (N, 4, 4): its bounding spheres (radii_m) more than within_m apart by a relative
     ``slack`` in the squared distance, or a face axis of one box separating the boxes
     (half edge lengths half_m (N, 3)) by more than ``within_m + gap_m``
-    (:func:`_faces_separate`). A NaN pose is never apart."""
+    (:func:`_faces_separate`). A NaN pose is never apart. ValueError: poses of another
+    shape than (N, 4, 4) (or (N, 3, 4)) for the model's N bodies."""
+    if (T_W_C.shape[0] < half_m.shape[0] or T_W_C.shape[1] < 3 or T_W_C.shape[1] > 4
+            or T_W_C.shape[2] != 4):
+        raise ValueError("apart: the poses must be one (4, 4) per body of the model")
     for k in range(pairs.shape[0]):
         a, b = pairs[k, 0], pairs[k, 1]
         dx = T_W_C[b, 0, 3] - T_W_C[a, 0, 3]
@@ -230,7 +234,6 @@ class BoxContactModel:
         if pairs is None:
             pairs = list(combinations(range(self.n), 2))
         self.pairs = [(min(a, b), max(a, b)) for a, b in pairs]
-        self._pair_index = np.array(self.pairs, dtype=np.int64).reshape(-1, 2)
         self._half_m = 0.5 * np.array(self._sizes_m)
         self._radii_m = np.array(self._radii)
         self._law = {(a, b): combine_materials(materials[a], materials[b]) for a, b in self.pairs}
@@ -241,6 +244,17 @@ class BoxContactModel:
         """Per pair (a < b), the last contact frame :meth:`clearances` measured within its
         margin: (unit normal from a towards b, contact point), W; kept once they part."""
         self._build_coal()
+
+    @property
+    def pairs(self) -> list[tuple[int, int]]:
+        """The pairs (a < b) that may touch; :meth:`apart` reads them as an array, made
+        anew whenever they are set."""
+        return self._pairs
+
+    @pairs.setter
+    def pairs(self, pairs: Sequence[tuple[int, int]]) -> None:
+        self._pairs = list(pairs)
+        self._pair_index = np.array(self._pairs, dtype=np.int64).reshape(-1, 2)
 
     def _build_coal(self) -> None:
         """The coal objects (shapes, poses, solvers, requests, results): scratch state,
@@ -289,7 +303,6 @@ class BoxContactModel:
         """Bodies a and b no longer touch (they were latched together: their contact is
         internal to one body)."""
         self.pairs = [p for p in self.pairs if p != (min(a, b), max(a, b))]
-        self._pair_index = np.array(self.pairs, dtype=np.int64).reshape(-1, 2)
 
     def law(self, a: int, b: int) -> tuple[float, float]:
         """(k_eff, c_eff) used for the pair (a, b)."""

@@ -40,7 +40,10 @@ class Bodies(NamedTuple):
 
 @njit(cache=True, fastmath=False)
 def satellite_pose(T_A_R, y, i, out):
-    """out (4, 4) := T_A_R · T_R_S of satellite i of the ODS state y (N, 13)."""
+    """out (4, 4) := T_A_R · T_R_S of satellite i of the ODS state y (N, 13). IndexError:
+    i not a row of y."""
+    if i < 0 or i >= y.shape[0]:
+        raise IndexError("satellite_pose: no such satellite in the ODS state")
     px, py, pz = y[i, 0], y[i, 1], y[i, 2]
     w, x, yy, z = y[i, 6], y[i, 7], y[i, 8], y[i, 9]
     R00, R01, R02 = 1 - 2 * (yy * yy + z * z), 2 * (x * yy - w * z), 2 * (x * z + w * yy)
