@@ -7,7 +7,8 @@ the machine code in its cache: ``app/sim/__pycache__``, or under ``NUMBA_CACHE_D
 keyed on the CPU and on the source file that defines the kernel, that file alone: a kernel
 that calls into another module (the fused command, sensor and tail paths) would be loaded
 as compiled against that module's old code once it changed. So a cache whose stamp (below)
-is not this tree's is deleted before the warm-up (:func:`clear_stale`). Warming steps
+is not this tree's is deleted before the warm-up (:func:`clear_stale`), and before any
+kernel loads in any process (:func:`forget_stale`, at app's import). Warming steps
 every shipped scenario a few cycles, ideal and hil (fixed arms and rails; start-up,
 calibration, the cycle, the uncertainty's state copy), so that each kernel is compiled
 with the argument types the loop gives it; matplotlib's font cache is built too (a first
@@ -102,6 +103,35 @@ def clear_stale(folder: Path | None = None) -> int:
                 deleted += 1
             except OSError:  # (gone already: another process cleared it)
                 pass
+    return deleted
+
+
+def forget_stale(folder: Path | None = None) -> int:
+    """Before any kernel loads (app/__init__.py runs it at the package's import): a cache
+    whose stamp is not this tree's, or that has compiled files and no stamp, loses app/sim's
+    compiled files (:func:`clear_stale`) and is stamped as this tree's, empty, so that no
+    process loads a kernel compiled against other sources (an update or an edit run
+    without ``scripts/install``); the kernels compile again on first use, or in the next
+    warm-up (:func:`is_warm` wants their index files too). The number of files deleted;
+    nothing where the stamp matches (a few ms: the sources' hashes) or where the cache
+    cannot be written."""
+    folder = folder or cache_folder()
+    current = stamp()
+    try:
+        if json.loads((folder / STAMP_NAME).read_text()) == current:
+            return 0
+    except (OSError, ValueError):
+        pass
+    try:
+        deleted = clear_stale(folder)
+        if folder.is_dir():
+            (folder / STAMP_NAME).write_text(json.dumps(current, indent=1) + "\n")
+    except OSError:  # (a read-only install: numba keeps its kernels elsewhere)
+        return 0
+    if deleted:
+        print(f"orbit-emulator: {deleted} compiled kernel files of other sources deleted "
+              f"from {folder}; the kernels compile again on first use (`bash "
+              f"scripts/install` compiles them now)", file=sys.stderr)
     return deleted
 
 
