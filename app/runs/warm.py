@@ -3,136 +3,48 @@ run or a first `serve` (``python -m app.runs.warm``; scripts/install and the con
 build run it).
 
 The kernels (app/sim, ``@njit(cache=True)``) compile on their first call and numba keeps
-the machine code in its cache: ``app/sim/__pycache__``, or under ``NUMBA_CACHE_DIR``,
-keyed on the CPU and on the source file that defines the kernel, that file alone: a kernel
-that calls into another module (the fused command, sensor and tail paths) would be loaded
-as compiled against that module's old code once it changed. So a cache whose stamp (below)
-is not this tree's is deleted before the warm-up (:func:`clear_stale`), and before any
-kernel loads in any process (:func:`forget_stale`, at app's import). Warming steps
-every shipped scenario a few cycles, ideal and hil (fixed arms and rails; start-up,
-calibration, the cycle, the uncertainty's state copy), so that each kernel is compiled
-with the argument types the loop gives it; matplotlib's font cache is built too (a first
-run's plots would), and the shipped collision's pre-flight reference and fidelity forecast
-are computed and kept (app/runs/forecast_cache.py; unless kept already), which a first run
-would otherwise spend ten seconds or more on.
+the machine code in its cache (app/runs/kernel_cache.py: where, and the stamp of what it
+was compiled from). A cache whose stamp is not this tree's is deleted first
+(:func:`~app.runs.kernel_cache.clear_stale`). Warming steps every shipped scenario a few
+cycles, ideal and hil (fixed arms and rails; start-up, calibration, the cycle, the
+uncertainty's state copy), so that each kernel is compiled with the argument types the
+loop gives it; matplotlib's font cache is built too (a first run's plots would), and the
+shipped collision's pre-flight reference and fidelity forecast are computed and kept
+(app/runs/forecast_cache.py; unless kept already), which a first run would otherwise
+spend ten seconds or more on.
 
-A stamp beside the cache (``orbit-emulator-warm.json``) records what was warmed: the
-Python, numba's version, the CPU name numba targets and each kernel source file's SHA-256.
-When it matches and every kernel module still has its index files,
-nothing is done and numba is not even imported (a tenth of a second: scripts/install
-stays fast when nothing changed). The forecast is computed with the kernels (a fresh
-install, new kernels), not after every change of the code that would call for a new one
-(a developer's `scripts/serve` after an edit would wait for it): a first run then
-computes it, as before.
+When the stamp matches and every kernel module still has its index files
+(:func:`~app.runs.kernel_cache.is_warm`), nothing is done and numba is not even imported
+(a tenth of a second: scripts/install stays fast when nothing changed). The forecast is
+computed with the kernels (a fresh install, new kernels), not after every change of the
+code that would call for a new one (a developer's `scripts/serve` after an edit would
+wait for it): a first run then computes it, as before.
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import os
 import sys
 import time
-from importlib import metadata
-from pathlib import Path
 
-SIM_DIR = Path(os.path.abspath(__file__)).parents[1] / "sim"
-"""app/sim as numba names it (os.path.abspath, symbolic links kept: its cache locator's
-rule, so that the folder below is the one numba writes)."""
-STAMP_NAME = "orbit-emulator-warm.json"
+from app.runs.kernel_cache import (  # noqa: F401 - warm.stamp() etc. (tests, scripts)
+    SIM_DIR,
+    STAMP_NAME,
+    cache_folder,
+    clear_stale,
+    forget_stale,
+    is_warm,
+    kernel_sources,
+    stamp,
+)
+
 WARM_CYCLES = 20
 """Cycles stepped per scenario and mode: enough for every branch of the cycle's first
 calls (the first cycle, a sensor sample, the recorder)."""
 KEPT_SETTINGS = ("collision",)
 """The scenarios whose pre-flight reference and forecast the warm-up computes and keeps, as
 shipped: the tutorial's first run and the web app's first scenario."""
-
-
-def kernel_sources() -> list[Path]:
-    """The app/sim files that define numba kernels."""
-    return sorted(p for p in SIM_DIR.glob("*.py") if "@njit" in p.read_text())
-
-
-def cache_folder() -> Path:
-    """Where numba keeps app/sim's compiled kernels (its own rule: NUMBA_CACHE_DIR holds
-    a tree named after the sources' folder; else their ``__pycache__``)."""
-    root = os.environ.get("NUMBA_CACHE_DIR")
-    if not root:
-        return SIM_DIR / "__pycache__"
-    # numba's UserProvidedCacheLocator: the folder's name and the SHA-1 of its path
-    return Path(root) / f"{SIM_DIR.name}_{hashlib.sha1(str(SIM_DIR).encode()).hexdigest()}"
-
-
-def stamp() -> dict:
-    """What a warm cache was compiled from (module doc)."""
-    return {"python": sys.version, "numba": metadata.version("numba"),
-            "cpu": os.environ.get("NUMBA_CPU_NAME", ""),
-            "sources": {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
-                        for p in kernel_sources()}}
-
-
-def is_warm(folder: Path | None = None) -> bool:
-    """Whether the stamp in the cache matches this tree and every kernel module has its
-    index files there."""
-    folder = folder or cache_folder()
-    try:
-        kept = json.loads((folder / STAMP_NAME).read_text())
-    except (OSError, ValueError):
-        return False
-    if kept != stamp():
-        return False
-    return all(any(folder.glob(f"{p.stem}.*.nbi")) for p in kernel_sources())
-
-
-def clear_stale(folder: Path | None = None) -> int:
-    """Delete app/sim's compiled kernels from the cache unless its stamp is this tree's
-    (an older tree's, or none: compiled from other sources, numba would load a kernel
-    against the old code of the modules it calls); the number of files deleted."""
-    folder = folder or cache_folder()
-    try:
-        if json.loads((folder / STAMP_NAME).read_text()) == stamp():
-            return 0
-    except (OSError, ValueError):
-        pass
-    deleted = 0
-    for source in kernel_sources():
-        for path in folder.glob(f"{source.stem}.*.nb[ic]"):
-            try:
-                path.unlink()
-                deleted += 1
-            except OSError:  # (gone already: another process cleared it)
-                pass
-    return deleted
-
-
-def forget_stale(folder: Path | None = None) -> int:
-    """Before any kernel loads (app/__init__.py runs it at the package's import): a cache
-    whose stamp is not this tree's, or that has compiled files and no stamp, loses app/sim's
-    compiled files (:func:`clear_stale`) and is stamped as this tree's, empty, so that no
-    process loads a kernel compiled against other sources (an update or an edit run
-    without ``scripts/install``); the kernels compile again on first use, or in the next
-    warm-up (:func:`is_warm` wants their index files too). The number of files deleted;
-    nothing where the stamp matches (a few ms: the sources' hashes) or where the cache
-    cannot be written."""
-    folder = folder or cache_folder()
-    current = stamp()
-    try:
-        if json.loads((folder / STAMP_NAME).read_text()) == current:
-            return 0
-    except (OSError, ValueError):
-        pass
-    try:
-        deleted = clear_stale(folder)
-        if folder.is_dir():
-            (folder / STAMP_NAME).write_text(json.dumps(current, indent=1) + "\n")
-    except OSError:  # (a read-only install: numba keeps its kernels elsewhere)
-        return 0
-    if deleted:
-        print(f"orbit-emulator: {deleted} compiled kernel files of other sources deleted "
-              f"from {folder}; the kernels compile again on first use (`bash "
-              f"scripts/install` compiles them now)", file=sys.stderr)
-    return deleted
 
 
 def forecasts_kept() -> bool:
