@@ -142,7 +142,16 @@
   let lastNewest = null;  // the newest run at the last look
   let metricsAt = 0;  // when the running figures were last asked for
 
+  // one look at a time (every second): a slow server gets no queue of them, which would
+  // hold the browser's connections to it while a Start from the page waits for one
+  let looking = false;
   async function follow() {
+    if (looking) return;
+    looking = true;
+    try { await look(); } finally { looking = false; }
+  }
+
+  async function look() {
     let list;
     try { list = await getJSON("/api/runs"); } catch (e) { return; }
     lastList = list;

@@ -472,3 +472,30 @@ def test_the_help_says_when_a_press_is_more_than_the_arm_follows(live, page):
                            ".includes('5.0 cm/s')", timeout=10_000)
     assert "more than the arm follows" not in page.text_content("#hand-strength")
     live.client.post("/api/stop")
+
+
+def test_a_slow_runs_list_gets_one_request_at_a_time(live, offline):
+    """The runs panel looks at /api/runs every second: while the server has not answered
+    (held here for 3.5 s), the page sends no other (a queue of them would hold the
+    browser's connections to the server while a Start waits for one); once answered, the
+    looks go on."""
+    page = offline[0].new_page()
+    held = []
+
+    def hold(route):  # neither answered nor refused: under way
+        held.append(route)
+
+    page.route("**/api/runs", hold)
+    try:
+        page.goto(live.url + "/")
+        page.wait_for_function("document.getElementById('scenario').options.length > 0",
+                               timeout=30_000)
+        page.wait_for_timeout(3500)
+        assert len(held) == 1, len(held)
+        held.pop().continue_()
+        page.unroute("**/api/runs", hold)
+        page.wait_for_timeout(2500)
+        with page.expect_request("**/api/runs", timeout=5000):
+            pass  # the next look, after the answer
+    finally:
+        page.close()
