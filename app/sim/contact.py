@@ -346,7 +346,7 @@ class BoxContactModel:
         within a few ulps of the arrays' dot product), or coal measures the boxes further
         apart than within_m. It saves their calls in free flight and on the approach (the
         loop's contact gate, :class:`app.sim.interaction.PhysicalInteraction`)."""
-        if not self.pairs:
+        if not self._pairs:  # (the property's list, without its call: every cycle)
             return True
         if type(T_W_C) is not np.ndarray:  # (the kernel's one layout: (N, 4, 4) C-ordered)
             T_W_C = np.array(T_W_C, dtype=float)
@@ -356,7 +356,7 @@ class BoxContactModel:
     def overlapping(self, T_W_C: Sequence[np.ndarray]) -> bool:
         """Whether any pair that may touch overlaps at the COM poses T_W_C: whether
         :meth:`compute` there would report a contact (the same geometry, no velocities)."""
-        return any(self.geometry(a, b, T_W_C[a], T_W_C[b]) is not None for a, b in self.pairs)
+        return any(self.geometry(a, b, T_W_C[a], T_W_C[b]) is not None for a, b in self._pairs)
 
     def clearances(self, T_W_C: Sequence[np.ndarray],
                    within_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -369,7 +369,7 @@ class BoxContactModel:
         n = self.n
         out, nearest, crowd = [math.inf] * n, [-1] * n, [0] * n  # lists: a few bodies
         radii = self._radii
-        for a, b in self.pairs:
+        for a, b in self._pairs:
             d_ab = T_W_C[b][:3, 3] - T_W_C[a][:3, 3]
             reach = radii[a] + radii[b] + within_m
             if float(d_ab.dot(d_ab)) > reach * reach:
@@ -429,7 +429,7 @@ class BoxContactModel:
         wrench = None  # per body [f, τ] as plain floats (a few of them: list arithmetic,
         contacts = []  # the same IEEE operations as the arrays' in the same order)
         v_l = w_l = None  # the velocities as floats, once a pair overlaps
-        for a, b in self.pairs:
+        for a, b in self._pairs:
             geo = self.geometry(a, b, T_W_C[a], T_W_C[b])
             if geo is None:
                 continue

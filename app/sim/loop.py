@@ -341,8 +341,9 @@ class Emulator:
             return
         external_W = self.interaction.wrenches_W(bodies, t_s)  # contact + operator's hand
         self.true_force_R = external_W[:, :3].dot(self._R_W_R_c)  # `@ self.R_W_R`
-        fused = self._fused_rest(bodies, external_W)  # None: the stages below (one arm,
-        if fused is None:  # no passivity, no gate: one compiled call, app/sim/cycle_tail.py)
+        fused = (self._fused_rest(bodies, external_W)  # None: the stages below (one arm, no
+                 if self._rest_fusable else None)  # passivity, no gate: one compiled call)
+        if fused is None:
             force_R, torque_B = self.ods_input(bodies, external_W,  # F/T chains + coupling
                                                self.true_force_R)
             if not self._within_sensor_range():
@@ -419,7 +420,11 @@ class Emulator:
         """What the ODS receives: each carried satellite the wrench its arm's F/T chain
         measured, the others the external wrench exactly; then the coupling (passivity).
         ``true_force_R``: the external force in R if already at hand (not written)."""
-        force_R, torque_B = self._unsensed_input(bodies, external_W, true_force_R)
+        force_R = (external_W[:, :3] @ self.R_W_R if true_force_R is None
+                   else true_force_R.copy())
+        torque_B = np.zeros((self.n_sat, 3))
+        for i in self._uncarried:  # (as _unsensed_input, written out: every cycle)
+            torque_B[i] = body_torque_B(external_W[i], bodies.T_W_C[i])
         # the gate lifts the arms' deadbands and names the contacts their estimate takes:
         # without an arm (an ideal run) it has nothing to act on
         near, nearest = self._gate_open(bodies) if self.arms else (None, None)
@@ -667,12 +672,11 @@ class Emulator:
     def _fused_rest(self, bodies: Bodies, external_W: np.ndarray) -> bool | None:
         """A one-arm cycle from its F/T chain on, as :meth:`step` reads it, in one compiled
         call (app/sim/cycle_tail.py :func:`sensed_tail_one_arm`) where the chain's output
-        is the ODS input as it is (no passivity, no contact gate, no GNC), the chain is
+        is the ODS input as it is (``_rest_fusable``, which the caller checks: no passivity,
+        no contact gate, no GNC), the chain is
         one call (:meth:`ArmRig.fused_sense`) and the tail one too (:meth:`_tail_commands`):
         True when the cycle ran, False when a reading at the sensor's range stopped it
         (``[loop] stop_at_sensor_range``); None, with nothing done, where it is not."""
-        if not self._rest_fusable:
-            return None
         arm = self.arms[0]
         if not arm.fused_sense():
             return None

@@ -31,33 +31,6 @@ def test_a_stamp_of_another_numba_or_source_or_a_missing_index_is_not_warm(tmp_p
     assert not kernel_cache.is_warm(tmp_path)
 
 
-def test_a_cache_compiled_from_other_sources_is_deleted_before_the_warm_up(tmp_path):
-    """numba keys a kernel's cache on its own file alone: a cache whose stamp is another
-    tree's (a source changed) or missing loses app/sim's compiled files, and nothing
-    else; with this tree's stamp it is kept."""
-    stamp = kernel_cache.stamp()
-    names = [f"{source.stem}.kernel-1.py311.nb{kind}"
-             for source in kernel_cache.kernel_sources() for kind in "ic"]
-    (tmp_path / "other.kernel-1.py311.nbi").write_bytes(b"")  # not a kernel module's
-
-    def cache(kept: dict | None) -> None:
-        for name in names:
-            (tmp_path / name).write_bytes(b"")
-        if kept is None:
-            (tmp_path / kernel_cache.STAMP_NAME).unlink(missing_ok=True)
-        else:
-            (tmp_path / kernel_cache.STAMP_NAME).write_text(json.dumps(kept))
-
-    cache(stamp)
-    assert kernel_cache.clear_stale(tmp_path) == 0
-    assert all((tmp_path / name).exists() for name in names)
-    for kept in ({**stamp, "sources": {**stamp["sources"], "ur10e.py": "0"}}, None):
-        cache(kept)
-        assert kernel_cache.clear_stale(tmp_path) == len(names)
-        assert not any((tmp_path / name).exists() for name in names)
-    assert (tmp_path / "other.kernel-1.py311.nbi").exists()
-
-
 def _fake_cache(folder: Path, kept: dict | None) -> list[str]:
     """Compiled files of every kernel module in folder, with the stamp ``kept`` (None:
     none); their names."""
@@ -71,6 +44,22 @@ def _fake_cache(folder: Path, kept: dict | None) -> list[str]:
     else:
         (folder / kernel_cache.STAMP_NAME).write_text(json.dumps(kept))
     return names
+
+
+def test_a_cache_compiled_from_other_sources_is_deleted_before_the_warm_up(tmp_path):
+    """numba keys a kernel's cache on its own file alone: a cache whose stamp is another
+    tree's (a source changed) or missing loses app/sim's compiled files, and nothing
+    else; with this tree's stamp it is kept."""
+    stamp = kernel_cache.stamp()
+    (tmp_path / "other.kernel-1.py311.nbi").write_bytes(b"")  # not a kernel module's
+    names = _fake_cache(tmp_path, stamp)
+    assert kernel_cache.clear_stale(tmp_path) == 0
+    assert all((tmp_path / name).exists() for name in names)
+    for kept in ({**stamp, "sources": {**stamp["sources"], "ur10e.py": "0"}}, None):
+        _fake_cache(tmp_path, kept)
+        assert kernel_cache.clear_stale(tmp_path) == len(names)
+        assert not any((tmp_path / name).exists() for name in names)
+    assert (tmp_path / "other.kernel-1.py311.nbi").exists()
 
 
 def test_a_cache_of_other_sources_is_forgotten_before_any_kernel_loads(tmp_path, capsys):
