@@ -264,6 +264,10 @@ def test_the_default_camera_frames_each_mockup_at_least_100_px(live, page):
 def free_floating(live, page):
     """free-floating in hil started from the page with its settings form (duration 120 s)."""
     live.client.post("/api/stop")
+    s = live.state()  # the page has followed the last run started (the camera test's, on a
+    # loaded server its state can come late): its selectors will not change under the choice
+    page.wait_for_function("run => document.body.dataset.run === run",
+                           arg=f"{s['generation']} {s['scenario']} {s['mode']}", timeout=30_000)
     page.select_option("#scenario", "free-floating")
     page.select_option("#mode", "hil")
     _set(page, "#set-duration", "120")
