@@ -22,7 +22,7 @@ from importlib import metadata
 from pathlib import Path
 
 __all__ = ["SIM_DIR", "STAMP_NAME", "cache_folder", "clear_stale", "forget_stale",
-           "is_warm", "kernel_sources", "stamp"]
+           "is_warm", "kept_stamp", "kernel_sources", "stamp", "write_stamp"]
 
 SIM_DIR = Path(os.path.abspath(__file__)).parents[1] / "sim"
 """app/sim as numba names it (os.path.abspath, symbolic links kept: its cache locator's
@@ -57,25 +57,34 @@ def is_warm(folder: Path | None = None) -> bool:
     """Whether the stamp in the cache matches this tree and every kernel module has its
     index files there."""
     folder = folder or cache_folder()
-    try:
-        kept = json.loads((folder / STAMP_NAME).read_text())
-    except (OSError, ValueError):
-        return False
-    if kept != stamp():
+    if kept_stamp(folder) != stamp():
         return False
     return all(any(folder.glob(f"{p.stem}.*.nbi")) for p in kernel_sources())
 
 
-def clear_stale(folder: Path | None = None) -> int:
-    """Delete app/sim's compiled kernels from the cache unless its stamp is this tree's
-    (an older tree's, or none: compiled from other sources, numba would load a kernel
-    against the old code of the modules it calls); the number of files deleted."""
-    folder = folder or cache_folder()
+def kept_stamp(folder: Path) -> dict | None:
+    """The stamp kept in the cache folder (None: none, or not one that reads)."""
     try:
-        if json.loads((folder / STAMP_NAME).read_text()) == stamp():
-            return 0
+        return json.loads((folder / STAMP_NAME).read_text())
     except (OSError, ValueError):
-        pass
+        return None
+
+
+def write_stamp(folder: Path, current: dict | None = None) -> None:
+    """Keep ``current`` (:func:`stamp`'s, if at hand) as the cache folder's stamp (OSError
+    where it cannot be written)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / STAMP_NAME).write_text(json.dumps(current or stamp(), indent=1) + "\n")
+
+
+def clear_stale(folder: Path | None = None, current: dict | None = None) -> int:
+    """Delete app/sim's compiled kernels from the cache unless its stamp is this tree's
+    (``current``: :func:`stamp`'s, if at hand) (an older tree's, or none: compiled from
+    other sources, numba would load a kernel against the old code of the modules it
+    calls); the number of files deleted."""
+    folder = folder or cache_folder()
+    if kept_stamp(folder) == (current or stamp()):
+        return 0
     deleted = 0
     for source in kernel_sources():
         for path in folder.glob(f"{source.stem}.*.nb[ic]"):
@@ -98,15 +107,12 @@ def forget_stale(folder: Path | None = None) -> int:
     cannot be written."""
     folder = folder or cache_folder()
     current = stamp()
+    if kept_stamp(folder) == current:
+        return 0
     try:
-        if json.loads((folder / STAMP_NAME).read_text()) == current:
-            return 0
-    except (OSError, ValueError):
-        pass
-    try:
-        deleted = clear_stale(folder)
+        deleted = clear_stale(folder, current)
         if folder.is_dir():
-            (folder / STAMP_NAME).write_text(json.dumps(current, indent=1) + "\n")
+            write_stamp(folder, current)
     except OSError:  # (a read-only install: numba keeps its kernels elsewhere)
         return 0
     if deleted:

@@ -24,7 +24,6 @@ wait for it): a first run then computes it, as before.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
@@ -37,6 +36,7 @@ from app.runs.kernel_cache import (  # noqa: F401 - warm.stamp() etc. (tests, sc
     is_warm,
     kernel_sources,
     stamp,
+    write_stamp,
 )
 
 WARM_CYCLES = 20
@@ -124,8 +124,7 @@ def main(argv: list[str] | None = None) -> int:
           file=sys.stderr, flush=True)
     seconds = warm()
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / STAMP_NAME).write_text(json.dumps(stamp(), indent=1) + "\n")
+        write_stamp(folder)
         print(f"warm: compiled in {seconds:.1f} s", file=sys.stderr)
     except OSError as err:  # (numba then keeps them in its user-wide cache)
         print(f"warm: compiled in {seconds:.1f} s; the stamp {folder / STAMP_NAME} was not "
