@@ -27,17 +27,7 @@ import argparse
 import sys
 import time
 
-from app.runs.kernel_cache import (  # noqa: F401 - warm.stamp() etc. (tests, scripts)
-    SIM_DIR,
-    STAMP_NAME,
-    cache_folder,
-    clear_stale,
-    forget_stale,
-    is_warm,
-    kernel_sources,
-    stamp,
-    write_stamp,
-)
+from app.runs.kernel_cache import STAMP_NAME, cache_folder, clear_stale, is_warm, write_stamp
 
 WARM_CYCLES = 20
 """Cycles stepped per scenario and mode: enough for every branch of the cycle's first

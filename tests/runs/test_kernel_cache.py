@@ -3,6 +3,7 @@ process loading kernels compiled from other sources."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -97,3 +98,18 @@ def test_importing_app_forgets_a_cache_of_other_sources(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert not any((folder / name).exists() for name in names)
     assert json.loads((folder / kernel_cache.STAMP_NAME).read_text()) == stamp
+
+
+def test_through_a_symbolic_link_the_cache_folder_is_the_one_numba_writes(tmp_path):
+    link = tmp_path / "tree"
+    link.symlink_to(ROOT)
+    code = ("from app.runs import kernel_cache; from app.sim import orbital; "
+            "print(kernel_cache.cache_folder()); "
+            "print(orbital._direction_cosines._cache._cache_path)")
+    env = dict(os.environ, PYTHONPATH=str(link), NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
+                         text=True, env=env, timeout=60)
+    ours, numbas = out.stdout.split()
+    assert ours == numbas, out.stderr
+    linked = str(link / "app" / "sim")  # (the link's path, not the tree's)
+    assert numbas.endswith(hashlib.sha1(linked.encode()).hexdigest())
